@@ -1,0 +1,33 @@
+# make demo: the main job on built-in defaults.  make test: the test suite.
+# Both build .venv on first use (Debian packages, venv, pinned pip install).
+PYTHON ?= python3
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+DEMO   ?= out/demo
+export PYOPENGL_PLATFORM ?= egl
+
+.PHONY: demo test install bench clean
+
+$(VENV)/.installed: pyproject.toml constraints.txt scripts/install-system-deps.sh
+	bash scripts/install-system-deps.sh
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -c constraints.txt -e ".[dev]"
+	touch $@
+
+install: $(VENV)/.installed
+
+demo: install
+	$(BIN)/spm-data render --all --limit 96 --out $(DEMO)/render
+	$(BIN)/spm-data info $(DEMO)/render
+	$(BIN)/spm-data show $(DEMO)/render/cup-00000.h5 --out $(DEMO)/cup-sheet.png
+	@echo "demo output: $(DEMO)/ (shards in $(DEMO)/render, contact sheet $(DEMO)/cup-sheet.png)"
+
+test: install
+	$(BIN)/python -m pytest -q
+
+bench: install
+	$(BIN)/python benchmarks/render_throughput.py
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

@@ -1,0 +1,25 @@
+"""The toolkit's error types.
+
+The library raises these; the CLI prints ``error: <message>`` on one line and
+exits with status 1. Anything else escaping is a bug.
+"""
+
+
+class SpmError(Exception):
+    """Base class of every error the toolkit raises on purpose."""
+
+
+class SpecError(SpmError):
+    """A render spec (TOML) has an unknown key, a wrong type or a bad value."""
+
+
+class MeshError(SpmError):
+    """A mesh file cannot be read, is empty, or has no faces."""
+
+
+class ShardError(SpmError):
+    """A shard or output folder is missing, corrupt, or of another schema."""
+
+
+class RenderError(SpmError):
+    """A renderer is missing, failed to start, or failed on a frame."""

@@ -1,0 +1,171 @@
+"""Run shard-sized jobs in worker processes that may crash without taking the run down.
+
+Each worker has its own pipe, so the parent always knows which job a worker
+holds: a worker that dies (SIGKILL, out of memory, a segfault in a renderer)
+loses only that job, which is retried ``retries`` times and then reported;
+the other jobs go on. Workers retire after ``recycle_after`` jobs so a slow
+leak in a renderer cannot grow without bound. ``workers=0`` runs in-process.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import signal
+from dataclasses import dataclass, field
+from multiprocessing.connection import wait
+
+from spm_data.errors import SpmError
+
+
+@dataclass
+class JobOutcome:
+    job: object
+    result: object = None
+    error: str | None = None
+    attempts: int = 1
+
+
+@dataclass
+class _Worker:
+    process: mp.Process
+    conn: object
+    job_id: int | None = None
+    done: int = 0
+    progress: dict = field(default_factory=dict)
+
+
+def _describe(exc: BaseException) -> str:
+    return str(exc) if isinstance(exc, SpmError) else f"{type(exc).__name__}: {exc}"
+
+
+def _worker_main(fn, conn, recycle_after):
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent owns Ctrl-C and stops us
+    done = 0
+    while True:
+        item = conn.recv()
+        if item is None:
+            return
+        job_id, job = item
+        try:
+            result = fn(job, lambda n: conn.send(("progress", job_id, n)))
+            conn.send(("done", job_id, result))
+        except BaseException as exc:  # noqa: BLE001 - reported to the parent, never swallowed
+            conn.send(("error", job_id, _describe(exc)))
+        done += 1
+        if recycle_after and done >= recycle_after:
+            conn.send(("retire", None, None))
+            return
+
+
+def run_jobs(fn, jobs, *, workers=1, retries=1, recycle_after=0, on_progress=None, on_outcome=None,
+             on_worker_death=None):
+    """Run ``fn(job, report)`` for every job; ``report(n)`` advances progress by n.
+
+    Returns a list of :class:`JobOutcome` in job order. ``on_progress(n)`` gets
+    progress deltas (negative when a crashed job's frames are lost);
+    ``on_outcome(outcome)`` is called as each job finishes; ``on_worker_death(job)``
+    when a worker dies holding ``job`` (to clean up what it left).
+    """
+    jobs = list(jobs)
+    outcomes: list[JobOutcome | None] = [None] * len(jobs)
+    progress = on_progress or (lambda n: None)
+    if workers <= 0:
+        for i, job in enumerate(jobs):
+            try:
+                outcomes[i] = JobOutcome(job, result=fn(job, progress))
+            except SpmError as exc:
+                outcomes[i] = JobOutcome(job, error=_describe(exc))
+            if on_outcome:
+                on_outcome(outcomes[i])
+        return outcomes
+
+    ctx = mp.get_context("spawn")  # never fork a process that may hold a GL or Blender context
+    queue = list(range(len(jobs)))
+    attempts = [0] * len(jobs)
+    pool: dict[int, _Worker] = {}
+    next_id = 0
+
+    def start_worker():
+        nonlocal next_id
+        parent, child = ctx.Pipe()
+        proc = ctx.Process(target=_worker_main, args=(fn, child, recycle_after), daemon=True)
+        proc.start()
+        child.close()
+        pool[next_id] = _Worker(proc, parent)
+        next_id += 1
+
+    def finish(job_id, result=None, error=None):
+        outcomes[job_id] = JobOutcome(jobs[job_id], result=result, error=error, attempts=attempts[job_id])
+        if on_outcome:
+            on_outcome(outcomes[job_id])
+
+    def lost(w: _Worker, why: str):
+        job_id = w.job_id
+        w.job_id = None
+        if job_id is None:
+            return
+        progress(-w.progress.pop(job_id, 0))
+        if on_worker_death:
+            on_worker_death(jobs[job_id])
+        if attempts[job_id] <= retries:
+            queue.insert(0, job_id)
+        else:
+            finish(job_id, error=f"worker died ({why}) after {attempts[job_id]} attempts")
+
+    try:
+        for _ in range(min(workers, len(jobs))):
+            start_worker()
+        while any(o is None for o in outcomes):
+            for wid, w in list(pool.items()):
+                if w.job_id is None and queue and w.process.is_alive():
+                    w.job_id = queue.pop(0)
+                    attempts[w.job_id] += 1
+                    w.progress[w.job_id] = 0
+                    try:
+                        w.conn.send((w.job_id, jobs[w.job_id]))
+                    except (BrokenPipeError, OSError):
+                        pass  # its death is noticed below
+            ready = wait([w.conn for w in pool.values()] + [w.process.sentinel for w in pool.values()], timeout=1.0)
+            for wid, w in list(pool.items()):
+                dead = False
+                if w.conn in ready:
+                    try:
+                        while w.conn.poll():
+                            kind, job_id, payload = w.conn.recv()
+                            if kind == "progress":
+                                w.progress[job_id] = w.progress.get(job_id, 0) + payload
+                                progress(payload)
+                            elif kind in ("done", "error"):
+                                w.job_id = None
+                                w.progress.pop(job_id, None)
+                                finish(job_id, **({"result": payload} if kind == "done" else {"error": payload}))
+                            elif kind == "retire":
+                                dead = True
+                    except (EOFError, OSError):
+                        dead = True
+                if dead or not w.process.is_alive():
+                    w.process.join(timeout=5)
+                    code = w.process.exitcode
+                    why = f"signal {-code}" if code is not None and code < 0 else f"exit code {code}"
+                    lost(w, why)
+                    w.conn.close()
+                    del pool[wid]
+                    busy = sum(1 for x in pool.values() if x.job_id is not None)
+                    if queue and len(pool) < workers and len(pool) < len(queue) + busy:
+                        start_worker()
+            if not pool and queue:
+                start_worker()
+    finally:
+        for w in pool.values():
+            try:
+                w.conn.send(None)
+            except (BrokenPipeError, OSError):
+                pass
+        for w in pool.values():
+            w.process.join(timeout=2)
+            if w.process.is_alive():
+                w.process.terminate()
+                w.process.join(timeout=5)
+            if w.job_id is not None and on_worker_death:
+                on_worker_death(jobs[w.job_id])
+    return outcomes

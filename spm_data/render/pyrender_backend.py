@@ -1,0 +1,130 @@
+"""pyrender (OpenGL, offscreen EGL) renderer: the fast backend.
+
+See spm_data.render for the interface and the arrays ``render`` returns.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from spm_data.errors import RenderError
+from spm_data.poses import cv_to_gl_camera_to_world
+from spm_data.render import mask_from_depth, spec_intrinsics
+
+# EGL needs no display; it must be chosen before OpenGL is first imported.
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
+
+def _import_pyrender():
+    try:
+        import pyrender
+        import pyrender.renderer as gl_renderer
+    except ImportError as exc:
+        raise RenderError(f"pyrender is not installed ({exc}); install it with: pip install pyrender") from None
+    # pyrender draws into a 4x multisampled buffer and resolves depth with a
+    # NEAREST blit, which returns sample 0 (about 0.4 px off the pixel centre)
+    # instead of the pixel centre K describes. One sample per pixel keeps depth,
+    # mask and the label exactly consistent (tests/test_render_pyrender.py).
+    if not getattr(gl_renderer, "_spm_single_sample", False):
+        multisample = gl_renderer.glRenderbufferStorageMultisample
+        gl_renderer.glRenderbufferStorageMultisample = (
+            lambda target, samples, fmt, width, height: multisample(target, 0, fmt, width, height))
+        gl_renderer._spm_single_sample = True
+    return pyrender
+
+
+def light_rotations(count: int) -> list[np.ndarray]:
+    """(3, 3) rotations, in the camera's GL frame, of ``count`` lights that move
+    with the camera: a head light, the others on a 40-degree cone around it."""
+    rots = []
+    for i in range(count):
+        if i == 0:
+            rots.append(np.eye(3))
+            continue
+        phi = 2 * np.pi * (i - 1) / max(count - 1, 1)
+        axis = np.array([np.cos(phi), np.sin(phi), 0.0])
+        angle = np.radians(40.0)
+        k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+        rots.append(np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k)
+    return rots
+
+
+_OFFSCREEN: dict = {}
+
+
+def _offscreen(pr, width: int, height: int):
+    """One OffscreenRenderer per size per process, never deleted: deleting one
+    calls eglTerminate on the display every other EGL context shares."""
+    key = (width, height)
+    if key not in _OFFSCREEN:
+        _OFFSCREEN[key] = pr.OffscreenRenderer(width, height)
+    return _OFFSCREEN[key]
+
+
+class Renderer:
+    """pyrender offscreen renderer for one spec (image size, intrinsics, lights)."""
+
+    name = "pyrender"
+
+    def __init__(self, spec):
+        self._pr = _import_pyrender()
+        self.width, self.height = spec.image.width, spec.image.height
+        self.K = spec_intrinsics(spec)
+        self.lighting = spec.lighting
+        try:
+            self._renderer = _offscreen(self._pr, self.width, self.height)
+        except Exception as exc:  # EGL / driver failures surface as many types
+            raise RenderError(f"pyrender could not open an offscreen EGL context ({type(exc).__name__}: {exc}); "
+                              "install Mesa's EGL (apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri)") from None
+        self._scene = None
+
+    def version(self) -> str:
+        return f"pyrender {self._pr.__version__ if hasattr(self._pr, '__version__') else ''}".strip()
+
+    def settings(self) -> dict:
+        return {"ambient": self.lighting.ambient, "lights": self.lighting.lights,
+                "strength": self.lighting.strength}
+
+    def set_mesh(self, mesh) -> None:
+        """Build the scene for ``mesh`` (a TexturedMesh); later frames only move the camera."""
+        pr = self._pr
+        texture = pr.Texture(source=mesh.texture, source_channels="RGB")
+        material = pr.MetallicRoughnessMaterial(baseColorTexture=texture, metallicFactor=0.0,
+                                                roughnessFactor=0.9, doubleSided=True)
+        primitive = pr.Primitive(positions=mesh.vertices.astype(np.float32), normals=mesh.normals.astype(np.float32),
+                                 texcoord_0=mesh.uv.astype(np.float32), indices=mesh.faces.astype(np.uint32),
+                                 material=material)
+        a = self.lighting.ambient
+        scene = pr.Scene(bg_color=[0.0, 0.0, 0.0, 0.0], ambient_light=[a, a, a])
+        scene.add(pr.Mesh(primitives=[primitive]))
+        K = self.K
+        # pyrender's principal point counts from the pixel edge, OpenCV's from the first pixel centre.
+        camera = pr.IntrinsicsCamera(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2] + 0.5, cy=K[1, 2] + 0.5,
+                                     znear=0.01, zfar=100.0)
+        self._camera_node = scene.add(camera, pose=np.eye(4))
+        self._light_nodes = [scene.add(pr.DirectionalLight(color=np.ones(3), intensity=self.lighting.strength),
+                                       pose=np.eye(4)) for _ in range(self.lighting.lights)]
+        self._light_rots = light_rotations(self.lighting.lights)
+        self._scene = scene
+
+    def render(self, R, t) -> dict:
+        if self._scene is None:
+            raise RenderError("set_mesh must be called before render")
+        pose = cv_to_gl_camera_to_world(R, t)
+        self._scene.set_pose(self._camera_node, pose)
+        for node, rot in zip(self._light_nodes, self._light_rots):
+            light_pose = pose.copy()
+            light_pose[:3, :3] = pose[:3, :3] @ rot
+            self._scene.set_pose(node, light_pose)
+        flags = self._pr.RenderFlags.SKIP_CULL_FACES
+        color, depth = self._renderer.render(self._scene, flags=flags)
+        depth = np.asarray(depth, dtype=np.float32)
+        mask = mask_from_depth(depth)
+        return {"rgb": np.ascontiguousarray(color[..., :3], dtype=np.uint8), "alpha": mask.astype(np.float32),
+                "depth": depth, "mask": mask}
+
+    def close(self) -> None:
+        """Drop the scene; the shared GL context lives until the process exits."""
+        self._scene = None

@@ -1,0 +1,68 @@
+"""Contact sheets: frames of a shard with the pose axes drawn from K, R, t, so a person can check labels."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from spm_data.errors import ShardError
+from spm_data.poses import project_points
+from spm_data.shards import read_attrs, read_shard
+
+AXIS_COLOURS = ((255, 40, 40), (40, 255, 40), (60, 120, 255))  # x red, y green, z blue (RGB)
+
+
+def draw_pose(image: np.ndarray, K, R, t, length: float, scale: int = 1) -> np.ndarray:
+    """Draw the object frame's axes (``length`` metres) on an RGB image upscaled by ``scale``."""
+    import cv2
+
+    pts = np.array([[0, 0, 0], [length, 0, 0], [0, length, 0], [0, 0, length]], dtype=np.float64)
+    uv, z = project_points(pts, K, R, t)
+    if np.any(z <= 0) or not np.all(np.isfinite(uv)):
+        return image
+    uv = (uv + 0.5) * scale - 0.5  # OpenCV pixel centres survive the upscale
+    origin = tuple(int(round(c)) for c in uv[0])
+    for end, colour in zip(uv[1:], AXIS_COLOURS):
+        cv2.line(image, origin, tuple(int(round(c)) for c in end), colour, 2, lineType=cv2.LINE_AA)
+    return image
+
+
+def contact_sheet(shard, out_png, frames: int = 24, columns: int = 6, scale: int = 2) -> Path:
+    """Write a PNG grid of ``frames`` evenly spaced frames of ``shard``; returns its path."""
+    import cv2
+
+    attrs = read_attrs(shard)
+    n = int(attrs["frames"])
+    if n == 0:
+        raise ShardError(f"{shard}: shard has no frames")
+    pick = np.unique(np.round(np.linspace(0, n - 1, min(frames, n))).astype(int))
+    data = read_shard(shard, ["rgb", "mask", "K", "R", "t", "azimuth", "elevation", "distance",
+                              "occlusion_rects"], frames=pick)
+    length = 0.5 * float(attrs.get("object_size", 0.2))
+    tiles = []
+    for i in range(len(pick)):
+        img = cv2.resize(data["rgb"][i], None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+        img = np.ascontiguousarray(img)
+        mask = cv2.resize(data["mask"][i], None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+        contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        cv2.drawContours(img, contours, -1, (255, 220, 0), 1)
+        for x0, y0, x1, y1 in data["occlusion_rects"][i]:
+            if x1 > x0 and y1 > y0:
+                cv2.rectangle(img, (int(x0) * scale, int(y0) * scale), (int(x1) * scale - 1, int(y1) * scale - 1),
+                              (255, 0, 255), 1)
+        draw_pose(img, data["K"][i], data["R"][i], data["t"][i], length, scale)
+        caption = f"#{pick[i]} az{data['azimuth'][i]:.0f} el{data['elevation'][i]:.0f} d{data['distance'][i]:.2f}"
+        cv2.putText(img, caption, (3, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (255, 255, 255), 1, cv2.LINE_AA)
+        tiles.append(img)
+    h, w = tiles[0].shape[:2]
+    rows = -(-len(tiles) // columns)
+    sheet = np.full((rows * (h + 2), min(columns, len(tiles)) * (w + 2), 3), 40, np.uint8)
+    for k, tile in enumerate(tiles):
+        r, c = divmod(k, columns)
+        sheet[r * (h + 2):r * (h + 2) + h, c * (w + 2):c * (w + 2) + w] = tile
+    out_png = Path(out_png)
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(out_png), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR)):
+        raise ShardError(f"could not write {out_png}")
+    return out_png

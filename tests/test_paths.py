@@ -1,0 +1,64 @@
+import numpy as np
+import pytest
+
+from spm_data.errors import SpecError
+from spm_data.paths import AngleRange, CameraGrid, camera_path, snake_order
+
+
+def test_default_path_has_936_views_in_single_5_degree_steps():
+    path = camera_path(CameraGrid())
+    assert len(path) == 936
+    assert set(np.unique(path.elevation)) == set(np.arange(0, 61, 5.0))
+    assert len(np.unique(path.azimuth)) == 72
+    step_az = np.abs(np.diff(path.azimuth))
+    step_el = np.abs(np.diff(path.elevation))
+    # Exactly one of azimuth / elevation moves, by exactly 5 degrees.
+    assert np.all((step_az == 5) ^ (step_el == 5))
+    assert np.all((step_az == 0) | (step_az == 5)) and np.all((step_el == 0) | (step_el == 5))
+    # Every (azimuth, elevation) pair appears once.
+    assert len({(a, e) for a, e in zip(path.azimuth, path.elevation)}) == 936
+    assert set(path.distance) == {0.6, 0.7, 0.8}
+
+
+def test_snake_order_visits_every_cell_once_with_unit_moves():
+    idx = snake_order([3, 4, 5])
+    assert len({tuple(r) for r in idx}) == 60
+    assert np.all(np.abs(np.diff(idx, axis=0)).sum(axis=1) == 1)
+
+
+def test_grid_mode_multiplies_views_by_distances():
+    grid = CameraGrid(azimuth=AngleRange(0, 10, 5), elevation=AngleRange(0, 5, 5), distances=(1.0, 2.0),
+                      distance_mode="grid")
+    path = camera_path(grid)
+    assert len(path) == 12
+    assert sorted(set(path.distance)) == [1.0, 2.0]
+    assert np.all(path.distance[:6] == 1.0)
+
+
+def test_roll_axis_walks_too():
+    grid = CameraGrid(azimuth=AngleRange(0, 10, 5), elevation=AngleRange(0, 0, 5), roll=AngleRange(-5, 5, 5))
+    path = camera_path(grid)
+    assert len(path) == 9
+    moves = (np.diff(path.azimuth) != 0).astype(int) + (np.diff(path.roll) != 0)
+    assert np.all(moves == 1)
+
+
+@pytest.mark.parametrize("grid, message", [
+    (CameraGrid(azimuth=AngleRange(0, 355, 7)), "does not divide"),
+    (CameraGrid(azimuth=AngleRange(10, 0, 5)), "empty grid"),
+    (CameraGrid(azimuth=AngleRange(0, 10, 0)), "step must be > 0"),
+    (CameraGrid(distances=(0.5, -1.0)), "distance"),
+    (CameraGrid(distances=()), "empty list"),
+    (CameraGrid(elevation=AngleRange(0, 120, 5)), "[-90, 90]"),
+    (CameraGrid(distance_mode="spiral"), "distance_mode"),
+])
+def test_bad_grids_raise_clear_errors(grid, message):
+    with pytest.raises(SpecError, match=message.replace("[", r"\[").replace("]", r"\]")):
+        camera_path(grid)
+
+
+def test_poses_follow_the_path():
+    path = camera_path(CameraGrid(azimuth=AngleRange(0, 10, 5), elevation=AngleRange(0, 0, 5)))
+    R, t = path.poses()
+    centres = -np.einsum("nji,nj->ni", R, t)
+    np.testing.assert_allclose(np.degrees(np.arctan2(centres[:, 1], centres[:, 0])), path.azimuth, atol=1e-9)

@@ -1,0 +1,101 @@
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from spm_data.poses import (camera_pose, camera_poses, cv_to_gl_camera_to_world, gl_camera_to_world_to_cv,
+                            intrinsics_from_fov, label_to_pose, pose_to_label, project_points, wrap_degrees)
+
+angles = st.floats(-720, 720, allow_nan=False)
+elev = st.floats(-89.9, 89.9, allow_nan=False)
+dist = st.floats(0.05, 50, allow_nan=False)
+offset = st.tuples(*[st.floats(-1, 1, allow_nan=False)] * 3)
+
+
+@settings(max_examples=200, deadline=None)
+@given(angles, elev, st.floats(-180, 180, allow_nan=False), dist, offset)
+def test_pose_is_a_rotation_looking_at_the_target(az, el, roll, d, look_at):
+    R, t = camera_pose(az, el, roll, d, look_at)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-9)
+    assert abs(np.linalg.det(R) - 1) < 1e-9
+    K = intrinsics_from_fov(40, 128, 96)
+    # The target projects to the principal point, at depth d.
+    uv, z = project_points(np.array([look_at]), K, R, t)
+    np.testing.assert_allclose(uv[0], K[:2, 2], atol=1e-6)
+    np.testing.assert_allclose(z[0], d, rtol=1e-9)
+    # The camera centre sits at distance d from the target.
+    centre = -R.T @ t
+    np.testing.assert_allclose(np.linalg.norm(centre - np.asarray(look_at)), d, rtol=1e-9)
+
+
+@settings(max_examples=200, deadline=None)
+@given(angles, elev, st.floats(-170, 170, allow_nan=False), dist)
+def test_object_origin_projects_where_t_says(az, el, roll, d):
+    R, t = camera_pose(az, el, roll, d, (0.05, -0.02, 0.03))
+    K = intrinsics_from_fov(35, 128, 128)
+    uv, _ = project_points(np.zeros((1, 3)), K, R, t)
+    expect = (K @ t)[:2] / (K @ t)[2]
+    np.testing.assert_allclose(uv[0], expect, atol=1e-9)
+
+
+@settings(max_examples=200, deadline=None)
+@given(angles, elev, st.floats(-80, 80, allow_nan=False), dist)
+def test_label_round_trip(az, el, roll, d):
+    R, t = camera_pose(az, el, roll, d)
+    y = pose_to_label(R, t)
+    assert y.shape == (6,) and np.all(y[:3] > -180) and np.all(y[:3] <= 180)
+    R2, t2 = label_to_pose(y)
+    np.testing.assert_allclose(R2, R, atol=1e-9)
+    np.testing.assert_allclose(t2, t, atol=1e-12)
+
+
+@settings(max_examples=100, deadline=None)
+@given(angles, elev, st.floats(-180, 180, allow_nan=False), dist, offset)
+def test_gl_blender_round_trip(az, el, roll, d, look_at):
+    R, t = camera_pose(az, el, roll, d, look_at)
+    M = cv_to_gl_camera_to_world(R, t)
+    # The GL camera looks down its -z: towards the target.
+    forward = -M[:3, 2]
+    to_target = np.asarray(look_at) - M[:3, 3]
+    np.testing.assert_allclose(forward, to_target / np.linalg.norm(to_target), atol=1e-9)
+    R2, t2 = gl_camera_to_world_to_cv(M)
+    np.testing.assert_allclose(R2, R, atol=1e-12)
+    np.testing.assert_allclose(t2, t, atol=1e-12)
+
+
+def test_default_path_labels_read_as_documented():
+    az = np.arange(0, 360, 5.0)
+    for el in (0.0, 30.0, 60.0):
+        R, t = camera_poses(az, el, 0.0, 0.7)
+        y = pose_to_label(R, t)
+        np.testing.assert_allclose(y[:, 0], wrap_degrees(90 + el), atol=1e-9)
+        np.testing.assert_allclose(y[:, 1], 0.0, atol=1e-9)
+        np.testing.assert_allclose(y[:, 2], wrap_degrees(-(az + 90)), atol=1e-9)
+        np.testing.assert_allclose(y[:, 3:], [[0, 0, 0.7]] * len(az), atol=1e-12)
+
+
+def test_up_is_up_and_roll_turns_the_image():
+    K = intrinsics_from_fov(35, 128, 128)
+    top = np.array([[0, 0, 0.1]])
+    R, t = camera_pose(40, 20, 0, 0.7)
+    uv, _ = project_points(top, K, R, t)
+    assert uv[0, 1] < K[1, 2] - 5 and abs(uv[0, 0] - K[0, 2]) < 1e-6  # straight above the centre
+    R, t = camera_pose(40, 20, 90, 0.7)
+    uv, _ = project_points(top, K, R, t)
+    # Camera x turned onto its old y (down), so the object's up (old -y) now points along -u.
+    assert uv[0, 0] < K[0, 2] - 5 and abs(uv[0, 1] - K[1, 2]) < 1e-6
+
+
+def test_camera_at_azimuth_zero_sits_on_plus_x():
+    R, t = camera_pose(0, 0, 0, 2.0)
+    np.testing.assert_allclose(-R.T @ t, [2, 0, 0], atol=1e-12)
+    R, t = camera_pose(90, 0, 0, 2.0)
+    np.testing.assert_allclose(-R.T @ t, [0, 2, 0], atol=1e-12)
+    R, t = camera_pose(0, 90, 0, 2.0)
+    np.testing.assert_allclose(-R.T @ t, [0, 0, 2], atol=1e-12)
+
+
+def test_intrinsics_are_centred_on_pixel_centres():
+    K = intrinsics_from_fov(90, 100, 50)
+    np.testing.assert_allclose(K[:2, 2], [49.5, 24.5])
+    np.testing.assert_allclose(K[1, 1], 25.0)
+    assert K[0, 0] == K[1, 1]

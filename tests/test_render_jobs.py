@@ -1,0 +1,108 @@
+import numpy as np
+import pytest
+
+from spm_data.errors import ShardError, SpecError
+from spm_data.render_jobs import load_run_specs, plan_shards, render_dataset
+from spm_data.shards import list_shards, read_attrs, read_manifest, read_shard, file_sha256
+
+IMAGE_KEYS = ("rgb", "depth", "mask", "pose", "R", "t", "K", "azimuth", "elevation", "distance", "instance_id")
+
+
+def arrays_of(folder):
+    return {p.name: read_shard(p, IMAGE_KEYS) for p in list_shards(folder)}
+
+
+def assert_same_arrays(a, b):
+    assert a.keys() == b.keys()
+    for name in a:
+        for key in IMAGE_KEYS:
+            np.testing.assert_array_equal(a[name][key], b[name][key], err_msg=f"{name}:{key}")
+
+
+def test_plan_splits_frames_into_fixed_size_shards(small_specs_dir):
+    spec = load_run_specs(["cup"], specs_dir=small_specs_dir)[0]
+    jobs = plan_shards(spec, "out")
+    assert [j.frames for j in jobs] == [8, 8, 8, 8, 4]  # 2 instances x 18 views
+    assert [j.name for j in jobs][:2] == ["cup-00000.h5", "cup-00001.h5"]
+    limited = plan_shards(spec, "out", limit=10)
+    assert sum(j.frames for j in limited) == 10
+    assert set(np.concatenate([j.instances for j in limited])) == {0, 1}  # spread over instances
+
+
+def test_render_writes_labelled_shards_and_a_manifest(small_specs_dir, tmp_path):
+    specs = load_run_specs(all_classes=True, specs_dir=small_specs_dir)
+    summary = render_dataset(specs, tmp_path / "out", limit=12)
+    assert len(summary.rendered) == 4 and summary.frames == 24 and not summary.failed
+    manifest = read_manifest(tmp_path / "out")
+    assert manifest["classes"] == {"box": 12, "cup": 12}
+    assert [e["file"] for e in manifest["shards"]] == ["box-00000.h5", "box-00001.h5", "cup-00000.h5",
+                                                        "cup-00001.h5"]
+    for entry in manifest["shards"]:
+        assert entry["sha256"] == file_sha256(tmp_path / "out" / entry["file"])
+    data = read_shard(tmp_path / "out" / "cup-00000.h5")
+    assert data["rgb"].shape == (8, 64, 64, 3) and data["mask"].max() == 1
+    assert set(data["source"]) == {"synthetic"} and set(data["class_name"]) == {"cup"}
+    # Labels agree with the path parameters (poses.py's documented reading).
+    np.testing.assert_allclose(data["pose"][:, 5], data["distance"], atol=1e-12)
+    attrs = read_attrs(tmp_path / "out" / "cup-00000.h5")
+    assert attrs["renderer"] == "pyrender" and attrs["seed"] == 3 and 'class = "cup"' in attrs["spec"]
+    assert not list((tmp_path / "out").glob(".*.partial")) and not (tmp_path / "out" / ".spm.lock").exists()
+
+
+def test_same_seed_same_arrays_other_seed_other_arrays(small_specs_dir, tmp_path):
+    a = render_dataset(load_run_specs(["cup"], specs_dir=small_specs_dir), tmp_path / "a", limit=8)
+    b = render_dataset(load_run_specs(["cup"], specs_dir=small_specs_dir), tmp_path / "b", limit=8)
+    c = render_dataset(load_run_specs(["cup"], specs_dir=small_specs_dir, seed=99), tmp_path / "c", limit=8)
+    assert a.frames == b.frames == c.frames == 8
+    assert_same_arrays(arrays_of(tmp_path / "a"), arrays_of(tmp_path / "b"))
+    assert not np.array_equal(arrays_of(tmp_path / "a")["cup-00000.h5"]["rgb"],
+                              arrays_of(tmp_path / "c")["cup-00000.h5"]["rgb"])
+
+
+def test_two_workers_give_the_same_arrays_as_one(small_specs_dir, tmp_path):
+    specs = load_run_specs(["cup"], specs_dir=small_specs_dir)
+    render_dataset(specs, tmp_path / "one", limit=20, workers=1)
+    summary = render_dataset(specs, tmp_path / "two", limit=20, workers=2)
+    assert len(summary.rendered) == 3 and not summary.failed
+    assert_same_arrays(arrays_of(tmp_path / "one"), arrays_of(tmp_path / "two"))
+
+
+def test_rerun_resumes_and_a_changed_plan_is_refused(small_specs_dir, tmp_path):
+    specs = load_run_specs(["cup"], specs_dir=small_specs_dir)
+    out = tmp_path / "out"
+    render_dataset(specs, out, limit=16)
+    (out / "cup-00001.h5").unlink()  # as if the run had died before this shard
+    again = render_dataset(specs, out, limit=16)
+    assert again.skipped == ["cup-00000.h5"] and again.rendered == ["cup-00001.h5"]
+    assert read_manifest(out)["frames"] == 16
+    with pytest.raises(ShardError, match="different spec, seed, renderer or --limit"):
+        render_dataset(load_run_specs(["cup"], specs_dir=small_specs_dir, seed=5), out, limit=16)
+
+
+def test_output_path_that_is_a_file_is_refused(small_specs_dir, tmp_path):
+    (tmp_path / "out").write_text("x")
+    with pytest.raises(ShardError, match="is a file"):
+        render_dataset(load_run_specs(["cup"], specs_dir=small_specs_dir), tmp_path / "out", limit=2)
+
+
+def test_unknown_class_and_nothing_to_render(small_specs_dir):
+    with pytest.raises(SpecError, match="no spec for class 'teapot'.*available: box, cup"):
+        load_run_specs(["teapot"], specs_dir=small_specs_dir)
+    with pytest.raises(SpecError, match="nothing to render"):
+        load_run_specs(specs_dir=small_specs_dir)
+
+
+def test_user_mesh_spec_renders(tmp_path):
+    import trimesh
+
+    (tmp_path / "meshes").mkdir()
+    trimesh.creation.torus(1.0, 0.3).export(tmp_path / "meshes" / "ring.obj")
+    trimesh.creation.cone(0.5, 1.0).export(tmp_path / "meshes" / "cone.stl")
+    spec_file = tmp_path / "mine.toml"
+    spec_file.write_text('class = "mine"\n[mesh]\nsource = "files"\nfiles = ["meshes/*.obj", "meshes/*.stl"]\n'
+                         '[camera]\nazimuth = [0, 10, 5]\nelevation = 30\n[image]\nwidth = 48\nheight = 48\n')
+    summary = render_dataset(load_run_specs(spec_files=[spec_file]), tmp_path / "out")
+    assert summary.frames == 6
+    data = read_shard(tmp_path / "out" / "mine-00000.h5", ["instance_name", "mask"])
+    assert list(data["instance_name"]) == ["ring"] * 3 + ["cone"] * 3
+    assert data["mask"].sum(axis=(1, 2)).min() > 50

@@ -1,0 +1,61 @@
+import pytest
+
+from spm_data.errors import SpecError
+from spm_data.meshes import CLASSES
+from spm_data.specs import all_spec_paths, load_spec, parse_spec
+
+
+def test_builtin_specs_cover_the_six_classes_and_load():
+    paths = all_spec_paths()
+    assert sorted(p.stem for p in paths) == sorted(CLASSES)
+    for p in paths:
+        spec = load_spec(p)
+        assert spec.class_name == p.stem
+        assert (spec.image.width, spec.image.height) == (128, 128)
+        assert spec.camera.azimuth.step == 5 and spec.camera.elevation.stop == 60
+
+
+def test_defaults_fill_missing_sections():
+    spec = parse_spec('class = "cup"')
+    assert spec.mesh.instances == 4 and spec.render.renderer == "pyrender"
+    assert spec.render.blender.engine == "cycles" and spec.render.blender.samples == 16
+
+
+def test_fingerprint_changes_with_what_changes_pixels():
+    a = parse_spec('class = "cup"\nseed = 1')
+    b = parse_spec('class = "cup"\nseed = 2')
+    c = parse_spec('# a comment\nclass = "cup"\nseed = 1')
+    assert a.fingerprint() != b.fingerprint()
+    assert a.fingerprint() == c.fingerprint()
+
+
+@pytest.mark.parametrize("text, message", [
+    ('class = "cup"\n[camera]\nazimth = [0, 355, 5]', "camera.azimth: unknown key"),
+    ('class = "cup"\ncolour = 3', "colour: unknown key"),
+    ('class = "cup"\n[render.blender]\nengin = "cycles"', "render.blender.engin: unknown key"),
+    ('class = "cup"\n[image]\nwidth = "128"', "image.width: expected int, got string"),
+    ('class = "cup"\n[image]\nwidth = 0', "width and height must be >= 1"),
+    ('class = "cup"\n[image]\nfov = 200', "image.fov"),
+    ('class = "cup"\n[camera]\nazimuth = [0, 355, 7]', "camera.azimuth: step 7.0 does not divide"),
+    ('class = "cup"\n[camera]\ndistances = [0.5, -1]', "camera.distances"),
+    ('class = "cup"\n[camera]\nazimuth = [0, 355]', "camera.azimuth: expected [start, stop, step]"),
+    ('class = "cup"\n[mesh]\ninstances = 0', "mesh.instances"),
+    ('class = "cup"\n[mesh]\nsize = -1', "mesh.size"),
+    ('class = "teapot"', "not a built-in class"),
+    ('class = "cup"\n[render]\nrenderer = "povray"', "render.renderer"),
+    ('class = "cup"\n[render]\nframes_per_shard = true', "render.frames_per_shard: expected int, got boolean"),
+    ('seed = 1', "class: missing"),
+    ('class = "cup"\n[mesh', "not valid TOML"),
+    ('class = "cup"\nmesh = 3', "mesh: expected a table"),
+])
+def test_bad_specs_name_the_key(text, message):
+    with pytest.raises(SpecError) as err:
+        parse_spec(text, name="x.toml")
+    assert str(err.value).startswith("x.toml: ")
+    assert message in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_missing_spec_file(tmp_path):
+    with pytest.raises(SpecError, match="spec not found"):
+        load_spec(tmp_path / "nope.toml")
