@@ -173,8 +173,11 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
             renderer.set_mesh(mesh)
             current = inst
         out = renderer.render(R[i], t[i])
-        background = background_image(spec, frame_rng(spec, int(inst), int(pidx)))
-        arrays["rgb"][i] = composite(out["rgb"], out["alpha"], background)
+        if spec.background.kind == "black":
+            arrays["rgb"][i] = out["rgb"]
+        else:
+            background = background_image(spec, frame_rng(spec, int(inst), int(pidx)))
+            arrays["rgb"][i] = composite(out["rgb"], out["alpha"], background)
         arrays["depth"][i] = out["depth"]
         arrays["mask"][i] = out["mask"]
         report(1)

@@ -18,7 +18,7 @@ def _colour(rng, dark: bool):
     return tuple(int(c) for c in base)
 
 
-def procedural_texture(rng: np.random.Generator, shapes: int = 260) -> np.ndarray:
+def procedural_texture(rng: np.random.Generator, shapes: int = 480) -> np.ndarray:
     """(512, 768, 3) uint8 RGB texture drawn from ``rng`` (same state, same image)."""
     import cv2
 
@@ -29,11 +29,11 @@ def procedural_texture(rng: np.random.Generator, shapes: int = 260) -> np.ndarra
         kind = rng.integers(0, 4)
         colour = _colour(rng, dark=rng.random() < 0.5)
         cx, cy = int(rng.integers(0, w)), int(rng.integers(0, h))
-        size = int(rng.integers(6, 30))
+        size = int(rng.integers(4, 22))
         if kind == 0:
             cv2.circle(image, (cx, cy), size, colour, -1, lineType=cv2.LINE_AA)
         elif kind == 1:
-            dx, dy = int(rng.integers(6, 40)), int(rng.integers(6, 40))
+            dx, dy = int(rng.integers(5, 30)), int(rng.integers(5, 30))
             cv2.rectangle(image, (cx, cy), (cx + dx, cy + dy), colour, -1)
         elif kind == 2:
             angle = rng.uniform(0, np.pi)
