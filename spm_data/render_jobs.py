@@ -58,6 +58,7 @@ class RunSummary:
     frames: int = 0
     seconds: float = 0.0
     interrupted: bool = False
+    complete: int = 0     # planned shards complete on disk when the run ended
 
     def report(self) -> str:
         """What happened, in a few lines for a person."""
@@ -65,8 +66,7 @@ class RunSummary:
                  f"{len(self.skipped)} already complete; {len(self.failed)} failed -> {self.out_dir}/"]
         lines += [f"  failed {name}: {err}" for name, err in self.failed]
         if self.interrupted:
-            done = len(self.rendered) + len(self.skipped)
-            lines.append(f"interrupted: {done} of {self.planned} shards are complete in {self.out_dir}/ "
+            lines.append(f"interrupted: {self.complete} of {self.planned} shards are complete in {self.out_dir}/ "
                          "(listed in manifest.json); run the same command again to resume")
         return "\n".join(lines)
 
@@ -279,5 +279,6 @@ def render_dataset(specs: list[RenderSpec], out_dir, *, limit=None, workers=1, p
         finally:
             remove_partials(out)
             write_manifest(out, known=entries)
+            summary.complete = sum((out / job.name).exists() for job in jobs)
     summary.seconds = time.perf_counter() - started
     return summary
