@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import signal
+import sys
 from dataclasses import dataclass, field
 from multiprocessing.connection import wait
 
@@ -38,8 +39,16 @@ def _describe(exc: BaseException) -> str:
     return str(exc) if isinstance(exc, SpmError) else f"{type(exc).__name__}: {exc}"
 
 
+def _blender_script_dir(path: str) -> bool:
+    parts = path.replace("\\", "/").split("/")
+    return "scripts" in parts and ("bpy" in parts or "blender" in parts)
+
+
 def _worker_main(fn, conn, recycle_after):
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent owns Ctrl-C and stops us
+    # A parent that imported bpy hands us Blender's script folders on sys.path;
+    # with them, `import bpy` here would find Blender's scripts/modules/bpy instead.
+    sys.path[:] = [p for p in sys.path if not _blender_script_dir(p)]
     done = 0
     while True:
         item = conn.recv()

@@ -64,7 +64,7 @@ class BlenderSpec:
 
 @dataclass(frozen=True)
 class RenderSettings:
-    renderer: str = "pyrender"
+    renderer: str = "blender"
     frames_per_shard: int = 256
     blender: BlenderSpec = BlenderSpec()
 

@@ -17,6 +17,7 @@ distances = [0.6, 0.7]
 width = 64
 height = 64
 [render]
+renderer = "pyrender"
 frames_per_shard = 8
 """
 

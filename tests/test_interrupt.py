@@ -9,7 +9,7 @@ import pytest
 
 from spm_data.shards import list_shards, read_manifest
 
-SPEC = 'class = "cup"\n[image]\nwidth = 64\nheight = 64\n[render]\nframes_per_shard = 128\n'
+SPEC = 'class = "cup"\n[image]\nwidth = 64\nheight = 64\n[render]\nrenderer = "pyrender"\nframes_per_shard = 128\n'
 
 
 @pytest.mark.parametrize("workers", [1, 2])

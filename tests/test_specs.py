@@ -17,7 +17,7 @@ def test_builtin_specs_cover_the_six_classes_and_load():
 
 def test_defaults_fill_missing_sections():
     spec = parse_spec('class = "cup"')
-    assert spec.mesh.instances == 4 and spec.render.renderer == "pyrender"
+    assert spec.mesh.instances == 4 and spec.render.renderer == "blender"
     assert spec.render.blender.engine == "cycles" and spec.render.blender.samples == 16
 
 

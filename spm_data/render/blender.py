@@ -1,0 +1,257 @@
+"""Blender (bpy, headless) renderer: Cycles on the CPU, or Workbench.
+
+See spm_data.render for the interface and the arrays ``render`` returns. The
+scene (camera with the spec's intrinsics, lights that move with the camera,
+world, render settings) is built once per renderer and the mesh once per
+instance; a frame only moves the camera and renders one multi-layer EXR
+(Combined, Depth, Object Index) that is read back with the OpenEXR package.
+
+Blender runs in worker processes only (spm_data.render_jobs): a crash or a
+leak in Blender takes down a worker, never the run.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+import warnings
+
+import numpy as np
+
+from spm_data.errors import RenderError
+from spm_data.poses import cv_to_gl_camera_to_world
+from spm_data.render import spec_intrinsics
+from spm_data.render.pyrender_backend import light_rotations
+
+THREADS_ENV = "SPM_BLENDER_THREADS"  # set by render_jobs so N workers share the cores
+NO_HIT_DEPTH = 1e9  # Blender writes 1e10 where no surface was hit
+INSTALL_HINT = "install it with: pip install 'spm[blender]' (bpy 5.0.x, Python 3.11)"
+
+
+def _import_bpy():
+    try:
+        import bpy
+        import mathutils
+    except ImportError as exc:
+        raise RenderError(f"Blender's bpy module is not installed ({exc}); {INSTALL_HINT}") from None
+    return bpy, mathutils
+
+
+def _import_openexr():
+    try:
+        import OpenEXR
+    except ImportError as exc:
+        raise RenderError(f"the OpenEXR package is not installed ({exc}); {INSTALL_HINT}") from None
+    return OpenEXR
+
+
+def srgb_encode(linear: np.ndarray) -> np.ndarray:
+    """Linear float RGB (any shape) -> sRGB uint8 (IEC 61966-2-1 transfer curve)."""
+    c = np.clip(linear, 0.0, 1.0)
+    s = np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.power(c, 1 / 2.4) - 0.055)
+    return np.round(s * 255.0).astype(np.uint8)
+
+
+@contextlib.contextmanager
+def _quiet_stdout():
+    """Blender prints a line per saved frame on the C-level stdout; keep it off the terminal."""
+    try:
+        saved = os.dup(1)
+    except OSError:
+        yield
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+        os.close(devnull)
+
+
+class Renderer:
+    """bpy renderer for one spec (engine, samples, image size, intrinsics, lights)."""
+
+    name = "blender"
+
+    def __init__(self, spec):
+        self._bpy, self._mathutils = _import_bpy()
+        self._exr = _import_openexr()
+        self.spec = spec
+        self.width, self.height = spec.image.width, spec.image.height
+        self.K = spec_intrinsics(spec)
+        settings = spec.render.blender
+        self.engine = settings.engine
+        if self.engine == "eevee":
+            warnings.warn("EEVEE needs a GPU (about 40 s a frame on this CPU); rendering with Cycles instead",
+                          stacklevel=2)
+            self.engine = "cycles"
+        self._tmp = tempfile.mkdtemp(prefix="spm-blender-")
+        self._exr_path = os.path.join(self._tmp, "frame.exr")
+        self._object = None
+        with _quiet_stdout():
+            self._build_scene()
+
+    # ------------------------------------------------------------------ scene
+    def _build_scene(self) -> None:
+        bpy = self._bpy
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        sc = bpy.context.scene
+        s = self.spec.render.blender
+        r = sc.render
+        r.resolution_x, r.resolution_y, r.resolution_percentage = self.width, self.height, 100
+        r.film_transparent = s.film_transparent
+        threads = s.threads or int(os.environ.get(THREADS_ENV, "0") or 0)
+        if threads > 0:
+            r.threads_mode, r.threads = "FIXED", threads
+        if self.engine == "cycles":
+            r.engine = "CYCLES"
+            sc.cycles.device = "CPU"
+            sc.cycles.samples = s.samples
+            sc.cycles.use_denoising = s.denoise
+            sc.cycles.use_adaptive_sampling = False
+            # Depth and object index are sampled at the pixel centres K describes;
+            # a wider pixel filter would smear them across the silhouette edge.
+            sc.cycles.filter_width = 0.01
+            sc.cycles.max_bounces = 4
+        else:
+            r.engine = "BLENDER_WORKBENCH"
+            sc.display.shading.light = "STUDIO"
+            sc.display.shading.color_type = "TEXTURE"
+            sc.display.render_aa = "OFF"  # pixel-centre samples, as for Cycles
+        sc.view_settings.view_transform = "Standard"
+        layer = sc.view_layers[0]
+        layer.use_pass_z = True
+        layer.use_pass_object_index = True
+        img = r.image_settings
+        img.media_type = "MULTI_LAYER_IMAGE"
+        img.file_format = "OPEN_EXR_MULTILAYER"
+        img.color_depth = "32"
+        img.exr_codec = "NONE"
+        r.filepath = self._exr_path
+        r.use_file_extension = False
+
+        cam = bpy.data.cameras.new("spm-camera")
+        K, W, H = self.K, self.width, self.height
+        cam.sensor_fit = "HORIZONTAL"
+        cam.sensor_width = 36.0
+        cam.lens = K[0, 0] * cam.sensor_width / W
+        # Blender's principal point sits at the image centre plus shift (in units of the larger side).
+        cam.shift_x = (W / 2.0 - (K[0, 2] + 0.5)) / max(W, H)
+        cam.shift_y = ((K[1, 2] + 0.5) - H / 2.0) / max(W, H)
+        cam.clip_start, cam.clip_end = 0.01, 100.0
+        self._camera = bpy.data.objects.new("spm-camera", cam)
+        sc.collection.objects.link(self._camera)
+        sc.camera = self._camera
+
+        lighting = self.spec.lighting
+        for i, rot in enumerate(light_rotations(lighting.lights)):
+            sun = bpy.data.lights.new(f"spm-sun-{i}", "SUN")
+            sun.energy = lighting.strength
+            obj = bpy.data.objects.new(f"spm-sun-{i}", sun)
+            sc.collection.objects.link(obj)
+            obj.parent = self._camera  # moves with the camera, as in the pyrender backend
+            local = np.eye(4)
+            local[:3, :3] = rot
+            obj.matrix_basis = self._mathutils.Matrix(local.tolist())
+
+        world = bpy.data.worlds.new("spm-world")
+        sc.world = world
+        if world.node_tree is None:  # Blender < 5 needs asking; 5.x always has nodes
+            world.use_nodes = True
+        background = world.node_tree.nodes.get("Background")
+        a = lighting.ambient
+        background.inputs["Color"].default_value = (a, a, a, 1.0)
+        background.inputs["Strength"].default_value = 1.0
+
+    def version(self) -> str:
+        return f"Blender {self._bpy.app.version_string}"
+
+    def settings(self) -> dict:
+        s = self.spec.render.blender
+        out = {"engine": self.engine, "film_transparent": s.film_transparent, "threads": s.threads,
+               "ambient": self.spec.lighting.ambient, "lights": self.spec.lighting.lights,
+               "strength": self.spec.lighting.strength}
+        if self.engine == "cycles":
+            out.update(samples=s.samples, denoise=s.denoise, filter_width=0.01, device="CPU")
+        return out
+
+    # ------------------------------------------------------------------ mesh
+    def set_mesh(self, mesh) -> None:
+        """Replace the object with ``mesh`` (a TexturedMesh): mesh data, UVs, normals, texture."""
+        bpy = self._bpy
+        if self._object is not None:
+            old_mesh, old_mat = self._object.data, self._object.active_material
+            old_image = old_mat.node_tree.nodes["spm-texture"].image if old_mat else None
+            bpy.data.objects.remove(self._object)
+            bpy.data.meshes.remove(old_mesh)
+            if old_mat:
+                bpy.data.materials.remove(old_mat)
+            if old_image:
+                bpy.data.images.remove(old_image)
+        me = bpy.data.meshes.new(mesh.name)
+        me.from_pydata(mesh.vertices.tolist(), [], mesh.faces.tolist())
+        # Vertices are per face corner (meshes.py), so loop i is vertex i.
+        uv_layer = me.uv_layers.new(name="UVMap")
+        uv_layer.data.foreach_set("uv", mesh.uv.astype(np.float32).ravel())
+        me.polygons.foreach_set("use_smooth", np.ones(len(mesh.faces), dtype=bool))
+        me.normals_split_custom_set_from_vertices(mesh.normals.tolist())
+        me.update()
+
+        h, w = mesh.texture.shape[:2]
+        image = bpy.data.images.new(f"{mesh.name}-texture", width=w, height=h, alpha=False)
+        rgba = np.ones((h, w, 4), dtype=np.float32)
+        rgba[..., :3] = mesh.texture[::-1] / 255.0  # Blender's pixel rows start at the bottom
+        image.pixels.foreach_set(rgba.ravel())
+        image.pack()
+
+        mat = bpy.data.materials.new(f"{mesh.name}-material")
+        if mat.node_tree is None:
+            mat.use_nodes = True
+        nodes = mat.node_tree.nodes
+        bsdf = nodes.get("Principled BSDF")
+        tex = nodes.new("ShaderNodeTexImage")
+        tex.name = "spm-texture"
+        tex.image = image
+        mat.node_tree.links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
+        bsdf.inputs["Roughness"].default_value = 0.9
+        bsdf.inputs["Metallic"].default_value = 0.0
+        me.materials.append(mat)
+
+        obj = bpy.data.objects.new(mesh.name, me)
+        obj.pass_index = 1
+        bpy.context.scene.collection.objects.link(obj)
+        self._object = obj
+
+    # ------------------------------------------------------------------ frames
+    def render(self, R, t) -> dict:
+        if self._object is None:
+            raise RenderError("set_mesh must be called before render")
+        self._camera.matrix_world = self._mathutils.Matrix(cv_to_gl_camera_to_world(R, t).tolist())
+        with _quiet_stdout():
+            self._bpy.ops.render.render(write_still=True)
+        return self._read_exr()
+
+    def _read_exr(self) -> dict:
+        try:
+            with self._exr.File(self._exr_path) as f:
+                # Blender 5 writes one EXR part per pass.
+                channels = {name: ch for part in f.parts for name, ch in part.channels.items()}
+                combined = np.asarray(channels["ViewLayer.Combined"].pixels, dtype=np.float32)
+                z = np.asarray(channels["ViewLayer.Depth.Z"].pixels, dtype=np.float32)
+                index = channels.get("ViewLayer.Object Index.X")
+                index = None if index is None else np.asarray(index.pixels)
+        except (OSError, KeyError, RuntimeError) as exc:
+            raise RenderError(f"could not read Blender's EXR output ({type(exc).__name__}: {exc})") from None
+        hit = z < NO_HIT_DEPTH
+        mask = (index > 0.5) & hit if index is not None else hit
+        depth = np.where(mask, z, 0.0).astype(np.float32)
+        alpha = np.clip(combined[..., 3], 0.0, 1.0)
+        return {"rgb": srgb_encode(combined[..., :3]), "alpha": alpha.astype(np.float32),
+                "depth": depth, "mask": mask.astype(np.uint8)}
+
+    def close(self) -> None:
+        shutil.rmtree(self._tmp, ignore_errors=True)
