@@ -84,6 +84,33 @@ def render_cmd(classes, all_classes, spec_files, specs_dir, out, workers, render
         sys.exit(1)
 
 
+@data_cli.command("occlude")
+@click.option("--in", "in_dir", default="out", show_default=True, type=click.Path(), help="Folder of shards to read.")
+@click.option("--out", "out_dir", default="out_occluded", show_default=True, type=click.Path(), help="Folder to write.")
+@click.option("--min", "low", default=0.0, show_default=True, type=float, help="Smallest covered fraction of the object.")
+@click.option("--max", "high", default=0.6, show_default=True, type=float, help="Largest covered fraction of the object.")
+@click.option("--copies", default=1, show_default=True, type=click.IntRange(min=1), help="Differently occluded copies per frame.")
+@click.option("--rects", default=1, show_default=True, type=click.IntRange(min=1), help="Rectangles per frame.")
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Seed (same seed, same bytes).")
+@click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1), help="Worker processes.")
+@handle_errors
+def occlude_cmd(in_dir, out_dir, low, high, copies, rects, seed, workers):
+    """Write copies of shards with black rectangles covering [--min, --max] of each object."""
+    from spm_data.occlude_jobs import occlude_dataset
+
+    bar = Progress()
+    try:
+        summary = occlude_dataset(in_dir, out_dir, low=low, high=high, copies=copies, rects=rects, seed=seed,
+                                  workers=workers, progress=bar)
+    finally:
+        bar.close()
+    click.echo(summary.report())
+    if summary.interrupted:
+        sys.exit(130)
+    if summary.failed:
+        sys.exit(1)
+
+
 @data_cli.command("info")
 @click.argument("path", type=click.Path())
 @handle_errors
@@ -104,6 +131,17 @@ def show_cmd(shard, out_png, frames):
     from spm_data.sheet import contact_sheet
 
     click.echo(f"wrote {contact_sheet(shard, out_png, frames=frames)}")
+
+
+@data_cli.command("hist")
+@click.argument("folder", type=click.Path())
+@click.option("--out", "out_png", default="occlusion-hist.png", show_default=True, type=click.Path(), help="PNG to write.")
+@handle_errors
+def hist_cmd(folder, out_png):
+    """Histogram of the occluded fractions of a shard folder."""
+    from spm_data.sheet import occlusion_histogram
+
+    click.echo(f"wrote {occlusion_histogram(folder, out_png)}")
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})

@@ -10,7 +10,6 @@ different spec or options refuses to mix its frames in.
 from __future__ import annotations
 
 import glob
-import os
 import hashlib
 import json
 import time
@@ -272,12 +271,6 @@ def render_dataset(specs: list[RenderSpec], out_dir, *, limit=None, workers=1, p
                 summary.frames += o.job.frames
                 entries[o.job.name] = o.result
 
-        # Cycles uses every core by default: with N workers, give each its share.
-        if not in_process and "SPM_BLENDER_THREADS" not in os.environ:
-            os.environ["SPM_BLENDER_THREADS"] = str(max(1, (os.cpu_count() or 1) // max(1, workers)))
-            set_threads = True
-        else:
-            set_threads = False
         try:
             run_jobs(render_shard, todo, workers=0 if in_process else workers, retries=1,
                      on_outcome=on_outcome, on_progress=progress, on_worker_death=_discard_partial)
@@ -287,7 +280,5 @@ def render_dataset(specs: list[RenderSpec], out_dir, *, limit=None, workers=1, p
             remove_partials(out)
             write_manifest(out, known=entries)
             summary.complete = sum((out / job.name).exists() for job in jobs)
-            if set_threads:
-                del os.environ["SPM_BLENDER_THREADS"]
     summary.seconds = time.perf_counter() - started
     return summary

@@ -46,7 +46,9 @@ FIELDS: dict[str, tuple[str, tuple]] = {
     "occlusion_rects": ("int32", ("R", 4)),
 }
 OPTIONAL_FIELDS: dict[str, tuple[str, tuple]] = {
-    "visible_mask": ("uint8", ("H", "W")),
+    "visible_mask": ("uint8", ("H", "W")),   # object minus occluders (spm-data occlude)
+    "source_shard": ("str", ()),             # the shard a derived frame came from
+    "source_frame": ("int64", ()),           # its frame index there
 }
 IMAGE_FIELDS = ("rgb", "depth", "mask", "visible_mask")
 REQUIRED_ATTRS = ("schema_version", "frames", "renderer", "seed")
@@ -83,20 +85,39 @@ def partial_path(path: Path) -> Path:
     return path.with_name(PARTIAL_PREFIX + path.name + PARTIAL_SUFFIX)
 
 
-def write_shard(path, arrays: dict, attrs: dict, compression: str = "lzf") -> Path:
+def write_shard(path, arrays: dict, attrs: dict, copy_from=None) -> Path:
     """Write one shard atomically (temporary name, fsync, ``os.replace``).
 
     arrays: every field of FIELDS (and any of OPTIONAL_FIELDS), first axis N
     frames. attrs: file attributes (str, int, float); ``schema_version`` and
-    ``frames`` are set here. Image fields are chunked one frame per chunk.
+    ``frames`` are set here. Image fields are chunked one frame per chunk and
+    compressed with gzip level 1 after byte shuffling: deterministic (LZF is not:
+    liblzf leaves its hash table uninitialised, so equal arrays could give
+    different bytes), readable by every HDF5 build, and about as fast.
+
+    copy_from: ``(shard path, fields)``: fields copied verbatim from that shard,
+    compressed chunks and all (HDF5 object copy, no codec work), for derived
+    shards that change only some fields; ``arrays`` then holds the others.
     """
     import h5py
 
     path = Path(path)
-    n, h, w = check_arrays(arrays)
+    copied = {}
+    if copy_from is not None:
+        source, names = copy_from
+        copied = read_shard(source, [f for f in names if f not in IMAGE_FIELDS])  # small; for checking
+        with _open(source) as src:
+            for f in names:
+                if f in IMAGE_FIELDS:
+                    copied[f] = np.broadcast_to(np.zeros((), src[f].dtype), src[f].shape)  # shape/dtype only
+    n, h, w = check_arrays({**arrays, **copied})
     tmp = partial_path(path)
     try:
         with h5py.File(tmp, "w", track_order=True) as f:
+            if copy_from is not None:
+                with h5py.File(copy_from[0], "r") as src:
+                    for field in copy_from[1]:
+                        src.copy(src[field], f, name=field)
             for field, value in arrays.items():
                 dtype = {**FIELDS, **OPTIONAL_FIELDS}[field][0]
                 if dtype == "str":
@@ -105,8 +126,9 @@ def write_shard(path, arrays: dict, attrs: dict, compression: str = "lzf") -> Pa
                     continue
                 value = np.ascontiguousarray(value)
                 if field in IMAGE_FIELDS and n > 0:
-                    f.create_dataset(field, data=value, chunks=(1,) + value.shape[1:],
-                                     compression=compression, track_times=False)
+                    # Shuffling bytes helps multi-byte values (depth) and is wasted on uint8.
+                    f.create_dataset(field, data=value, chunks=(1,) + value.shape[1:], compression="gzip",
+                                     compression_opts=1, shuffle=value.dtype.itemsize > 1, track_times=False)
                 else:
                     f.create_dataset(field, data=value, track_times=False)
             for key, value in attrs.items():

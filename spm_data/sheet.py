@@ -66,3 +66,30 @@ def contact_sheet(shard, out_png, frames: int = 24, columns: int = 6, scale: int
     if not cv2.imwrite(str(out_png), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR)):
         raise ShardError(f"could not write {out_png}")
     return out_png
+
+
+def occlusion_histogram(folder, out_png, bins: int = 30) -> Path:
+    """PNG histogram of the per-frame covered fractions of every shard in ``folder``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from spm_data.shards import list_shards
+
+    shards = list_shards(folder)
+    if not shards:
+        raise ShardError(f"{folder}: no shards (*.h5) in this folder")
+    fractions = np.concatenate([read_shard(p, ["occlusion_fraction"])["occlusion_fraction"] for p in shards])
+    fig, ax = plt.subplots(figsize=(6, 3.2), dpi=100)
+    ax.hist(fractions, bins=bins, range=(0, 1), color="#4a7ab0", edgecolor="white")
+    ax.set_xlabel("fraction of the object's mask covered")
+    ax.set_ylabel("frames")
+    ax.set_title(f"{len(fractions)} frames, {len(shards)} shards: min {fractions.min():.3f}, "
+                 f"max {fractions.max():.3f}", fontsize=9)
+    fig.tight_layout()
+    out_png = Path(out_png)
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_png)
+    plt.close(fig)
+    return out_png

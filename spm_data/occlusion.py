@@ -1,0 +1,146 @@
+"""Black-rectangle occlusions with exact coverage of the object's mask (pure numpy).
+
+The covered fraction is counted from the mask, pixel by pixel: for a random
+centre, every rectangle size is scored at once with a summed-area table of the
+still-visible mask, and a size whose coverage lies within ``tolerance`` of the
+target is drawn at random. Frames whose object is too small or thin to reach the
+target within ``tries`` centres keep the closest coverage found, and say so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from spm_data.errors import SpmError
+
+DEFAULT_TOLERANCE = 0.005
+
+
+@dataclass(frozen=True)
+class Occlusion:
+    """rects (R, 4) int32 ``x0, y0, x1, y1`` half-open pixel bounds; fraction of mask
+    pixels covered by their union; reached: whether |fraction - target| <= tolerance."""
+
+    rects: np.ndarray
+    fraction: float
+    target: float
+    reached: bool
+
+
+def _summed_area(mask: np.ndarray) -> np.ndarray:
+    """(H + 1, W + 1) int32 table: table[y, x] = mask[:y, :x].sum()."""
+    table = np.zeros((mask.shape[0] + 1, mask.shape[1] + 1), dtype=np.int32)
+    np.cumsum(np.cumsum(mask, axis=0, dtype=np.int32), axis=1, out=table[1:, 1:])
+    return table
+
+
+def _best_rect_at(table, cx, cy, need, band, rng, box):
+    """Among rectangles centred on (cx, cy), one covering ``need`` pixels of the
+    table's mask: a random one covering a count in ``band`` (lo, hi), else the
+    closest to ``need``. Sizes reach
+    the object's bounding box ``box`` (x0, y0, x1, y1) and no further: beyond
+    it a rectangle covers no more of the object. Returns (x0, y0, x1, y1, covered)."""
+    h, w = table.shape[0] - 1, table.shape[1] - 1
+    reach_w = max(cx - box[0], box[2] - 1 - cx)
+    reach_h = max(cy - box[1], box[3] - 1 - cy)
+    half_w = np.arange(0, reach_w + 1)[:, None]  # every rectangle half-size at once
+    half_h = np.arange(0, reach_h + 1)[None, :]
+    x0 = np.clip(cx - half_w, 0, w)
+    x1 = np.clip(cx + half_w + 1, 0, w)
+    y0 = np.clip(cy - half_h, 0, h)
+    y1 = np.clip(cy + half_h + 1, 0, h)
+    covered = table[y1, x1] - table[y0, x1] - table[y1, x0] + table[y0, x0]
+    ok = np.flatnonzero((covered >= band[0]) & (covered <= band[1]))
+    pick = rng.choice(ok) if len(ok) else int(np.argmin(np.abs(covered - need)))
+    i, j = np.unravel_index(pick, covered.shape)
+    return int(x0[i, 0]), int(y0[0, j]), int(x1[i, 0]), int(y1[0, j]), int(covered[i, j])
+
+
+def occlude_mask(mask: np.ndarray, target: float, rng: np.random.Generator, rects: int = 1,
+                 tries: int = 8, tolerance: float = DEFAULT_TOLERANCE, bounds=(0.0, 1.0)) -> Occlusion:
+    """Place ``rects`` rectangles so their union covers ``target`` of ``mask``.
+
+    mask: (H, W) nonzero on the object. target in [0, 1]. Each rectangle takes an
+    equal share of what is still to cover; centres are random object pixels.
+    ``reached`` means within ``tolerance`` of the target and inside ``bounds``
+    (the requested [min, max]), or, for bounds narrower than 2 x tolerance,
+    within ``tolerance`` of the target.
+    """
+    if not 0.0 <= target <= 1.0:
+        raise SpmError(f"occlusion target must lie in [0, 1], got {target}")
+    if rects < 1:
+        raise SpmError(f"rects must be >= 1, got {rects}")
+    obj = np.asarray(mask) > 0
+    total = int(obj.sum())
+    out = np.zeros((rects, 4), dtype=np.int32)
+    if total == 0:
+        return Occlusion(out, 0.0, float(target), target == 0.0)
+    if target == 0.0:
+        return Occlusion(out, 0.0, 0.0, True)
+    if bounds[1] - bounds[0] >= 2 * tolerance:
+        lo_px, hi_px = max(bounds[0], target - tolerance) * total, min(bounds[1], target + tolerance) * total
+    else:  # a range narrower than the tolerance (--min 0.3 --max 0.3): target +- tolerance
+        lo_px, hi_px = (target - tolerance) * total, (target + tolerance) * total
+    best = None
+    for _ in range(tries):
+        visible = obj.copy()
+        placed = np.zeros((rects, 4), dtype=np.int32)
+        covered = 0
+        for k in range(rects):
+            left = rects - k
+            need = (target * total - covered) / left
+            # Each rectangle gets its share of the band; the last one closes it exactly.
+            band = (need - (target * total - lo_px) / rects, need + (hi_px - target * total) / rects) \
+                if left > 1 else (lo_px - covered, hi_px - covered)
+            flat = np.flatnonzero(visible)
+            if len(flat) == 0:
+                break
+            cy, cx = divmod(int(flat[rng.integers(len(flat))]), visible.shape[1])
+            rows = np.flatnonzero(visible.any(axis=1))
+            cols = np.flatnonzero(visible.any(axis=0))
+            box = (int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1)
+            table = _summed_area(visible)
+            x0, y0, x1, y1, got = _best_rect_at(table, cx, cy, need, band, rng, box)
+            placed[k] = (x0, y0, x1, y1)
+            visible[y0:y1, x0:x1] = False
+            covered += got
+        fraction = covered / total
+        inside = lo_px <= covered <= hi_px
+        if best is None or (inside, -abs(fraction - target)) > (best.reached, -abs(best.fraction - target)):
+            best = Occlusion(placed, fraction, float(target), inside)
+        if best.reached:
+            break
+    return best
+
+
+def apply_occlusion(rgb: np.ndarray, mask: np.ndarray, rects: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Black out ``rects`` in ``rgb``; returns (occluded rgb (H, W, 3) uint8, visible_mask (H, W) uint8)."""
+    rgb = np.array(rgb, copy=True)
+    visible = (np.asarray(mask) > 0).astype(np.uint8)
+    for x0, y0, x1, y1 in np.asarray(rects).reshape(-1, 4):
+        rgb[y0:y1, x0:x1] = 0
+        visible[y0:y1, x0:x1] = 0
+    return rgb, visible
+
+
+def occlude_image(rgb: np.ndarray, mask: np.ndarray, rng: np.random.Generator, low: float = 0.0,
+                  high: float = 0.6, rects: int = 1, tolerance: float = DEFAULT_TOLERANCE):
+    """One image in memory: draw a target uniformly in [low, high], occlude.
+
+    rgb (H, W, 3) uint8, mask (H, W). Returns (occluded rgb, visible_mask, Occlusion).
+    The model's evaluation uses this to sweep occlusion levels without files.
+    """
+    check_range(low, high)
+    target = float(rng.uniform(low, high)) if high > low else float(low)
+    occ = occlude_mask(mask, target, rng, rects=rects, tolerance=tolerance, bounds=(low, high))
+    image, visible = apply_occlusion(rgb, mask, occ.rects)
+    return image, visible, occ
+
+
+def check_range(low: float, high: float) -> None:
+    if not (0.0 <= low <= 1.0 and 0.0 <= high <= 1.0):
+        raise SpmError(f"occlusion fractions must lie in [0, 1]: got --min {low}, --max {high}")
+    if low > high:
+        raise SpmError(f"--min {low} is above --max {high}")

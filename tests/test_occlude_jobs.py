@@ -1,0 +1,111 @@
+import h5py
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from cli import data_cli
+from spm_data.occlude_jobs import occlude_dataset
+from spm_data.render_jobs import load_run_specs, render_dataset
+from spm_data.shards import file_sha256, list_shards, read_manifest, read_shard
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory, request):
+    folder = tmp_path_factory.mktemp("specs")
+    (folder / "cup.toml").write_text('class = "cup"\n[mesh]\ninstances = 2\n[camera]\nazimuth = [0, 60, 5]\n'
+                                     'elevation = [0, 20, 10]\n[render]\nrenderer = "pyrender"\n'
+                                     'frames_per_shard = 40\n')
+    out = tmp_path_factory.mktemp("rendered")
+    render_dataset(load_run_specs(["cup"], specs_dir=folder), out)
+    return out
+
+
+def hashes(folder):
+    return {p.name: file_sha256(p) for p in sorted(folder.iterdir())}
+
+
+def test_fractions_lie_in_range_and_input_is_untouched(rendered, tmp_path):
+    before = hashes(rendered)
+    summary = occlude_dataset(rendered, tmp_path / "occ", low=0.1, high=0.6)
+    assert hashes(rendered) == before
+    assert summary.frames == 78 and len(summary.written) == 2
+    for path in list_shards(tmp_path / "occ"):
+        src = read_shard(rendered / path.name)
+        d = read_shard(path)
+        assert ((d["occlusion_fraction"] >= 0.1) & (d["occlusion_fraction"] <= 0.6)).all()
+        np.testing.assert_array_equal(d["mask"], src["mask"])      # full silhouette kept
+        np.testing.assert_array_equal(d["depth"], src["depth"])    # depth left as rendered
+        np.testing.assert_array_equal(d["pose"], src["pose"])
+        assert list(d["source_shard"]) == [path.name] * len(d["pose"])
+        np.testing.assert_array_equal(d["source_frame"], np.arange(len(d["pose"])))
+        for i in range(len(d["pose"])):
+            x0, y0, x1, y1 = d["occlusion_rects"][i, 0]
+            assert not d["rgb"][i, y0:y1, x0:x1].any()
+            visible = d["mask"][i].astype(bool).copy()
+            visible[y0:y1, x0:x1] = False
+            np.testing.assert_array_equal(d["visible_mask"][i], visible)
+            measured = 1 - visible.sum() / d["mask"][i].sum()
+            assert measured == pytest.approx(d["occlusion_fraction"][i], abs=1e-6)
+    assert read_manifest(tmp_path / "occ")["frames"] == 78
+
+
+def test_fixed_fraction_is_hit_within_one_percent(rendered, tmp_path):
+    summary = occlude_dataset(rendered, tmp_path / "occ", low=0.3, high=0.3)
+    fractions = np.concatenate([read_shard(p, ["occlusion_fraction"])["occlusion_fraction"]
+                                for p in list_shards(tmp_path / "occ")])
+    assert summary.unreachable == 0
+    assert np.all(np.abs(fractions - 0.3) <= 0.01)
+
+
+def test_same_seed_same_bytes_other_seed_other_bytes(rendered, tmp_path):
+    occlude_dataset(rendered, tmp_path / "a", seed=4, copies=2)
+    occlude_dataset(rendered, tmp_path / "b", seed=4, copies=2, workers=2)
+    occlude_dataset(rendered, tmp_path / "c", seed=5, copies=2)
+    a, b, c = hashes(tmp_path / "a"), hashes(tmp_path / "b"), hashes(tmp_path / "c")
+    assert a == b
+    assert sorted(a) == ["cup-00000-occ0.h5", "cup-00000-occ1.h5", "cup-00001-occ0.h5", "cup-00001-occ1.h5",
+                         "manifest.json"]
+    assert a["cup-00000-occ0.h5"] != c["cup-00000-occ0.h5"]
+    assert a["cup-00000-occ0.h5"] != a["cup-00000-occ1.h5"]  # copies differ
+
+
+def test_resume_skips_complete_shards(rendered, tmp_path):
+    occlude_dataset(rendered, tmp_path / "occ")
+    (tmp_path / "occ" / "cup-00001.h5").unlink()
+    again = occlude_dataset(rendered, tmp_path / "occ")
+    assert again.skipped == ["cup-00000.h5"] and again.written == ["cup-00001.h5"]
+
+
+def run(*args):
+    return CliRunner().invoke(data_cli, [str(a) for a in args], catch_exceptions=False)
+
+
+def test_cli_errors_are_one_line_and_write_nothing(rendered, tmp_path):
+    out = tmp_path / "o"
+    for args, message in [
+        (["--max", "1.5"], "must lie in [0, 1]"),
+        (["--min", "0.7", "--max", "0.6"], "--min 0.7 is above --max 0.6"),
+    ]:
+        r = run("occlude", "--in", rendered, "--out", out, *args)
+        assert r.exit_code == 1 and r.output.startswith("error: ") and message in r.output
+        assert r.output.strip().count("\n") == 0 and not out.exists()
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    r = run("occlude", "--in", empty, "--out", out)
+    assert r.exit_code == 1 and "no shards (*.h5) in" in r.output and not out.exists()
+    bad = tmp_path / "nomask"
+    bad.mkdir()
+    src = list_shards(rendered)[0]
+    (bad / src.name).write_bytes(src.read_bytes())
+    with h5py.File(bad / src.name, "a") as f:
+        del f["mask"]
+    r = run("occlude", "--in", bad, "--out", out)
+    assert r.exit_code == 1 and "cannot occlude a shard without masks" in r.output and not out.exists()
+    r = run("occlude", "--in", rendered, "--out", rendered)
+    assert r.exit_code == 1 and "is the input folder" in r.output
+
+
+def test_cli_occlude_runs(rendered, tmp_path):
+    r = run("occlude", "--in", rendered, "--out", tmp_path / "o", "--max", "0.6", "--seed", "2")
+    assert r.exit_code == 0, r.output
+    assert "occluded 78 frames into 2 shards" in r.output
