@@ -10,6 +10,8 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import zlib
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -81,6 +83,30 @@ def check_arrays(arrays: dict) -> tuple[int, int, int]:
     return n, h, w
 
 
+GZIP_LEVEL = 1
+
+
+def encode_chunk(frame: np.ndarray) -> bytes:
+    """One frame as HDF5's filters would store it: byte shuffle (multi-byte
+    dtypes only), then deflate level 1 (zlib format). Deterministic."""
+    a = np.ascontiguousarray(frame)
+    if a.dtype.itemsize > 1:
+        a = a.view(np.uint8).reshape(-1, a.dtype.itemsize).T  # HDF5 shuffle: byte planes
+    return zlib.compress(np.ascontiguousarray(a).tobytes(), GZIP_LEVEL)
+
+
+def _write_image_field(f, field: str, value: np.ndarray, pool) -> None:
+    """Compress frames on ``pool``'s threads (zlib releases the GIL; h5py's own
+    filter pipeline does not) and store them as the chunks of a standard
+    gzip (+ shuffle) dataset, so any HDF5 reader decodes them."""
+    ds = f.create_dataset(field, shape=value.shape, dtype=value.dtype, chunks=(1,) + value.shape[1:],
+                          compression="gzip", compression_opts=GZIP_LEVEL, shuffle=value.dtype.itemsize > 1,
+                          track_times=False)
+    zero = (0,) * (value.ndim - 1)
+    for i, chunk in enumerate(pool.map(encode_chunk, value)):
+        ds.id.write_direct_chunk((i,) + zero, chunk)
+
+
 def partial_path(path: Path) -> Path:
     return path.with_name(PARTIAL_PREFIX + path.name + PARTIAL_SUFFIX)
 
@@ -113,7 +139,7 @@ def write_shard(path, arrays: dict, attrs: dict, copy_from=None) -> Path:
     n, h, w = check_arrays({**arrays, **copied})
     tmp = partial_path(path)
     try:
-        with h5py.File(tmp, "w", track_order=True) as f:
+        with h5py.File(tmp, "w", track_order=True) as f, ThreadPoolExecutor(max_workers=2) as pool:
             if copy_from is not None:
                 with h5py.File(copy_from[0], "r") as src:
                     for field in copy_from[1]:
@@ -126,9 +152,7 @@ def write_shard(path, arrays: dict, attrs: dict, copy_from=None) -> Path:
                     continue
                 value = np.ascontiguousarray(value)
                 if field in IMAGE_FIELDS and n > 0:
-                    # Shuffling bytes helps multi-byte values (depth) and is wasted on uint8.
-                    f.create_dataset(field, data=value, chunks=(1,) + value.shape[1:], compression="gzip",
-                                     compression_opts=1, shuffle=value.dtype.itemsize > 1, track_times=False)
+                    _write_image_field(f, field, value, pool)
                 else:
                     f.create_dataset(field, data=value, track_times=False)
             for key, value in attrs.items():
