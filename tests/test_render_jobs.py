@@ -106,3 +106,28 @@ def test_user_mesh_spec_renders(tmp_path):
     data = read_shard(tmp_path / "out" / "mine-00000.h5", ["instance_name", "mask"])
     assert list(data["instance_name"]) == ["ring"] * 3 + ["cone"] * 3
     assert data["mask"].sum(axis=(1, 2)).min() > 50
+
+
+@pytest.mark.parametrize("kind", ["color", "images"])
+def test_backgrounds_fill_everything_but_the_object(tmp_path, kind):
+    import cv2
+
+    (tmp_path / "bg").mkdir()
+    for i, colour in enumerate([(0, 0, 255), (0, 255, 0)]):  # BGR on disk: red and green images
+        cv2.imwrite(str(tmp_path / "bg" / f"{i}.png"), np.full((90, 120, 3), colour, np.uint8))
+    spec_file = tmp_path / "cup.toml"
+    spec_file.write_text('class = "cup"\n[camera]\nazimuth = [0, 30, 5]\nelevation = 0\n[image]\nwidth = 48\n'
+                         f'height = 48\n[background]\nkind = "{kind}"\ncolor = [0.2, 0.4, 0.6]\nfolder = "bg"\n'
+                         '[render]\nrenderer = "pyrender"\n')
+    render_dataset(load_run_specs(spec_files=[spec_file]), tmp_path / "out")
+    data = read_shard(tmp_path / "out" / "cup-00000.h5", ["rgb", "mask"])
+    outside = data["mask"] == 0
+    pixels = data["rgb"][outside]
+    if kind == "color":
+        assert np.all(pixels == np.round(np.array([0.2, 0.4, 0.6]) * 255).astype(np.uint8))
+    else:
+        per_frame = [data["rgb"][i][outside[i]] for i in range(len(data["rgb"]))]
+        firsts = {tuple(p[0]) for p in per_frame}
+        assert firsts <= {(255, 0, 0), (0, 255, 0)} and len(firsts) == 2  # both images used, seeded per frame
+        assert all(np.all(p == p[0]) for p in per_frame)
+    assert data["rgb"][~outside].mean() > 5  # the object is drawn over it
