@@ -50,6 +50,20 @@ class Progress:
         self.bar.close()
 
 
+def run_with_progress(call, report=lambda summary: summary.report()):
+    """Run ``call(progress_bar)``, print its summary, exit 130 if interrupted, 1 if shards failed."""
+    bar = Progress()
+    try:
+        summary = call(bar)
+    finally:
+        bar.close()
+    click.echo(report(summary))
+    if summary.interrupted:
+        sys.exit(130)
+    if summary.failed:
+        sys.exit(1)
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="spm")
 def data_cli():
@@ -72,16 +86,7 @@ def render_cmd(classes, all_classes, spec_files, specs_dir, out, workers, render
     from spm_data.render_jobs import load_run_specs, render_dataset
 
     specs = load_run_specs(classes, all_classes, spec_files, specs_dir, renderer=renderer, seed=seed)
-    bar = Progress()
-    try:
-        summary = render_dataset(specs, out, limit=limit, workers=workers, progress=bar)
-    finally:
-        bar.close()
-    click.echo(summary.report())
-    if summary.interrupted:
-        sys.exit(130)
-    if summary.failed:
-        sys.exit(1)
+    run_with_progress(lambda bar: render_dataset(specs, out, limit=limit, workers=workers, progress=bar))
 
 
 @data_cli.command("occlude")
@@ -96,19 +101,10 @@ def render_cmd(classes, all_classes, spec_files, specs_dir, out, workers, render
 @handle_errors
 def occlude_cmd(in_dir, out_dir, low, high, copies, rects, seed, workers):
     """Write copies of shards with black rectangles covering [--min, --max] of each object."""
-    from spm_data.occlude_jobs import occlude_dataset
+    from spm_data.occlude_jobs import occlude_dataset, occlusion_report
 
-    bar = Progress()
-    try:
-        summary = occlude_dataset(in_dir, out_dir, low=low, high=high, copies=copies, rects=rects, seed=seed,
-                                  workers=workers, progress=bar)
-    finally:
-        bar.close()
-    click.echo(summary.report())
-    if summary.interrupted:
-        sys.exit(130)
-    if summary.failed:
-        sys.exit(1)
+    run_with_progress(lambda bar: occlude_dataset(in_dir, out_dir, low=low, high=high, copies=copies, rects=rects,
+                                                  seed=seed, workers=workers, progress=bar), occlusion_report)
 
 
 @data_cli.command("info")

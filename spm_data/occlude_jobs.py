@@ -9,21 +9,17 @@ from __future__ import annotations
 
 import hashlib
 import json
-import time
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import h5py
 import numpy as np
 
 from spm_data.errors import ShardError, SpmError
-from spm_data.executor import run_jobs
-from spm_data.locking import OutputLock
 from spm_data.occlusion import apply_occlusion, check_range, occlude_mask
-from spm_data.render_jobs import prepare_out_dir
-from spm_data.shards import (list_shards, manifest_entry, partial_path, read_attrs, read_shard, remove_partials,
-                             write_manifest, write_shard)
+from spm_data.shard_runs import RunSummary, run_shard_jobs
+from spm_data.shards import list_shards, manifest_entry, read_attrs, read_shard, write_shard
 
 DERIVED_FIELDS = ("visible_mask", "source_shard", "source_frame")
 
@@ -42,28 +38,10 @@ class OccludeJob:
     frames: int
 
 
-@dataclass
-class OccludeSummary:
-    out_dir: Path
-    planned: int = 0
-    written: list = field(default_factory=list)
-    skipped: list = field(default_factory=list)
-    failed: list = field(default_factory=list)
-    frames: int = 0
-    unreachable: int = 0     # frames whose target could not be met (closest kept)
-    fractions: list = field(default_factory=list)
-    seconds: float = 0.0
-    interrupted: bool = False
-
-    def report(self) -> str:
-        lines = [f"occluded {self.frames} frames into {len(self.written)} shards in {self.seconds:.1f} s; "
-                 f"{len(self.skipped)} already complete; {len(self.failed)} failed -> {self.out_dir}/",
-                 f"  {self.unreachable} frames could not reach their target (object too small or thin); "
-                 "they keep the closest coverage found"]
-        lines += [f"  failed {name}: {err}" for name, err in self.failed]
-        if self.interrupted:
-            lines.append(f"interrupted: run the same command again to resume into {self.out_dir}/")
-        return "\n".join(lines)
+def occlusion_report(summary: RunSummary) -> str:
+    unreachable = sum(r["unreachable"] for r in summary.results.values())
+    return summary.report([f"  {unreachable} frames could not reach their target (object too small or thin); "
+                           "they keep the closest coverage found"])
 
 
 def check_inputs(in_dir, out_dir) -> list[Path]:
@@ -136,55 +114,13 @@ def occlude_shard(job: OccludeJob, report=lambda n: None) -> dict:
                      occlusion_source=Path(job.source).name, source_plan_key=attrs.get("plan_key", ""))
     # Depth, mask, poses...: copied chunk for chunk, no decompressing and recompressing.
     target = write_shard(Path(job.out_dir) / job.name, changed, out_attrs, copy_from=(job.source, unchanged))
-    return {"entry": manifest_entry(target), "unreachable": int((~reached).sum()),
-            "fractions": fractions.tolist()}
-
-
-def _discard_partial(job: OccludeJob) -> None:
-    partial_path(Path(job.out_dir) / job.name).unlink(missing_ok=True)
+    return {"entry": manifest_entry(target), "unreachable": int((~reached).sum())}
 
 
 def occlude_dataset(in_dir, out_dir, *, low=0.0, high=0.6, copies=1, rects=1, seed=0, workers=1,
-                    progress=None) -> OccludeSummary:
-    """Occlude every shard of ``in_dir`` into ``out_dir`` (resuming), then write its manifest."""
+                    progress=None) -> RunSummary:
+    """Occlude every shard of ``in_dir`` into ``out_dir`` (resuming), then write its manifest.
+    Everything is checked before anything is written."""
     shards = check_inputs(in_dir, out_dir)
-    jobs = plan_occlusion(shards, out_dir, low, high, copies, rects, seed)  # validates before writing
-    out = prepare_out_dir(out_dir)
-    started = time.perf_counter()
-    summary = OccludeSummary(out_dir=out, planned=len(jobs))
-    with OutputLock(out):
-        remove_partials(out)
-        todo = []
-        for job in jobs:
-            target = out / job.name
-            if target.exists():
-                if read_attrs(target).get("plan_key") != job.plan_key:
-                    raise ShardError(f"{target} was made from other input or options; "
-                                     f"occlude into a new --out folder or delete {out}")
-                summary.skipped.append(job.name)
-            else:
-                todo.append(job)
-        if progress is not None:
-            progress.total = sum(j.frames for j in todo)
-        entries = {}
-
-        def on_outcome(o):
-            if o.error:
-                summary.failed.append((o.job.name, o.error))
-                return
-            summary.written.append(o.job.name)
-            summary.frames += o.job.frames
-            summary.unreachable += o.result["unreachable"]
-            summary.fractions += o.result["fractions"]
-            entries[o.job.name] = o.result["entry"]
-
-        try:
-            run_jobs(occlude_shard, todo, workers=0 if workers <= 1 else workers, on_outcome=on_outcome,
-                     on_progress=progress, on_worker_death=_discard_partial)
-        except KeyboardInterrupt:
-            summary.interrupted = True
-        finally:
-            remove_partials(out)
-            write_manifest(out, known=entries)
-    summary.seconds = time.perf_counter() - started
-    return summary
+    jobs = plan_occlusion(shards, out_dir, low, high, copies, rects, seed)
+    return run_shard_jobs(occlude_shard, jobs, out_dir, workers=workers, progress=progress, verb="occluded")

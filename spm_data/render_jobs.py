@@ -12,7 +12,6 @@ from __future__ import annotations
 import glob
 import hashlib
 import json
-import time
 import zlib
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
@@ -22,14 +21,12 @@ import numpy as np
 
 from spm_data import __version__
 from spm_data.backgrounds import background_image, composite
-from spm_data.errors import ShardError, SpecError, SpmError
-from spm_data.executor import run_jobs
-from spm_data.locking import OutputLock
+from spm_data.errors import SpecError
 from spm_data.meshes import load_mesh_file, procedural_mesh
 from spm_data.paths import camera_path
 from spm_data.render import make_renderer, spec_intrinsics
-from spm_data.shards import (SCHEMA_VERSION, manifest_entry, partial_path, read_attrs, remove_partials,
-                             write_manifest, write_shard)
+from spm_data.shard_runs import RunSummary, run_shard_jobs
+from spm_data.shards import SCHEMA_VERSION, manifest_entry, write_shard
 from spm_data.specs import RenderSpec
 
 
@@ -46,29 +43,6 @@ class ShardJob:
     @property
     def frames(self) -> int:
         return int(len(self.instances))
-
-
-@dataclass
-class RunSummary:
-    out_dir: Path
-    planned: int = 0
-    rendered: list = field(default_factory=list)
-    skipped: list = field(default_factory=list)
-    failed: list = field(default_factory=list)   # (shard name, error)
-    frames: int = 0
-    seconds: float = 0.0
-    interrupted: bool = False
-    complete: int = 0     # planned shards complete on disk when the run ended
-
-    def report(self) -> str:
-        """What happened, in a few lines for a person."""
-        lines = [f"rendered {len(self.rendered)} shards ({self.frames} frames) in {self.seconds:.1f} s; "
-                 f"{len(self.skipped)} already complete; {len(self.failed)} failed -> {self.out_dir}/"]
-        lines += [f"  failed {name}: {err}" for name, err in self.failed]
-        if self.interrupted:
-            lines.append(f"interrupted: {self.complete} of {self.planned} shards are complete in {self.out_dir}/ "
-                         "(listed in manifest.json); run the same command again to resume")
-        return "\n".join(lines)
 
 
 # --------------------------------------------------------------------------- instances
@@ -201,43 +175,7 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
              "renderer_settings": json.dumps(renderer.settings(), sort_keys=True),
              "spm_version": __version__, "source": "synthetic", "object_size": spec.mesh.size}
     target = write_shard(Path(job.out_dir) / job.name, arrays, attrs)
-    return manifest_entry(target)
-
-
-def _discard_partial(job: ShardJob) -> None:
-    partial_path(Path(job.out_dir) / job.name).unlink(missing_ok=True)
-
-
-# --------------------------------------------------------------------------- a whole run
-
-def prepare_out_dir(out_dir) -> Path:
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise ShardError(f"output path {out} is a file; give a folder")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ShardError(f"cannot create output folder {out}: {exc.strerror}") from None
-    return out
-
-
-def pending_jobs(jobs: list[ShardJob], summary: RunSummary) -> list[ShardJob]:
-    """Jobs whose shard is not already complete; refuses shards from another plan."""
-    todo = []
-    for job in jobs:
-        target = Path(job.out_dir) / job.name
-        if not target.exists():
-            todo.append(job)
-            continue
-        try:
-            key = read_attrs(target).get("plan_key")
-        except ShardError:
-            key = None
-        if key != job.plan_key:
-            raise ShardError(f"{target} was made with a different spec, seed, renderer or --limit; "
-                             f"render into a new --out folder or delete {target.parent}")
-        summary.skipped.append(job.name)
-    return todo
+    return {"entry": manifest_entry(target)}
 
 
 def render_dataset(specs: list[RenderSpec], out_dir, *, limit=None, workers=1, progress=None) -> RunSummary:
@@ -247,38 +185,10 @@ def render_dataset(specs: list[RenderSpec], out_dir, *, limit=None, workers=1, p
     always renders in worker processes. progress: a callable taking frame deltas
     and a ``total`` attribute (e.g. a tqdm bar), or None.
     """
-    out = prepare_out_dir(out_dir)
-    started = time.perf_counter()
-    summary = RunSummary(out_dir=out)
-    with OutputLock(out):
-        remove_partials(out)
-        jobs = [job for spec in specs for job in plan_shards(spec, out, limit)]
-        names = [j.name for j in jobs]
-        if len(set(names)) != len(names):
-            raise SpecError("two specs share a class name; each class needs its own name")
-        summary.planned = len(jobs)
-        todo = pending_jobs(jobs, summary)
-        if progress is not None:
-            progress.total = sum(j.frames for j in todo)
-        in_process = workers <= 1 and all(j.spec.render.renderer == "pyrender" for j in todo)
-        entries = {}
-
-        def on_outcome(o):
-            if o.error:
-                summary.failed.append((o.job.name, o.error))
-            else:
-                summary.rendered.append(o.job.name)
-                summary.frames += o.job.frames
-                entries[o.job.name] = o.result
-
-        try:
-            run_jobs(render_shard, todo, workers=0 if in_process else workers, retries=1,
-                     on_outcome=on_outcome, on_progress=progress, on_worker_death=_discard_partial)
-        except KeyboardInterrupt:
-            summary.interrupted = True
-        finally:
-            remove_partials(out)
-            write_manifest(out, known=entries)
-            summary.complete = sum((out / job.name).exists() for job in jobs)
-    summary.seconds = time.perf_counter() - started
-    return summary
+    jobs = [job for spec in specs for job in plan_shards(spec, out_dir, limit)]
+    names = [j.name for j in jobs]
+    if len(set(names)) != len(names):
+        raise SpecError("two specs share a class name; each class needs its own name")
+    in_process = all(j.spec.render.renderer == "pyrender" for j in jobs)
+    return run_shard_jobs(render_shard, jobs, out_dir, workers=workers, in_process=in_process,
+                          progress=progress, verb="rendered")

@@ -28,7 +28,7 @@ def test_fractions_lie_in_range_and_input_is_untouched(rendered, tmp_path):
     before = hashes(rendered)
     summary = occlude_dataset(rendered, tmp_path / "occ", low=0.1, high=0.6)
     assert hashes(rendered) == before
-    assert summary.frames == 78 and len(summary.written) == 2
+    assert summary.frames == 78 and len(summary.done) == 2
     for path in list_shards(tmp_path / "occ"):
         src = read_shard(rendered / path.name)
         d = read_shard(path)
@@ -53,7 +53,7 @@ def test_fixed_fraction_is_hit_within_one_percent(rendered, tmp_path):
     summary = occlude_dataset(rendered, tmp_path / "occ", low=0.3, high=0.3)
     fractions = np.concatenate([read_shard(p, ["occlusion_fraction"])["occlusion_fraction"]
                                 for p in list_shards(tmp_path / "occ")])
-    assert summary.unreachable == 0
+    assert sum(r["unreachable"] for r in summary.results.values()) == 0
     assert np.all(np.abs(fractions - 0.3) <= 0.01)
 
 
@@ -73,7 +73,7 @@ def test_resume_skips_complete_shards(rendered, tmp_path):
     occlude_dataset(rendered, tmp_path / "occ")
     (tmp_path / "occ" / "cup-00001.h5").unlink()
     again = occlude_dataset(rendered, tmp_path / "occ")
-    assert again.skipped == ["cup-00000.h5"] and again.written == ["cup-00001.h5"]
+    assert again.skipped == ["cup-00000.h5"] and again.done == ["cup-00001.h5"]
 
 
 def run(*args):
@@ -108,4 +108,4 @@ def test_cli_errors_are_one_line_and_write_nothing(rendered, tmp_path):
 def test_cli_occlude_runs(rendered, tmp_path):
     r = run("occlude", "--in", rendered, "--out", tmp_path / "o", "--max", "0.6", "--seed", "2")
     assert r.exit_code == 0, r.output
-    assert "occluded 78 frames into 2 shards" in r.output
+    assert "occluded 2 shards (78 frames)" in r.output and "0 frames could not reach" in r.output

@@ -32,7 +32,7 @@ def test_plan_splits_frames_into_fixed_size_shards(small_specs_dir):
 def test_render_writes_labelled_shards_and_a_manifest(small_specs_dir, tmp_path):
     specs = load_run_specs(all_classes=True, specs_dir=small_specs_dir)
     summary = render_dataset(specs, tmp_path / "out", limit=12)
-    assert len(summary.rendered) == 4 and summary.frames == 24 and not summary.failed
+    assert len(summary.done) == 4 and summary.frames == 24 and not summary.failed
     manifest = read_manifest(tmp_path / "out")
     assert manifest["classes"] == {"box": 12, "cup": 12}
     assert [e["file"] for e in manifest["shards"]] == ["box-00000.h5", "box-00001.h5", "cup-00000.h5",
@@ -63,7 +63,7 @@ def test_two_workers_give_the_same_arrays_as_one(small_specs_dir, tmp_path):
     specs = load_run_specs(["cup"], specs_dir=small_specs_dir)
     render_dataset(specs, tmp_path / "one", limit=20, workers=1)
     summary = render_dataset(specs, tmp_path / "two", limit=20, workers=2)
-    assert len(summary.rendered) == 3 and not summary.failed
+    assert len(summary.done) == 3 and not summary.failed
     assert_same_arrays(arrays_of(tmp_path / "one"), arrays_of(tmp_path / "two"))
 
 
@@ -73,9 +73,9 @@ def test_rerun_resumes_and_a_changed_plan_is_refused(small_specs_dir, tmp_path):
     render_dataset(specs, out, limit=16)
     (out / "cup-00001.h5").unlink()  # as if the run had died before this shard
     again = render_dataset(specs, out, limit=16)
-    assert again.skipped == ["cup-00000.h5"] and again.rendered == ["cup-00001.h5"]
+    assert again.skipped == ["cup-00000.h5"] and again.done == ["cup-00001.h5"]
     assert read_manifest(out)["frames"] == 16
-    with pytest.raises(ShardError, match="different spec, seed, renderer or --limit"):
+    with pytest.raises(ShardError, match="made from another spec, input, seed or options"):
         render_dataset(load_run_specs(["cup"], specs_dir=small_specs_dir, seed=5), out, limit=16)
 
 
@@ -131,3 +131,11 @@ def test_backgrounds_fill_everything_but_the_object(tmp_path, kind):
         assert firsts <= {(255, 0, 0), (0, 255, 0)} and len(firsts) == 2  # both images used, seeded per frame
         assert all(np.all(p == p[0]) for p in per_frame)
     assert data["rgb"][~outside].mean() > 5  # the object is drawn over it
+
+
+def test_a_spec_whose_meshes_are_missing_writes_nothing(tmp_path):
+    spec_file = tmp_path / "mine.toml"
+    spec_file.write_text('class = "mine"\n[mesh]\nsource = "files"\nfiles = ["meshes/*.obj"]\n')
+    with pytest.raises(SpecError, match="matches no file"):
+        render_dataset(load_run_specs(spec_files=[spec_file]), tmp_path / "out")
+    assert not (tmp_path / "out").exists()

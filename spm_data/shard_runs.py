@@ -1,0 +1,120 @@
+"""A resumable run of shard jobs into one output folder: the mechanism render, occlude
+(and the importers) share.
+
+A job is anything with ``name`` (the shard file), ``plan_key`` (what it was
+made from: inputs, options, seed), ``frames`` and ``out_dir``; its function
+writes the shard atomically and returns ``{"entry": manifest entry, ...}``.
+The run holds the folder's lock, clears leftovers of killed runs, skips shards
+already complete for the same plan, refuses ones made for another plan, runs
+the rest (worker processes may crash; see executor.py), and writes the manifest
+last, also when interrupted.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from spm_data.errors import ShardError
+from spm_data.executor import run_jobs
+from spm_data.locking import OutputLock
+from spm_data.shards import partial_path, read_attrs, remove_partials, write_manifest
+
+
+@dataclass
+class RunSummary:
+    out_dir: Path
+    verb: str = "wrote"           # "rendered", "occluded", ...
+    planned: int = 0
+    done: list = field(default_factory=list)      # shard names written by this run
+    skipped: list = field(default_factory=list)   # already complete
+    failed: list = field(default_factory=list)    # (shard name, error)
+    results: dict = field(default_factory=dict)   # shard name -> what its job returned
+    frames: int = 0
+    seconds: float = 0.0
+    interrupted: bool = False
+    complete: int = 0             # planned shards complete on disk when the run ended
+
+    def report(self, details=()) -> str:
+        """What happened, in a few lines for a person; ``details``: extra lines."""
+        lines = [f"{self.verb} {len(self.done)} shards ({self.frames} frames) in {self.seconds:.1f} s; "
+                 f"{len(self.skipped)} already complete; {len(self.failed)} failed -> {self.out_dir}/", *details]
+        lines += [f"  failed {name}: {err}" for name, err in self.failed]
+        if self.interrupted:
+            lines.append(f"interrupted: {self.complete} of {self.planned} shards are complete in {self.out_dir}/ "
+                         "(listed in manifest.json); run the same command again to resume")
+        return "\n".join(lines)
+
+
+def prepare_out_dir(out_dir) -> Path:
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise ShardError(f"output path {out} is a file; give a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ShardError(f"cannot create output folder {out}: {exc.strerror}") from None
+    return out
+
+
+def _pending(jobs, summary: RunSummary) -> list:
+    """Jobs whose shard is not already complete; refuses shards from another plan."""
+    todo = []
+    for job in jobs:
+        target = Path(job.out_dir) / job.name
+        if not target.exists():
+            todo.append(job)
+            continue
+        try:
+            key = read_attrs(target).get("plan_key")
+        except ShardError:
+            key = None
+        if key != job.plan_key:
+            raise ShardError(f"{target} was made from another spec, input, seed or options; "
+                             f"write into a new --out folder or delete {target.parent}")
+        summary.skipped.append(job.name)
+    return todo
+
+
+def _discard_partial(job) -> None:
+    partial_path(Path(job.out_dir) / job.name).unlink(missing_ok=True)
+
+
+def run_shard_jobs(fn, jobs, out_dir, *, workers=1, in_process=True, progress=None, verb="wrote") -> RunSummary:
+    """Run ``fn(job, report)`` for the jobs whose shard is missing, then write the manifest.
+
+    in_process: with ``workers <= 1``, run in this process (else always in
+    worker processes, as Blender must). progress: a callable taking frame
+    deltas with a ``total`` attribute (a tqdm bar), or None.
+    """
+    out = prepare_out_dir(out_dir)
+    started = time.perf_counter()
+    summary = RunSummary(out_dir=out, verb=verb, planned=len(jobs))
+    with OutputLock(out):
+        remove_partials(out)
+        todo = _pending(jobs, summary)
+        if progress is not None:
+            progress.total = sum(j.frames for j in todo)
+        entries = {}
+
+        def on_outcome(o):
+            if o.error:
+                summary.failed.append((o.job.name, o.error))
+                return
+            summary.done.append(o.job.name)
+            summary.frames += o.job.frames
+            summary.results[o.job.name] = o.result
+            entries[o.job.name] = o.result["entry"]
+
+        try:
+            run_jobs(fn, todo, workers=0 if (in_process and workers <= 1) else max(1, workers), retries=1,
+                     on_outcome=on_outcome, on_progress=progress, on_worker_death=_discard_partial)
+        except KeyboardInterrupt:
+            summary.interrupted = True
+        finally:
+            remove_partials(out)
+            write_manifest(out, known=entries)
+            summary.complete = sum((out / job.name).exists() for job in jobs)
+    summary.seconds = time.perf_counter() - started
+    return summary
