@@ -45,7 +45,7 @@ def main(frames: int = 1024) -> None:
         print(f"| step | frames/s |\n|---|---|\n| place rectangles (in memory, one core) | {frames / best_mem:.0f} |\n"
               f"| spm-data occlude (read, occlude, write, manifest), one process | {frames / best_cmd:.0f} |\n"
               f"| spm-data occlude --workers 2 | {frames / two:.0f} |")
-        print(f"unreachable frames in the last run: {summary.unreachable}")
+        print(f"unreachable frames in the last run: {sum(r['unreachable'] for r in summary.results.values())}")
 
 
 if __name__ == "__main__":

@@ -111,3 +111,20 @@ def test_manifest_lists_shards_with_counts_and_checksums(tmp_path):
     assert on_disk["classes"] == {"box": 1, "class_name-0": 1, "class_name-1": 1, "cup": 2}
     assert on_disk["shards"][0]["sha256"] == file_sha256(tmp_path / "s0.h5")
     json.loads((tmp_path / "manifest.json").read_text())
+
+
+def test_our_chunks_read_back_through_hdf5s_own_filters(tmp_path):
+    arrays = make_arrays(n=6, h=12, w=9, seed=3)
+    path = write_shard(tmp_path / "a.h5", arrays, {"seed": 0, "renderer": "x"})
+    with h5py.File(path) as f:  # the library's filter pipeline decodes what encode_chunk wrote
+        for name in ("rgb", "depth", "mask"):
+            np.testing.assert_array_equal(f[name][:], arrays[name])
+            assert f[name].compression == "gzip" and f[name].shuffle == (f[name].dtype.itemsize > 1)
+
+
+def test_corrupt_chunk_is_a_shard_error(tmp_path):
+    path = write_shard(tmp_path / "a.h5", make_arrays(n=2, h=40, w=40), {"seed": 0, "renderer": "x"})
+    with h5py.File(path, "a") as f:
+        f["depth"].id.write_direct_chunk((1, 0, 0), b"not zlib at all")
+    with pytest.raises(ShardError, match="field 'depth' is corrupt"):
+        read_shard(path, ["depth"])
