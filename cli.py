@@ -107,6 +107,147 @@ def occlude_cmd(in_dir, out_dir, low, high, copies, rects, seed, workers):
                                                   seed=seed, workers=workers, progress=bar), occlusion_report)
 
 
+@data_cli.group("import")
+def import_group():
+    """Turn real datasets (COIL-100, CVL, BOP, any posed-image folder) into shards."""
+
+
+def _finish_import(call):
+    from spm_data.importing import import_report
+
+    problems = []
+
+    def run(bar):
+        summary, found = call(bar)
+        problems.extend(found)
+        return summary
+
+    run_with_progress(run, lambda summary: import_report(summary, problems))
+
+
+common_import = [
+    click.option("--out", default="out_imported", show_default=True, type=click.Path(), help="Folder to write."),
+    click.option("--threshold", default=10, show_default=True, type=click.IntRange(0, 254),
+                 help="Mask = brightest channel above this, where the data has no masks."),
+    click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1), help="Worker processes."),
+]
+
+
+def with_common(fn):
+    for option in reversed(common_import):
+        fn = option(fn)
+    return fn
+
+
+@import_group.command("coil100")
+@click.argument("path", type=click.Path())
+@with_common
+@click.option("--elevation", default=0.0, show_default=True, help="Assumed camera elevation, degrees (not published).")
+@click.option("--distance", default=1.0, show_default=True, help="Assumed camera distance, metres (not published).")
+@click.option("--fov", default=30.0, show_default=True, help="Assumed vertical field of view, degrees.")
+@click.option("--classes", "classes_csv", type=click.Path(), default=None, help="CSV: object id,class name.")
+@handle_errors
+def import_coil100_cmd(path, out, threshold, workers, elevation, distance, fov, classes_csv):
+    """COIL-100: the extracted folder, coil-100.zip or coil-100.tar.gz."""
+    from spm_data.coil100 import import_coil100
+
+    _finish_import(lambda bar: import_coil100(path, out, elevation=elevation, distance=distance, fov=fov,
+                                              classes_csv=classes_csv, threshold=threshold, workers=workers,
+                                              progress=bar))
+
+
+@import_group.command("folder")
+@click.argument("path", type=click.Path())
+@click.option("--poses", "poses_csv", type=click.Path(), default=None, help="Pose table (default PATH/poses.csv).")
+@with_common
+@click.option("--unit", default="m", show_default=True, type=click.Choice(["m", "cm", "mm"]), help="Translation unit.")
+@click.option("--euler", default="XYZ", show_default=True, help="Euler order of rx ry rz columns (scipy notation).")
+@click.option("--fov", type=float, default=None, help="Vertical field of view, degrees, if the table has no fx fy cx cy.")
+@click.option("--class", "class_name", default="folder", show_default=True, help="Class when the table has none.")
+@click.option("--depth-unit", default="mm", show_default=True, type=click.Choice(["m", "cm", "mm"]),
+              help="What one step of a uint16 depth image is.")
+@handle_errors
+def import_folder_cmd(path, poses_csv, out, threshold, workers, unit, euler, fov, class_name, depth_unit):
+    """Images plus a table of per-image poses (docs/datasets.md)."""
+    from spm_data.posed_folder import import_folder
+
+    _finish_import(lambda bar: import_folder(path, out, poses_csv=poses_csv, unit=unit, euler=euler, fov=fov,
+                                             class_name=class_name, depth_unit=depth_unit, threshold=threshold,
+                                             workers=workers, progress=bar))
+
+
+@import_group.command("cvl")
+@click.argument("path", type=click.Path())
+@with_common
+@click.option("--unit", default="mm", show_default=True, type=click.Choice(["m", "cm", "mm"]), help="Translation unit.")
+@click.option("--fov", type=float, default=None, help="Vertical field of view, degrees, if tables have no fx fy cx cy.")
+@handle_errors
+def import_cvl_cmd(path, out, threshold, workers, unit, fov):
+    """CVL in the assumed layout PATH/<object>/poses.csv (docs/datasets.md)."""
+    from spm_data.posed_folder import import_cvl
+
+    _finish_import(lambda bar: import_cvl(path, out, unit=unit, fov=fov, threshold=threshold, workers=workers,
+                                          progress=bar))
+
+
+@import_group.command("bop")
+@click.argument("path", type=click.Path())
+@with_common
+@click.option("--split", default="train_pbr", show_default=True, help="BOP split folder.")
+@click.option("--crop", type=click.IntRange(min=8), default=None, help="Square crops of this size around each object.")
+@click.option("--classes", "classes_csv", type=click.Path(), default=None, help="CSV: obj_id,class name.")
+@handle_errors
+def import_bop_cmd(path, out, threshold, workers, split, crop, classes_csv):
+    """A BOP dataset split: one frame per (image, object)."""
+    from spm_data.bop import import_bop
+
+    _finish_import(lambda bar: import_bop(path, out, split=split, crop=crop, classes_csv=classes_csv,
+                                          workers=workers, progress=bar))
+
+
+@data_cli.group("export")
+def export_group():
+    """Hand shards to other tools in their formats."""
+
+
+@export_group.command("bop")
+@click.argument("folder", type=click.Path())
+@click.option("--out", "out_dir", required=True, type=click.Path(), help="BOP dataset folder to create.")
+@click.option("--split", default="train", show_default=True, help="Split folder name.")
+@handle_errors
+def export_bop_cmd(folder, out_dir, split):
+    """Write a shard folder as a BOP dataset (one scene per object instance)."""
+    from spm_data.bop import export_bop
+
+    bar = Progress()
+    try:
+        counts = export_bop(folder, out_dir, split=split, progress=bar)
+    finally:
+        bar.close()
+    click.echo(f"exported {counts['frames']} frames of {counts['objects']} objects in {counts['scenes']} scenes "
+               f"-> {out_dir}/")
+    if counts["without_model"]:
+        click.echo(f"  no mesh for {len(counts['without_model'])} objects (imported, not rendered): "
+                   f"{', '.join(counts['without_model'][:10])}")
+
+
+@data_cli.command("merge")
+@click.argument("folders", nargs=-1, type=click.Path())
+@click.option("--out", "out_dir", required=True, type=click.Path(), help="Folder to write.")
+@click.option("--sources", default=None, help="Keep only these sources, e.g. synthetic,coil100.")
+@click.option("--classes", "renames", default=None, help="Rename classes: old=new[,old=new...].")
+@click.option("--frames-per-shard", default=256, show_default=True, type=click.IntRange(min=1))
+@click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1), help="Worker processes.")
+@handle_errors
+def merge_cmd(folders, out_dir, sources, renames, frames_per_shard, workers):
+    """Combine shard folders into one, rebalanced into full shards."""
+    from spm_data.merge import merge_folders, parse_renames
+
+    keep = [s.strip() for s in sources.split(",") if s.strip()] if sources else None
+    run_with_progress(lambda bar: merge_folders(folders, out_dir, sources=keep, renames=parse_renames(renames),
+                                                frames_per_shard=frames_per_shard, workers=workers, progress=bar))
+
+
 @data_cli.command("info")
 @click.argument("path", type=click.Path())
 @handle_errors

@@ -81,7 +81,8 @@ def _discard_partial(job) -> None:
     partial_path(Path(job.out_dir) / job.name).unlink(missing_ok=True)
 
 
-def run_shard_jobs(fn, jobs, out_dir, *, workers=1, in_process=True, progress=None, verb="wrote") -> RunSummary:
+def run_shard_jobs(fn, jobs, out_dir, *, workers=1, in_process=True, progress=None, verb="wrote",
+                   manifest_extra=None) -> RunSummary:
     """Run ``fn(job, report)`` for the jobs whose shard is missing, then write the manifest.
 
     in_process: with ``workers <= 1``, run in this process (else always in
@@ -103,9 +104,10 @@ def run_shard_jobs(fn, jobs, out_dir, *, workers=1, in_process=True, progress=No
                 summary.failed.append((o.job.name, o.error))
                 return
             summary.done.append(o.job.name)
-            summary.frames += o.job.frames
+            summary.frames += o.result.get("frames", o.job.frames)  # importers may skip unreadable frames
             summary.results[o.job.name] = o.result
-            entries[o.job.name] = o.result["entry"]
+            if o.result.get("entry") is not None:
+                entries[o.job.name] = o.result["entry"]
 
         try:
             run_jobs(fn, todo, workers=0 if (in_process and workers <= 1) else max(1, workers), retries=1,
@@ -114,7 +116,7 @@ def run_shard_jobs(fn, jobs, out_dir, *, workers=1, in_process=True, progress=No
             summary.interrupted = True
         finally:
             remove_partials(out)
-            write_manifest(out, known=entries)
+            write_manifest(out, known=entries, extra=manifest_extra)
             summary.complete = sum((out / job.name).exists() for job in jobs)
     summary.seconds = time.perf_counter() - started
     return summary

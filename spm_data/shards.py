@@ -266,17 +266,20 @@ def write_json_atomic(path, payload) -> None:
     os.replace(tmp, path)
 
 
-def write_manifest(folder, known: dict | None = None) -> dict:
+def write_manifest(folder, known: dict | None = None, extra: dict | None = None) -> dict:
     """(Re)write ``folder/manifest.json`` from the complete shards on disk.
 
     known: entries already computed this run, by file name (saves re-hashing);
     entries of the old manifest are reused when size still matches.
+    extra: more top-level keys (e.g. merge's ``sources``); an old manifest's are kept.
     """
     folder = Path(folder)
-    old = {}
+    old, old_extra = {}, {}
     if (folder / MANIFEST).is_file():
         try:
-            old = {e["file"]: e for e in read_manifest(folder)["shards"]}
+            previous = read_manifest(folder)
+            old = {e["file"]: e for e in previous["shards"]}
+            old_extra = {k: v for k, v in previous.items() if k not in ("schema_version", "shards", "frames", "classes")}
         except ShardError:
             old = {}
     known = dict(known or {})
@@ -290,7 +293,7 @@ def write_manifest(folder, known: dict | None = None) -> dict:
     for e in entries:
         for c, k in e["classes"].items():
             classes[c] = classes.get(c, 0) + k
-    payload = {"schema_version": SCHEMA_VERSION, "shards": entries,
+    payload = {**old_extra, **(extra or {}), "schema_version": SCHEMA_VERSION, "shards": entries,
                "frames": sum(e["frames"] for e in entries), "classes": dict(sorted(classes.items()))}
     write_json_atomic(folder / MANIFEST, payload)
     return payload
