@@ -281,3 +281,22 @@ def test_cli_import_reports_skips_and_resumes(coil_folder, tmp_path):
     assert "no mesh for 2 objects" in r.output
     r = CliRunner().invoke(data_cli, ["export", "bop", str(tmp_path / "o"), "--out", str(tmp_path / "b")])
     assert r.exit_code == 1 and "not empty" in r.output
+
+
+def test_bop_poses_survive_import_then_export_exactly(tmp_path):
+    gt = make_bop_scene(tmp_path / "bop")
+    import_bop(tmp_path / "bop", tmp_path / "ours")
+    export_bop(tmp_path / "ours", tmp_path / "again")
+    exported = []
+    for scene in sorted((tmp_path / "again" / "train").iterdir()):
+        for im, objs in json.loads((scene / "scene_gt.json").read_text()).items():
+            exported += [(o["cam_R_m2c"], o["cam_t_m2c"]) for o in objs]
+    original = [(o["cam_R_m2c"], o["cam_t_m2c"]) for o in gt["0"]]
+    assert len(exported) == 2
+    for (R0, t0), (R1, t1) in zip(original, exported):
+        np.testing.assert_allclose(R1, R0, atol=1e-12)
+        np.testing.assert_allclose(t1, t0, atol=1e-9)   # mm -> m -> mm
+    cams = json.loads((tmp_path / "again" / "train" / "000000" / "scene_camera.json").read_text())
+    np.testing.assert_allclose(cams["0"]["cam_K"], [500.0, 0, 79.5, 0, 500.0, 59.5, 0, 0, 1])
+    info = json.loads((tmp_path / "again" / "train" / "000000" / "scene_gt_info.json").read_text())
+    assert info["0"][0]["visib_fract"] == 0.5
