@@ -80,13 +80,16 @@ def data_cli():
 @click.option("--renderer", type=click.Choice(["pyrender", "blender"]), default=None, help="Override the spec's renderer.")
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Override the spec's seed.")
 @click.option("--limit", type=click.IntRange(min=1), default=None, help="At most N frames per class, spread over views.")
+@click.option("--recycle-after", default=16, show_default=True, type=click.IntRange(min=0),
+              help="Replace each worker process after this many shards (0: never); bounds renderer leaks.")
 @handle_errors
-def render_cmd(classes, all_classes, spec_files, specs_dir, out, workers, renderer, seed, limit):
+def render_cmd(classes, all_classes, spec_files, specs_dir, out, workers, renderer, seed, limit, recycle_after):
     """Render classes over their camera paths into shards in --out (resumes)."""
     from spm_data.render_jobs import load_run_specs, render_dataset
 
     specs = load_run_specs(classes, all_classes, spec_files, specs_dir, renderer=renderer, seed=seed)
-    run_with_progress(lambda bar: render_dataset(specs, out, limit=limit, workers=workers, progress=bar))
+    run_with_progress(lambda bar: render_dataset(specs, out, limit=limit, workers=workers, progress=bar,
+                                                 recycle_after=recycle_after))
 
 
 @data_cli.command("occlude")
@@ -246,6 +249,19 @@ def merge_cmd(folders, out_dir, sources, renames, frames_per_shard, workers):
     keep = [s.strip() for s in sources.split(",") if s.strip()] if sources else None
     run_with_progress(lambda bar: merge_folders(folders, out_dir, sources=keep, renames=parse_renames(renames),
                                                 frames_per_shard=frames_per_shard, workers=workers, progress=bar))
+
+
+@data_cli.command("validate")
+@click.argument("folder", type=click.Path())
+@handle_errors
+def validate_cmd(folder):
+    """Check every shard against the schema and the manifest against the files; exit 1 on any problem."""
+    from spm_data.validate import validate_folder, validation_report
+
+    problems = validate_folder(folder)
+    click.echo(validation_report(folder, problems))
+    if problems:
+        sys.exit(1)
 
 
 @data_cli.command("info")

@@ -82,7 +82,7 @@ def _discard_partial(job) -> None:
 
 
 def run_shard_jobs(fn, jobs, out_dir, *, workers=1, in_process=True, progress=None, verb="wrote",
-                   manifest_extra=None) -> RunSummary:
+                   manifest_extra=None, recycle_after=0) -> RunSummary:
     """Run ``fn(job, report)`` for the jobs whose shard is missing, then write the manifest.
 
     in_process: with ``workers <= 1``, run in this process (else always in
@@ -111,7 +111,8 @@ def run_shard_jobs(fn, jobs, out_dir, *, workers=1, in_process=True, progress=No
 
         try:
             run_jobs(fn, todo, workers=0 if (in_process and workers <= 1) else max(1, workers), retries=1,
-                     on_outcome=on_outcome, on_progress=progress, on_worker_death=_discard_partial)
+                     recycle_after=recycle_after, on_outcome=on_outcome, on_progress=progress,
+                     on_worker_death=_discard_partial)
         except KeyboardInterrupt:
             summary.interrupted = True
         finally:

@@ -185,10 +185,19 @@ def _open(path):
         raise ShardError(f"{path}: not a readable HDF5 shard ({exc})") from None
 
 
+# What h5py raises for a damaged file besides OSError (a bad object header is a KeyError).
+H5_ERRORS = (OSError, KeyError, ValueError, RuntimeError, TypeError, IndexError)
+
+
 def read_attrs(path) -> dict:
     """A shard's file attributes as plain Python values (checks the schema version)."""
-    with _open(path) as f:
-        attrs = {k: (v.item() if hasattr(v, "item") else v) for k, v in f.attrs.items()}
+    try:
+        with _open(path) as f:
+            attrs = {k: (v.item() if hasattr(v, "item") else v) for k, v in f.attrs.items()}
+    except H5_ERRORS as exc:
+        if isinstance(exc, ShardError):
+            raise
+        raise ShardError(f"{path}: corrupt shard attributes ({type(exc).__name__}: {exc})") from None
     version = attrs.get("schema_version")
     if version is None:
         raise ShardError(f"{path}: not an spm shard (no schema_version attribute)")
@@ -203,19 +212,24 @@ def read_shard(path, fields=None, frames=slice(None)) -> dict:
     or sorted index array). String fields come back as (n,) object arrays of str."""
     read_attrs(path)
     with _open(path) as f:
-        names = list(f.keys()) if fields is None else list(fields)
+        try:
+            names = list(f.keys()) if fields is None else list(fields)
+        except H5_ERRORS as exc:
+            raise ShardError(f"{path}: corrupt shard index ({type(exc).__name__}: {exc})") from None
         out = {}
         for name in names:
-            if name not in f:
-                raise ShardError(f"{path}: shard has no field {name!r}")
-            ds = f[name]
             try:
+                if name not in f:
+                    raise ShardError(f"{path}: shard has no field {name!r}")
+                ds = f[name]
                 if h5_is_string(ds):
                     out[name] = np.asarray(ds.asstr()[frames], dtype=object)
                 else:
                     out[name] = ds[frames]
-            except OSError as exc:
-                raise ShardError(f"{path}: field {name!r} is corrupt ({exc})") from None
+            except ShardError:
+                raise
+            except (*H5_ERRORS, UnicodeDecodeError) as exc:
+                raise ShardError(f"{path}: field {name!r} is corrupt ({type(exc).__name__}: {exc})") from None
     return out
 
 

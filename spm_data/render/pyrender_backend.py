@@ -52,6 +52,24 @@ def light_rotations(count: int) -> list[np.ndarray]:
 
 
 _OFFSCREEN: dict = {}
+_SCENE_CLASS = None
+
+
+def _ordered_scene_class(pr):
+    """pyrender.Scene whose lights come back in name order. pyrender keeps light
+    nodes in sets, iterated in an order that follows object addresses and so
+    varies between processes; the shader then sums the lights in another order
+    and a pixel can come out one level apart. A fixed order makes renders
+    repeat bit for bit (tests/test_reliability.py)."""
+    global _SCENE_CLASS
+    if _SCENE_CLASS is None:
+        class OrderedLightScene(pr.Scene):
+            @property
+            def light_nodes(self):
+                return sorted(super().light_nodes, key=lambda n: n.name or "")
+
+        _SCENE_CLASS = OrderedLightScene
+    return _SCENE_CLASS
 
 
 def _offscreen(pr, width: int, height: int):
@@ -97,7 +115,7 @@ class Renderer:
                                  texcoord_0=mesh.uv.astype(np.float32), indices=mesh.faces.astype(np.uint32),
                                  material=material)
         a = self.lighting.ambient
-        scene = pr.Scene(bg_color=[0.0, 0.0, 0.0, 0.0], ambient_light=[a, a, a])
+        scene = _ordered_scene_class(pr)(bg_color=[0.0, 0.0, 0.0, 0.0], ambient_light=[a, a, a])
         scene.add(pr.Mesh(primitives=[primitive]))
         K = self.K
         # pyrender's principal point counts from the pixel edge, OpenCV's from the first pixel centre.
@@ -105,7 +123,7 @@ class Renderer:
                                      znear=0.01, zfar=100.0)
         self._camera_node = scene.add(camera, pose=np.eye(4))
         self._light_nodes = [scene.add(pr.DirectionalLight(color=np.ones(3), intensity=self.lighting.strength),
-                                       pose=np.eye(4)) for _ in range(self.lighting.lights)]
+                                       name=f"spm-light-{i}", pose=np.eye(4)) for i in range(self.lighting.lights)]
         self._light_rots = light_rotations(self.lighting.lights)
         self._scene = scene
 
