@@ -1,0 +1,85 @@
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+
+from spm_model.ellipse import (Ellipse, EllipseError, _design, _normalise, conic_cost, direct_conic, fit_ellipse,
+                               pso_conic)
+from spm_model.manifold import canonical_order, foci_distances, initial_manifold
+
+
+def ellipse_points(centre=(40.0, 70.0), a=30.0, b=18.0, degrees=30.0, n=8, phase=0.3):
+    u = np.array([np.cos(np.radians(degrees)), np.sin(np.radians(degrees))])
+    v = np.array([-u[1], u[0]])
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False) + phase
+    return np.asarray(centre) + a * np.cos(t)[:, None] * u + b * np.sin(t)[:, None] * v, Ellipse(
+        np.asarray(centre), a, b, u)
+
+
+def radial_error(points, e):
+    """|sqrt((x'/a)^2 + (y'/b)^2) - 1| for points in the ellipse's own frame."""
+    d = points - e.centre
+    v = np.array([-e.u[1], e.u[0]])
+    return np.abs(np.sqrt((d @ e.u / e.a) ** 2 + (d @ v / e.b) ** 2) - 1)
+
+
+def test_direct_fit_through_known_points_gives_known_foci():
+    pts, true = ellipse_points()
+    e = fit_ellipse(pts, "direct")
+    np.testing.assert_allclose(e.foci, true.foci, atol=1e-7)
+    c = np.sqrt(30.0 ** 2 - 18.0 ** 2)
+    np.testing.assert_allclose(np.linalg.norm(e.foci - e.centre, axis=1), [c, c], atol=1e-7)
+    assert e.eccentricity == pytest.approx(c / 30.0)
+    assert radial_error(pts, e).max() < 1e-9
+
+
+def test_pso_reaches_the_constrained_minimum_of_eq1():
+    pts, _ = ellipse_points(n=8)
+    for seed, noise in [(0, 0.0), (1, 1.5), (2, 3.0)]:
+        p = pts + np.random.default_rng(seed).normal(0, noise, pts.shape)
+        pn, _, _ = _normalise(p)
+        design = _design(pn)
+        cost = lambda x: conic_cost(np.asarray(x)[None], design)[0]  # noqa: E731
+        constraint = {"type": "eq", "fun": lambda x: 4 * x[0] * x[2] - x[1] ** 2 - 1}
+        reference = min(minimize(cost, x0, constraints=[constraint], method="SLSQP").fun
+                        for x0 in (direct_conic(pn), np.array([0.5, 0, 0.5, 0, 0, -0.5])))
+        assert cost(pso_conic(pn, seed=seed)) <= reference * (1 + 1e-5)
+
+
+def test_both_fits_stay_close_to_the_points():
+    pts, _ = ellipse_points()
+    p = pts + np.random.default_rng(4).normal(0, 1.0, pts.shape)
+    assert radial_error(p, fit_ellipse(p, "direct")).mean() < 0.05
+    # Eq. 1's regulariser (lambda = 0.1) rounds the ellipse a little: still close.
+    assert radial_error(p, fit_ellipse(p, "pso")).mean() < 0.15
+
+
+def test_degenerate_inputs():
+    with pytest.raises(EllipseError, match="at least 5 points"):
+        fit_ellipse(np.zeros((4, 2)))
+    with pytest.raises(EllipseError):
+        fit_ellipse(np.column_stack([np.arange(8.0), 2 * np.arange(8.0)]), "direct")
+    with pytest.raises(EllipseError, match="coincide"):
+        fit_ellipse(np.ones((8, 2)))
+
+
+def test_manifold_is_unit_length_canonical_and_translation_scale_invariant():
+    pts, _ = ellipse_points(n=8, phase=0.1)
+    m, ecc = initial_manifold(pts, "direct")
+    assert m.shape == (16,) and np.linalg.norm(m) == pytest.approx(1.0) and 0 < ecc < 1
+    shuffled = pts[np.random.default_rng(0).permutation(8)]
+    np.testing.assert_allclose(initial_manifold(shuffled, "direct")[0], m, atol=1e-9)
+    moved = pts * 2.5 + np.array([100.0, -30.0])
+    np.testing.assert_allclose(initial_manifold(moved, "direct")[0], m, atol=1e-9)
+    # Pairs: the two distances of a point on the ellipse add up to 2a (normalised alike).
+    pairs = m.reshape(8, 2).sum(axis=1)
+    np.testing.assert_allclose(pairs, pairs[0], rtol=1e-9)
+
+
+def test_canonical_order_follows_angle_from_the_major_axis():
+    e = Ellipse(np.zeros(2), 2.0, 1.0, np.array([1.0, 0.0]))
+    centres = np.array([[0, 1.0], [-2, 0], [2, 0.0], [0, -1.0]])  # +90, 180, 0, 270 degrees
+    assert list(canonical_order(centres, e)) == [2, 0, 1, 3]
+    d = foci_distances(centres, e)
+    c = np.sqrt(3.0)
+    raw = np.array([2 + c, 2 - c, 2, 2, 2 - c, 2 + c, 2, 2])  # (+2,0), (0,1), (-2,0), (0,-1) to (-c,0), (c,0)
+    np.testing.assert_allclose(d, raw / np.linalg.norm(raw))
