@@ -9,9 +9,11 @@ leak in a renderer cannot grow without bound. ``workers=0`` runs in-process.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
 import signal
 import sys
+import threading
 from dataclasses import dataclass, field
 from multiprocessing.connection import wait
 
@@ -33,6 +35,30 @@ class _Worker:
     job_id: int | None = None
     done: int = 0
     progress: dict = field(default_factory=dict)
+
+
+@contextlib.contextmanager
+def deferred_interrupt():
+    """Turn the first Ctrl-C into a flag checked at safe points (after a frame, in
+    the pool loop), raised there as KeyboardInterrupt. A signal raised directly can
+    land inside a finaliser or a C callback, where Python prints "Exception ignored"
+    and the run goes on; a second Ctrl-C interrupts at once. Yields the flag."""
+    stop = threading.Event()
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        yield stop  # not ours to change (a thread, or a caller with its own handler)
+        return
+
+    def on_sigint(signum, frame):
+        if stop.is_set():
+            raise KeyboardInterrupt
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield stop
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def _describe(exc: BaseException) -> str:
@@ -75,9 +101,20 @@ def run_jobs(fn, jobs, *, workers=1, retries=1, recycle_after=0, on_progress=Non
     ``on_outcome(outcome)`` is called as each job finishes; ``on_worker_death(job)``
     when a worker dies holding ``job`` (to clean up what it left).
     """
-    jobs = list(jobs)
+    with deferred_interrupt() as stop:
+        return _run_jobs(fn, list(jobs), workers, retries, recycle_after, on_progress, on_outcome,
+                         on_worker_death, stop)
+
+
+def _run_jobs(fn, jobs, workers, retries, recycle_after, on_progress, on_outcome, on_worker_death, stop):
     outcomes: list[JobOutcome | None] = [None] * len(jobs)
-    progress = on_progress or (lambda n: None)
+    report = on_progress or (lambda n: None)
+
+    def progress(n):
+        report(n)
+        if stop.is_set():
+            raise KeyboardInterrupt
+
     if workers <= 0:
         for i, job in enumerate(jobs):
             try:
@@ -134,7 +171,9 @@ def run_jobs(fn, jobs, *, workers=1, retries=1, recycle_after=0, on_progress=Non
                         w.conn.send((w.job_id, jobs[w.job_id]))
                     except (BrokenPipeError, OSError):
                         pass  # its death is noticed below
-            ready = wait([w.conn for w in pool.values()] + [w.process.sentinel for w in pool.values()], timeout=1.0)
+            if stop.is_set():
+                raise KeyboardInterrupt
+            ready = wait([w.conn for w in pool.values()] + [w.process.sentinel for w in pool.values()], timeout=0.5)
             for wid, w in list(pool.items()):
                 dead = False
                 if w.conn in ready:
