@@ -82,7 +82,7 @@ def coil100_records(path, *, elevation=0.0, distance=1.0, fov=30.0, classes=None
     for obj in sorted(found):
         missing = [a for a in ANGLES if a not in found[obj]]
         problems += [(f"obj{obj}__{a}", "missing view") for a in missing]
-        for k, angle in enumerate(a for a in ANGLES if a in found[obj]):
+        for angle in (a for a in ANGLES if a in found[obj]):
             R, t = camera_pose(angle, elevation, 0.0, distance)
             records.append(FrameRecord(
                 image=found[obj][angle], class_name=(classes or {}).get(obj, f"coil100-obj{obj}"),

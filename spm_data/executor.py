@@ -82,7 +82,7 @@ def _worker_main(fn, conn, recycle_after):
             return
         job_id, job = item
         try:
-            result = fn(job, lambda n: conn.send(("progress", job_id, n)))
+            result = fn(job, lambda n, job_id=job_id: conn.send(("progress", job_id, n)))
             conn.send(("done", job_id, result))
         except BaseException as exc:  # noqa: BLE001 - reported to the parent, never swallowed
             conn.send(("error", job_id, _describe(exc)))
@@ -162,7 +162,7 @@ def _run_jobs(fn, jobs, workers, retries, recycle_after, on_progress, on_outcome
         for _ in range(min(workers, len(jobs))):
             start_worker()
         while any(o is None for o in outcomes):
-            for wid, w in list(pool.items()):
+            for w in list(pool.values()):
                 if w.job_id is None and queue and w.process.is_alive():
                     w.job_id = queue.pop(0)
                     attempts[w.job_id] += 1

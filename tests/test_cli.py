@@ -1,7 +1,6 @@
 import subprocess
 import sys
 
-import numpy as np
 from click.testing import CliRunner
 
 from cli import data_cli

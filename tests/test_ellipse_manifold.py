@@ -38,7 +38,7 @@ def test_pso_reaches_the_constrained_minimum_of_eq1():
         p = pts + np.random.default_rng(seed).normal(0, noise, pts.shape)
         pn, _, _ = _normalise(p)
         design = _design(pn)
-        cost = lambda x: conic_cost(np.asarray(x)[None], design)[0]  # noqa: E731
+        cost = lambda x, design=design: conic_cost(np.asarray(x)[None], design)[0]  # noqa: E731
         constraint = {"type": "eq", "fun": lambda x: 4 * x[0] * x[2] - x[1] ** 2 - 1}
         reference = min(minimize(cost, x0, constraints=[constraint], method="SLSQP").fun
                         for x0 in (direct_conic(pn), np.array([0.5, 0, 0.5, 0, 0, -0.5])))

@@ -229,8 +229,8 @@ def test_render_export_import_round_trip(small_specs_dir, tmp_path):
 def test_merge_keeps_every_frame_once(small_specs_dir, coil_folder, tmp_path):
     render_dataset(load_run_specs(all_classes=True, specs_dir=small_specs_dir), tmp_path / "syn", limit=12)
     import_coil100(coil_folder, tmp_path / "coil")
-    summary = merge_folders([tmp_path / "syn", tmp_path / "coil"], tmp_path / "m", frames_per_shard=50,
-                            renames={"coil100-obj7": "cup"})
+    merge_folders([tmp_path / "syn", tmp_path / "coil"], tmp_path / "m", frames_per_shard=50,
+                  renames={"coil100-obj7": "cup"})
     manifest = read_manifest(tmp_path / "m")
     assert manifest["frames"] == 24 + 142
     assert [s["folder"] for s in manifest["sources"]] == [str(tmp_path / "syn"), str(tmp_path / "coil")]
@@ -289,7 +289,7 @@ def test_bop_poses_survive_import_then_export_exactly(tmp_path):
     export_bop(tmp_path / "ours", tmp_path / "again")
     exported = []
     for scene in sorted((tmp_path / "again" / "train").iterdir()):
-        for im, objs in json.loads((scene / "scene_gt.json").read_text()).items():
+        for objs in json.loads((scene / "scene_gt.json").read_text()).values():
             exported += [(o["cam_R_m2c"], o["cam_t_m2c"]) for o in objs]
     original = [(o["cam_R_m2c"], o["cam_t_m2c"]) for o in gt["0"]]
     assert len(exported) == 2
