@@ -59,7 +59,7 @@ def fit_bunches(locations, gamma: int = GAMMA, seed: int = 0, tol: float = 1e-3,
     spread = np.cov(x.T) / gamma + ridge * np.eye(2)
     covs = np.repeat(spread[None], gamma, axis=0)
     weights = np.full(gamma, 1.0 / gamma)
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007 - the count is reported after the loop
         # E-step: P(b_k | v) for every keypoint (log-sum-exp for stability).
         log_p = np.stack([np.log(weights[k]) + _log_gauss(x, means[k], covs[k]) for k in range(gamma)], axis=1)
         log_p -= log_p.max(axis=1, keepdims=True)
