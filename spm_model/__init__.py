@@ -2,7 +2,7 @@
 
 Present so far (docs/method.md): ``keypoints`` (SIFT + homography RANSAC against
 the path neighbour), ``bunches`` (EM, gamma = 8), ``ellipse`` (Eq. 1 by particle
-swarm, and the direct fit) and ``manifold`` (foci distances in a canonical order).
-The sparse re-projection, the regressor, `spm train` and the reports arrive with
-their issue.
+swarm, and the direct fit), ``manifold`` (foci distances in a canonical order)
+and ``sparse`` (Eq. 5 as Sparsity Preserving Projections). The regressor,
+`spm train` and the reports arrive with their issue.
 """
