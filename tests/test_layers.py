@@ -7,7 +7,8 @@ CORE = ["spm_data", "spm_data.poses", "spm_data.paths", "spm_data.meshes", "spm_
         "spm_data.shards", "spm_data.backgrounds", "spm_data.sheet", "spm_data.info", "spm_data.render",
         "spm_data.render_jobs", "spm_data.executor", "spm_data.occlusion", "spm_data.importing",
         "spm_data.validate", "spm_model.ellipse", "spm_model.manifold",
-        "spm_model.keypoints", "spm_model.bunches", "spm_model.sparse", "cli"]
+        "spm_model.keypoints", "spm_model.bunches", "spm_model.sparse",
+        "spm_model.regressor", "cli"]
 FORBIDDEN = ("bpy", "OpenGL", "pyrender", "pyglet")
 
 
