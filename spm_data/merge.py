@@ -56,20 +56,20 @@ def plan_merge(inputs, out_dir, *, sources=None, renames=None, frames_per_shard=
         if not found:
             raise ShardError(f"no shards (*.h5) in {folder}")
         shards += found
-    versions = {int(read_attrs(p)["schema_version"]) for p in shards}
+    info = {p: _shard_info(p) for p in shards}  # attrs, sources, fields and checksum, read once each
+    versions = {i["schema_version"] for i in info.values()}
     if len(versions) > 1:
         raise ShardError(f"inputs mix shard schema versions {sorted(versions)}; convert them to "
                          f"version {SCHEMA_VERSION} first")
     renames = renames or {}
     groups: dict[tuple, list] = {}   # (H, W) -> [(shard, frames)]
     for path in shards:
-        attrs = read_attrs(path)
-        meta = read_shard(path, ["source"])
-        keep = np.arange(int(attrs["frames"]))
+        i = info[path]
+        keep = np.arange(i["frames"])
         if sources:
-            keep = keep[np.isin(meta["source"].astype(str), list(sources))]
+            keep = keep[np.isin(i["source"], list(sources))]
         if len(keep):
-            groups.setdefault((int(attrs["height"]), int(attrs["width"])), []).append((path, keep))
+            groups.setdefault((i["height"], i["width"]), []).append((path, keep))
     if not groups:
         raise SpmError(f"no frames left after --sources {','.join(sources or [])}")
     jobs = []
@@ -83,19 +83,23 @@ def plan_merge(inputs, out_dir, *, sources=None, renames=None, frames_per_shard=
                 by_shard.setdefault(p, []).append(i)
             frames_from = tuple((p, tuple(ix)) for p, ix in by_shard.items())
             optional = tuple(f for f in OPTIONAL_FIELDS
-                             if all(_has_field(p, f) for p, _ in frames_from))
-            stamp = [(p, file_sha256(p)) for p, _ in frames_from]
+                             if all(f in info[Path(p)]["fields"] for p, _ in frames_from))
+            stamp = [(p, info[Path(p)]["sha256"]) for p, _ in frames_from]
             key = hashlib.sha256(json.dumps([stamp, frames_from, sorted(renames.items()), optional]).encode())
             jobs.append(MergeJob(f"merged-{tag}-{k:05d}.h5", key.hexdigest(), str(out_dir), frames_from,
                                  tuple(sorted(renames.items())), optional))
     return jobs
 
 
-def _has_field(path, name) -> bool:
+def _shard_info(path) -> dict:
     import h5py
 
+    attrs = read_attrs(path)
     with h5py.File(path, "r") as f:
-        return name in f
+        fields = set(f.keys())
+    return {"schema_version": int(attrs["schema_version"]), "frames": int(attrs["frames"]),
+            "height": int(attrs["height"]), "width": int(attrs["width"]), "fields": fields,
+            "source": read_shard(path, ["source"])["source"].astype(str), "sha256": file_sha256(path)}
 
 
 def merge_shard(job: MergeJob, report=lambda n: None) -> dict:

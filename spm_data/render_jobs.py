@@ -24,10 +24,11 @@ from spm_data.backgrounds import background_image, composite
 from spm_data.errors import SpecError
 from spm_data.meshes import load_mesh_file, procedural_mesh
 from spm_data.paths import camera_path
+from spm_data.poses import pose_to_label
 from spm_data.render import make_renderer, spec_intrinsics
 from spm_data.shard_runs import RunSummary, run_shard_jobs
 from spm_data.shards import SCHEMA_VERSION, manifest_entry, write_shard
-from spm_data.specs import RenderSpec
+from spm_data.specs import RenderSpec, all_spec_paths, find_spec, load_spec
 
 
 @dataclass(frozen=True)
@@ -86,8 +87,6 @@ def effective_spec(spec: RenderSpec, renderer: str | None = None, seed: int | No
 
 def load_run_specs(classes=(), all_classes=False, spec_files=(), specs_dir=None, renderer=None, seed=None):
     """The specs a render run names: ``--class`` names, ``--all``, explicit files."""
-    from spm_data.specs import all_spec_paths, find_spec, load_spec
-
     paths = [find_spec(c, specs_dir) for c in classes] + [Path(p) for p in spec_files]
     if all_classes:
         paths += all_spec_paths(specs_dir)
@@ -155,8 +154,6 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
         arrays["depth"][i] = out["depth"]
         arrays["mask"][i] = out["mask"]
         report(1)
-    from spm_data.poses import pose_to_label
-
     names = {int(i): load_instance(spec, int(i)).name for i in np.unique(job.instances)}
     arrays.update({
         "K": np.broadcast_to(spec_intrinsics(spec), (n, 3, 3)).copy(), "R": R, "t": t,

@@ -42,6 +42,22 @@ def make_renderer(spec, name: str | None = None):
     return module.Renderer(spec)
 
 
+def light_rotations(count: int) -> list[np.ndarray]:
+    """(3, 3) rotations, in the camera's GL frame, of ``count`` lights that move
+    with the camera: a head light, the others on a 40-degree cone around it."""
+    rots = []
+    for i in range(count):
+        if i == 0:
+            rots.append(np.eye(3))
+            continue
+        phi = 2 * np.pi * (i - 1) / max(count - 1, 1)
+        axis = np.array([np.cos(phi), np.sin(phi), 0.0])
+        angle = np.radians(40.0)
+        k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+        rots.append(np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k)
+    return rots
+
+
 def mask_from_depth(depth: np.ndarray) -> np.ndarray:
     """(H, W) uint8 mask of pixels with a surface (depth > 0)."""
     return (depth > 0).astype(np.uint8)

@@ -22,8 +22,7 @@ import numpy as np
 
 from spm_data.errors import RenderError
 from spm_data.poses import cv_to_gl_camera_to_world
-from spm_data.render import spec_intrinsics
-from spm_data.render.pyrender_backend import light_rotations
+from spm_data.render import light_rotations, spec_intrinsics
 
 NO_HIT_DEPTH = 1e9  # Blender writes 1e10 where no surface was hit
 INSTALL_HINT = "install it with: pip install 'spm[blender]' (bpy 5.0.x, Python 3.11)"

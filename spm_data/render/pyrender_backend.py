@@ -11,7 +11,7 @@ import numpy as np
 
 from spm_data.errors import RenderError
 from spm_data.poses import cv_to_gl_camera_to_world
-from spm_data.render import mask_from_depth, spec_intrinsics
+from spm_data.render import light_rotations, mask_from_depth, spec_intrinsics
 
 # EGL needs no display; it must be chosen before OpenGL is first imported.
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
@@ -33,22 +33,6 @@ def _import_pyrender():
             lambda target, samples, fmt, width, height: multisample(target, 0, fmt, width, height))
         gl_renderer._spm_single_sample = True
     return pyrender
-
-
-def light_rotations(count: int) -> list[np.ndarray]:
-    """(3, 3) rotations, in the camera's GL frame, of ``count`` lights that move
-    with the camera: a head light, the others on a 40-degree cone around it."""
-    rots = []
-    for i in range(count):
-        if i == 0:
-            rots.append(np.eye(3))
-            continue
-        phi = 2 * np.pi * (i - 1) / max(count - 1, 1)
-        axis = np.array([np.cos(phi), np.sin(phi), 0.0])
-        angle = np.radians(40.0)
-        k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-        rots.append(np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k)
-    return rots
 
 
 _OFFSCREEN: dict = {}
