@@ -303,5 +303,87 @@ def model_cli():
     """spm: train and evaluate the Sparse Pose Manifolds estimator on spm-data shards."""
 
 
+def _parse_roi(text):
+    try:
+        x, y, w, h = (int(v) for v in text.split(","))
+    except ValueError:
+        raise click.BadParameter(f"expected x,y,width,height in pixels, got {text!r}") from None
+    return x, y, w, h
+
+
+@model_cli.command("train")
+@click.option("--shards", required=True, type=click.Path(), help="Folder of shards (searched recursively).")
+@click.option("--report", "report_dir", default=None, type=click.Path(), help="Report folder [default: SHARDS/report].")
+@click.option("--protocol", type=click.Choice(["loco", "views"]), default="loco", show_default=True,
+              help="loco: leave one class out; views: new views of seen objects.")
+@click.option("--runs", default=3, show_default=True, type=click.IntRange(min=1), help="Repeated runs (seeds) for sigma.")
+@click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1), help="Feature-extraction processes.")
+@click.option("--ellipse", type=click.Choice(["pso", "direct"]), default="pso", show_default=True,
+              help="Ellipse fit: Eq. 1 by particle swarm (the paper's) or the direct fit.")
+@click.option("--gamma", default=8, show_default=True, type=click.IntRange(min=5), help="EM clusters per frame.")
+@handle_errors
+def train_cmd(shards, report_dir, protocol, runs, workers, ellipse, gamma):
+    """Extract features (cached), evaluate SPM and the baselines, write the report and the model."""
+    from spm_model.features import FeatureConfig
+    from spm_model.train import train
+
+    bar = Progress()
+    try:
+        result = train(shards, report_dir, protocol=protocol, runs=runs, workers=workers,
+                       features=FeatureConfig(gamma=gamma, ellipse=ellipse), progress=bar,
+                       log=lambda m: bar.bar.write(m), command="spm " + " ".join(sys.argv[1:]))
+    except KeyboardInterrupt:
+        bar.close()
+        click.echo("interrupted; features already cached are kept", err=True)
+        sys.exit(130)
+    bar.close()
+    click.echo(result["table1"])
+    click.echo(f"report: {result['report']}/results.md, model: {result['model']}")
+
+
+@model_cli.command("evaluate")
+@click.option("--model", "model_path", required=True, type=click.Path(), help="A model.npz from spm train.")
+@click.option("--shards", required=True, type=click.Path(), help="Folder of shards to score it on.")
+@click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1), help="Feature-extraction processes.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@handle_errors
+def evaluate_cmd(model_path, shards, workers, as_json):
+    """Score a trained model on other shards (success < 5 and 3 degrees, errors)."""
+    import json
+
+    from spm_model.train import evaluate_model
+
+    bar = Progress()
+    try:
+        result = evaluate_model(model_path, shards, workers=workers, progress=bar)
+    finally:
+        bar.close()
+    if as_json:
+        click.echo(json.dumps(result, indent=2))
+        return
+    click.echo(f"{'class':<12}{'frames':>8}{'<5 %':>8}{'<3 %':>8}{'geo med':>9}{'t med mm':>10}")
+    for name, s in [*result["classes"].items(), ("all", result["all"])]:
+        fmt = lambda v, k=1: "-" if v is None else f"{v * k:.1f}"  # noqa: E731
+        click.echo(f"{name:<12}{s['frames']:>8}{fmt(s['success_5']):>8}{fmt(s['success_3']):>8}"
+                   f"{fmt(s['geodesic_median']):>9}{fmt(s['translation_median'], 1000):>10}")
+
+
+@model_cli.command("predict")
+@click.option("--model", "model_path", required=True, type=click.Path(), help="A model.npz from spm train.")
+@click.argument("images", nargs=-1, required=True, type=click.Path())
+@click.option("--roi", default=None, help="Region of interest x,y,width,height (pixels) holding the object.")
+@click.option("--mask", "mask_path", default=None, type=click.Path(), help="Object mask image (non-zero = object).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@handle_errors
+def predict_cmd(model_path, images, roi, mask_path, as_json):
+    """Print the 6-DoF pose estimate of each image (rx ry rz degrees, t metres)."""
+    from spm_model.train import format_predictions, predict_images
+
+    results = predict_images(model_path, images, roi=_parse_roi(roi) if roi else None, mask_path=mask_path)
+    click.echo(format_predictions(results, as_json))
+    if any("error" in r for r in results):
+        sys.exit(1)
+
+
 if __name__ == "__main__":
     data_cli()

@@ -141,7 +141,9 @@ def decode_image(data: bytes, name: str = "", mode: str = "RGB") -> np.ndarray:
                     return np.repeat(arr.astype(np.uint8)[..., None], 3, axis=2)
                 return np.asarray(img.convert("RGB"), dtype=np.uint8)
             return np.asarray(img)
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+    except UnidentifiedImageError:
+        raise ImageError(f"{name}: not a readable image (unknown format)") from None
+    except (OSError, SyntaxError, ValueError) as exc:
         raise ImageError(f"{name}: not a readable image ({exc})") from None
 
 
@@ -156,7 +158,9 @@ def image_size(ref: str) -> tuple[int, int]:
     try:
         with Image.open(io.BytesIO(data)) as img:
             return img.size
-    except (UnidentifiedImageError, OSError) as exc:
+    except UnidentifiedImageError:
+        raise ImageError(f"{ref}: not a readable image (unknown format)") from None
+    except OSError as exc:
         raise ImageError(f"{ref}: not a readable image ({exc})") from None
 
 

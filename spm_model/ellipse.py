@@ -100,11 +100,13 @@ def direct_conic(p: np.ndarray) -> np.ndarray:
 
 
 def pso_conic(p: np.ndarray, lam: float = LAMBDA, particles: int = 48, iterations: int = 120,
-              seed: int = 0) -> np.ndarray:
+              seed: int = 0, patience: int = 20, tol: float = 1e-10) -> np.ndarray:
     """Minimise Eq. 1 on 4AC - B^2 = 1 with a particle swarm (inertia 0.72, pulls 1.49).
 
     Particles start around the unregularised direct fit and the unit circle, so
-    the swarm begins from valid ellipses; the result is the best seen."""
+    the swarm begins from valid ellipses; the result is the best seen. The swarm
+    stops early once the best cost has improved by less than ``tol`` (relative)
+    for ``patience`` iterations."""
     rng = np.random.default_rng(seed)
     design = _design(p)
     try:
@@ -125,6 +127,7 @@ def pso_conic(p: np.ndarray, lam: float = LAMBDA, particles: int = 48, iteration
     best_own, best_own_cost = position.copy(), cost.copy()
     g = int(np.argmin(cost))
     best, best_cost = position[g].copy(), cost[g]
+    stale = 0
     for _ in range(iterations):
         r1, r2 = rng.random(position.shape), rng.random(position.shape)
         velocity = 0.72 * velocity + 1.49 * r1 * (best_own - position) + 1.49 * r2 * (best - position)
@@ -132,8 +135,12 @@ def pso_conic(p: np.ndarray, lam: float = LAMBDA, particles: int = 48, iteration
         better = cost < best_own_cost
         best_own[better], best_own_cost[better] = position[better], cost[better]
         g = int(np.argmin(best_own_cost))
+        improved = best_cost - best_own_cost[g] > tol * abs(best_cost) if np.isfinite(best_cost) else True
         if best_own_cost[g] < best_cost:
             best, best_cost = best_own[g].copy(), best_own_cost[g]
+        stale = 0 if improved else stale + 1
+        if stale >= patience:
+            break
     if not np.isfinite(best_cost):
         raise EllipseError("the swarm found no ellipse")
     return best

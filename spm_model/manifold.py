@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from spm_model.ellipse import Ellipse, fit_ellipse
+from spm_model.ellipse import LAMBDA, Ellipse, fit_ellipse
 
 
 def canonical_order(centres: np.ndarray, ellipse: Ellipse) -> np.ndarray:
@@ -35,8 +35,9 @@ def foci_distances(centres: np.ndarray, ellipse: Ellipse) -> np.ndarray:
     return distances / norm if norm > 0 else distances
 
 
-def initial_manifold(centres: np.ndarray, method: str = "pso", seed: int = 0) -> tuple[np.ndarray, float]:
+def initial_manifold(centres: np.ndarray, method: str = "pso", seed: int = 0,
+                     lam: float = LAMBDA) -> tuple[np.ndarray, float]:
     """Fit the ellipse over (gamma, 2) cluster centres (pixels); returns the
     (2 * gamma,) manifold vector and the ellipse's eccentricity (paper Table 1)."""
-    ellipse = fit_ellipse(centres, method=method, seed=seed)
+    ellipse = fit_ellipse(centres, method=method, lam=lam, seed=seed)
     return foci_distances(centres, ellipse), ellipse.eccentricity

@@ -5,7 +5,10 @@ as in the Appendix (each training vector is repeated ``noise_copies`` times with
 Gaussian noise of standard deviation ``noise``, which approximates Tikhonov
 regularisation). Angles wrap: each of rx, ry, rz is regressed as (cos, sin) and
 read back with atan2, so 359 and 1 degrees are neighbours; translation is
-regressed as is. Follows scikit-learn's estimator contract (keyword-only
+regressed as is. Exact kernel ridge costs O(n^3); above ``landmarks`` training
+vectors (after the noise copies) it becomes the Nystrom / subset-of-regressors
+solution on ``landmarks`` random centres, ``min ||K_nm c - Z||^2 + alpha c^T K_mm c``,
+which equals exact kernel ridge when the centres are all the vectors. Follows scikit-learn's estimator contract (keyword-only
 parameters stored as given, ``fit`` returns self, learned state ends in ``_``).
 """
 
@@ -29,11 +32,12 @@ class RBFPoseRegressor:
     """Kernel ridge regressor with an RBF kernel; ``gamma=None`` uses 1 / median squared distance."""
 
     def __init__(self, *, gamma: float | None = None, alpha: float = 1e-3, noise: float = 0.0,
-                 noise_copies: int = 0, seed: int = 0):
+                 noise_copies: int = 0, landmarks: int = 2000, seed: int = 0):
         self.gamma = gamma
         self.alpha = alpha
         self.noise = noise
         self.noise_copies = noise_copies
+        self.landmarks = landmarks
         self.seed = seed
 
     def _kernel(self, A, B):
@@ -61,10 +65,22 @@ class RBFPoseRegressor:
             self.gamma_ = 1.0 / median
         else:
             self.gamma_ = float(self.gamma)
-        K = self._kernel(X, X)
         self.mean_ = Z.mean(axis=0)
-        self.dual_coef_ = np.linalg.solve(K + self.alpha * np.eye(len(X)), Z - self.mean_)
-        self.X_fit_ = X
+        if len(X) <= self.landmarks:
+            K = self._kernel(X, X)
+            self.dual_coef_ = np.linalg.solve(K + self.alpha * np.eye(len(X)), Z - self.mean_)
+            self.X_fit_ = X
+        else:
+            centres = X[np.random.default_rng(self.seed).choice(len(X), self.landmarks, replace=False)]
+            A = self.alpha * self._kernel(centres, centres)
+            b = np.zeros((self.landmarks, Z.shape[1]))
+            for start in range(0, len(X), 8192):  # K_nm in blocks: bounded memory at any n
+                K = self._kernel(X[start:start + 8192], centres)
+                A += K.T @ K
+                b += K.T @ (Z[start:start + 8192] - self.mean_)
+            A[np.diag_indices_from(A)] += 1e-8 * np.trace(A) / len(A)
+            self.dual_coef_ = np.linalg.solve(A, b)
+            self.X_fit_ = centres
         return self
 
     def predict(self, X) -> np.ndarray:

@@ -30,3 +30,36 @@ def small_specs_dir(tmp_path):
     for cls in ("cup", "box"):
         (folder / f"{cls}.toml").write_text(SMALL_SPEC.format(cls=cls, seed=3))
     return folder
+
+
+MODEL_SPEC = """
+class = "{cls}"
+seed = 1
+[mesh]
+instances = 1
+[camera]
+azimuth = [0, 115, 5]
+elevation = [20, 25, 5]
+distances = [0.6]
+[image]
+width = 128
+height = 128
+[render]
+renderer = "pyrender"
+frames_per_shard = 48
+"""
+
+
+@pytest.fixture(scope="session")
+def model_shards(tmp_path_factory):
+    """Three classes (box, car, cup), 48 views each at 128x128 (pyrender): enough
+    keypoints for the SPM pipeline. Read-only for tests: copy before writing."""
+    from spm_data.render_jobs import load_run_specs, render_dataset
+
+    root = tmp_path_factory.mktemp("model")
+    specs = root / "specs"
+    specs.mkdir()
+    for cls in ("box", "car", "cup"):
+        (specs / f"{cls}.toml").write_text(MODEL_SPEC.format(cls=cls))
+    render_dataset(load_run_specs(all_classes=True, specs_dir=specs), root / "shards")
+    return root / "shards"

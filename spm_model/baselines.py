@@ -1,0 +1,80 @@
+"""Baselines beside SPM, on the same splits (paper §3.3-3.4):
+
+- ``KNNPose``: K nearest neighbours (Table 2) on the same training matrix as
+  the regressor (the re-projected vectors); K > 1 averages the neighbours'
+  angles on the circle (via cos/sin) and their translations.
+- ``PCAPose``: appearance-based, on raw image vectors (the grey object box
+  resized to a small square, zero mean and unit norm per image): PCA, then the
+  nearest training image in the PCA subspace (Murase & Nayar's scheme).
+- ``LSPose``: a linear least-squares (ridge) map from the raw image vectors to
+  the label, angles as cos/sin as in the regressor.
+
+All follow scikit-learn's contract: keyword-only parameters, ``fit`` returns self.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from spm_model.regressor import _labels, _targets
+
+
+def _mean_labels(labels: np.ndarray) -> np.ndarray:
+    """(n, k, 6) neighbour labels -> (n, 6): circular mean of angles, mean of t."""
+    z = _targets(labels.reshape(-1, 6)).reshape(labels.shape[0], labels.shape[1], 9).mean(axis=1)
+    return _labels(z)
+
+
+class KNNPose:
+    def __init__(self, *, k: int = 1):
+        self.k = k
+
+    def fit(self, X, y) -> "KNNPose":
+        self.tree_ = cKDTree(np.asarray(X, dtype=np.float64))
+        self.y_ = np.asarray(y, dtype=np.float64)
+        return self
+
+    def predict(self, X) -> np.ndarray:
+        k = min(self.k, len(self.y_))
+        _, idx = self.tree_.query(np.asarray(X, dtype=np.float64), k=k)
+        return _mean_labels(self.y_[np.asarray(idx).reshape(len(X), k)])
+
+
+def _unit_rows(raw) -> np.ndarray:
+    x = np.asarray(raw, dtype=np.float64)
+    x = x - x.mean(axis=1, keepdims=True)
+    return x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-12)
+
+
+class PCAPose:
+    def __init__(self, *, components: int = 20):
+        self.components = components
+
+    def fit(self, raw, y) -> "PCAPose":
+        x = _unit_rows(raw)
+        self.mean_ = x.mean(axis=0)
+        _, _, vt = np.linalg.svd(x - self.mean_, full_matrices=False)
+        self.basis_ = vt[: self.components].T
+        self.knn_ = KNNPose(k=1).fit((x - self.mean_) @ self.basis_, y)
+        return self
+
+    def predict(self, raw) -> np.ndarray:
+        return self.knn_.predict((_unit_rows(raw) - self.mean_) @ self.basis_)
+
+
+class LSPose:
+    def __init__(self, *, alpha: float = 1.0):
+        self.alpha = alpha
+
+    def fit(self, raw, y) -> "LSPose":
+        x = _unit_rows(raw)
+        self.mean_ = x.mean(axis=0)
+        z = _targets(np.asarray(y, dtype=np.float64))
+        self.target_mean_ = z.mean(axis=0)
+        xc = x - self.mean_
+        self.coef_ = np.linalg.solve(xc.T @ xc + self.alpha * np.eye(x.shape[1]), xc.T @ (z - self.target_mean_))
+        return self
+
+    def predict(self, raw) -> np.ndarray:
+        return _labels((_unit_rows(raw) - self.mean_) @ self.coef_ + self.target_mean_)

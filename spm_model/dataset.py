@@ -1,0 +1,140 @@
+"""Features of every frame under a folder of shards, cached next to the shards.
+
+Each shard's features live in ``<shard folder>/.spm-features/<shard stem>-<config
+key>.npz`` (written to a temporary name and ``os.replace``-d, so a cache file
+that exists is whole). A cache file records the shard's size and modification
+time; a shard rewritten since is extracted again. Extraction runs shard by
+shard on ``workers`` processes (spm_data.executor), with per-frame progress.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from spm_data.errors import ShardError, SpmError
+from spm_data.executor import run_jobs
+from spm_data.shards import PARTIAL_PREFIX, SHARD_SUFFIX, read_attrs, read_shard
+from spm_model.features import FeatureConfig, frames_features
+
+CACHE_DIR = ".spm-features"
+LABEL_FIELDS = ("pose", "label_measured", "class_name", "instance_name", "instance_id", "path_index",
+                "occlusion_fraction", "source")
+READ_BLOCK = 256  # frames read from a shard at a time (bounded memory for big shards)
+
+
+def find_shards(folder) -> list[Path]:
+    """Every complete shard under ``folder`` (recursively; hidden names skipped)."""
+    folder = Path(folder)
+    if folder.is_file() and folder.suffix == SHARD_SUFFIX:
+        return [folder]
+    if not folder.is_dir():
+        raise ShardError(f"no such folder: {folder}")
+    found = [p for p in folder.rglob("*" + SHARD_SUFFIX)
+             if not any(part.startswith(PARTIAL_PREFIX) for part in p.relative_to(folder).parts)]
+    if not found:
+        raise ShardError(f"{folder}: no shards (*.h5) found; make some with `spm-data render` or `spm-data import`")
+    return sorted(found)
+
+
+def cache_path(shard: Path, config: FeatureConfig) -> Path:
+    return shard.parent / CACHE_DIR / f"{shard.stem}-{config.key()}.npz"
+
+
+def _identity(shard: Path) -> np.ndarray:
+    st = shard.stat()
+    return np.array([st.st_size, st.st_mtime_ns], dtype=np.int64)
+
+
+def cached(shard: Path, config: FeatureConfig) -> Path | None:
+    """The shard's cache file when present and made from the shard as it is now."""
+    path = cache_path(shard, config)
+    try:
+        with np.load(path) as z:
+            return path if np.array_equal(z["identity"], _identity(shard)) else None
+    except (OSError, KeyError, ValueError, EOFError):
+        return None
+
+
+def extract_shard(job, report=lambda n: None) -> str:
+    """Compute and cache one shard's features; job = (shard path, FeatureConfig)."""
+    shard, config = Path(job[0]), job[1]
+    identity = _identity(shard)
+    n = int(read_attrs(shard)["frames"])
+    labels = read_shard(shard, LABEL_FIELDS)
+    if np.any(labels["class_name"].astype(str) == ""):
+        raise ShardError(f"{shard}: frames without a class_name; set one when importing")
+    parts = []
+    # Path neighbours are looked up within a block of READ_BLOCK frames (a default shard is one block).
+    for start in range(0, n, READ_BLOCK):
+        block = slice(start, min(n, start + READ_BLOCK))
+        images = read_shard(shard, ("rgb", "mask"), frames=block)
+        parts.append(frames_features(images["rgb"], images["mask"], labels["instance_id"][block],
+                                     labels["path_index"][block], config, report))
+    features = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
+    out = cache_path(shard, config)
+    out.parent.mkdir(exist_ok=True)
+    tmp = out.parent / f"{PARTIAL_PREFIX}{out.name}.{os.getpid()}.partial"
+    with open(tmp, "wb") as fh:
+        np.savez(fh, identity=identity, **features,
+                 **{k: (v.astype(str) if v.dtype == object else v) for k, v in labels.items()})
+    os.replace(tmp, out)
+    return str(out)
+
+
+@dataclass
+class FeatureTable:
+    """Features and labels of every frame found, concatenated (n frames).
+
+    train_vector / query_vector (n, 2 gamma) float64, NaN where the frame had
+    too few keypoints; *_eccentricity (n,); raw (n, s^2) uint8; pose (n, 6)
+    (rx, ry, rz degrees, t metres); label_measured (n, 6) bool; class_name,
+    instance (n,) str; path_index (n,) int64; occlusion_fraction (n,) float32;
+    shard (n,) str; frame (n,) int64."""
+
+    arrays: dict
+
+    def __len__(self) -> int:
+        return len(self.arrays["pose"])
+
+    def __getattr__(self, name):
+        try:
+            return self.__dict__["arrays"][name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+    def subset(self, index) -> "FeatureTable":
+        return FeatureTable({k: v[index] for k, v in self.arrays.items()})
+
+
+def load_features(folder, config: FeatureConfig = FeatureConfig(), *, workers: int = 1,
+                  progress=None) -> FeatureTable:
+    """Extract (or reuse) the features of every shard under ``folder``; progress is
+    a callable taking frame deltas, with a settable ``total`` (a tqdm bar)."""
+    shards = find_shards(folder)
+    frames = [int(read_attrs(s)["frames"]) for s in shards]
+    todo = [(str(s), config) for s in shards if cached(s, config) is None]
+    if progress is not None:
+        progress.total = sum(f for s, f in zip(shards, frames) if cached(s, config) is None)
+    outcomes = run_jobs(extract_shard, todo, workers=0 if workers <= 1 else workers, retries=1,
+                        on_progress=progress)
+    failed = [o for o in outcomes if o.error]
+    if failed:
+        raise SpmError(f"feature extraction failed for {len(failed)} shard(s); first: "
+                       f"{Path(failed[0].job[0]).name}: {failed[0].error}")
+    tables = []
+    for shard in shards:
+        with np.load(cache_path(shard, config)) as z:
+            arrays = {k: z[k] for k in z.files if k != "identity"}
+        n = len(arrays["pose"])
+        arrays["instance"] = np.char.add(np.char.add(arrays.pop("source"), ":"),
+                                         np.char.add(np.char.add(arrays["class_name"], "/"),
+                                                     arrays.pop("instance_name")))
+        arrays["shard"] = np.full(n, str(shard))
+        arrays["frame"] = np.arange(n, dtype=np.int64)
+        arrays.pop("instance_id")
+        tables.append(arrays)
+    return FeatureTable({k: np.concatenate([t[k] for t in tables]) for k in tables[0]})

@@ -1,0 +1,138 @@
+"""The SPM pose estimator: 16-d initial-manifold vectors -> sparse re-projection (SPP)
+-> RBF regressor -> 6-DoF label; saved and loaded as one ``.npz`` file together
+with the feature configuration, so ``spm predict`` can start from an image.
+
+Scaling: Eq. 5 is solved for at most ``projection_samples`` training vectors
+(a seeded random subset) over their ``neighbours`` nearest neighbours; the
+projection is a (2 gamma x d) matrix, which a subset estimates as well as the
+whole set (benchmarks/train_scaling.py compares it with the exact solve). The
+regressor switches to ``landmarks`` Nystrom centres above that many vectors.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from spm_data.errors import SpmError
+from spm_model.features import FeatureConfig, image_features
+from spm_model.regressor import RBFPoseRegressor
+from spm_model.sparse import SparseError, SparseProjection, fit_projection
+
+MODEL_FORMAT = 1
+
+
+class ModelError(SpmError):
+    """A model cannot be trained, loaded or applied to this input."""
+
+
+def check_xy(X, y=None, dims=None):
+    """Validate (n, d) finite features and (n, 6) labels at the estimator boundary."""
+    X = np.asarray(X, dtype=np.float64)
+    if X.ndim != 2 or (dims is not None and X.shape[1] != dims):
+        want = f"(n, {dims})" if dims else "(n, d)"
+        raise ModelError(f"expected features of shape {want}, got {X.shape}; extract them with "
+                         "spm_model.features (the same feature configuration as in training)")
+    if not np.isfinite(X).all():
+        raise ModelError("features contain NaN/inf; drop frames whose feature extraction failed")
+    if y is None:
+        return X
+    y = np.asarray(y, dtype=np.float64)
+    if y.shape != (len(X), 6) or not np.isfinite(y).all():
+        raise ModelError(f"expected finite labels of shape ({len(X)}, 6) (rx, ry, rz degrees, t metres), "
+                         f"got {y.shape}")
+    return X, y
+
+
+class SPMEstimator:
+    """fit(X (n, 2 gamma), y (n, 6)) -> self; predict(X) -> (n, 6) labels."""
+
+    def __init__(self, *, projection: str = "knn", neighbours: int = 64, projection_samples: int = 4000,
+                 dims: int | None = None, alpha: float = 1e-3, noise: float = 0.01, noise_copies: int = 1,
+                 landmarks: int = 2000, seed: int = 0, features: FeatureConfig = FeatureConfig()):
+        self.projection = projection
+        self.neighbours = neighbours
+        self.projection_samples = projection_samples
+        self.dims = dims
+        self.alpha = alpha
+        self.noise = noise
+        self.noise_copies = noise_copies
+        self.landmarks = landmarks
+        self.seed = seed
+        self.features = features
+
+    def _regressor(self) -> RBFPoseRegressor:
+        return RBFPoseRegressor(alpha=self.alpha, noise=self.noise, noise_copies=self.noise_copies,
+                                landmarks=self.landmarks, seed=self.seed)
+
+    def fit(self, X, y) -> "SPMEstimator":
+        X, y = check_xy(X, y, self.features.dims)
+        if len(X) < 10:
+            raise ModelError(f"need at least 10 training frames with features, got {len(X)}")
+        rng = np.random.default_rng(self.seed)
+        subset = rng.choice(len(X), min(len(X), self.projection_samples), replace=False)
+        try:
+            self.projection_ = fit_projection(X[subset], dims=self.dims, method=self.projection,
+                                              k=self.neighbours)
+        except SparseError as exc:
+            raise ModelError(f"sparse re-projection failed: {exc}") from None
+        self.regressor_ = self._regressor().fit(self.transform(X), y)
+        return self
+
+    def transform(self, X) -> np.ndarray:
+        """(n, 2 gamma) manifold vectors -> (n, d) re-projected vectors."""
+        if not hasattr(self, "projection_"):
+            raise ModelError("this model is not fitted yet; call fit(X, y) first")
+        return self.projection_.transform(check_xy(X, dims=self.features.dims))
+
+    def predict(self, X) -> np.ndarray:
+        """(n, 2 gamma) -> (n, 6): rx, ry, rz in (-180, 180] degrees, t in metres."""
+        Z = self.transform(X)  # checks that the model is fitted
+        return self.regressor_.predict(Z)
+
+    def predict_image(self, rgb, mask=None) -> dict:
+        """One (H, W, 3) uint8 image (optional (H, W) mask / region of interest) ->
+        {"pose": (6,), "eccentricity", "keypoints"}; FeatureError when SIFT finds too little."""
+        f = image_features(rgb, mask, self.features)
+        return {"pose": self.predict(f["vector"][None])[0], "eccentricity": f["eccentricity"],
+                "keypoints": f["keypoints"]}
+
+    # -- one-file persistence (no pickle: arrays plus a JSON header) --
+    def save(self, path) -> Path:
+        if not hasattr(self, "regressor_"):
+            raise ModelError("fit the model before saving it")
+        path = Path(path)
+        params = {k: v for k, v in vars(self).items() if not k.endswith("_") and k != "features"}
+        header = {"format": MODEL_FORMAT, "kind": "spm", "params": params, "features": asdict(self.features),
+                  "gamma_": self.regressor_.gamma_}
+        tmp = path.with_name(f".{path.name}.partial")
+        with open(tmp, "wb") as fh:
+            np.savez(fh, header=np.array(json.dumps(header)), W=self.projection_.W,
+                     centres=self.regressor_.X_fit_, dual_coef=self.regressor_.dual_coef_,
+                     mean=self.regressor_.mean_)
+        tmp.replace(path)
+        return path
+
+    @classmethod
+    def load(cls, path) -> "SPMEstimator":
+        try:
+            with np.load(path) as z:
+                header = json.loads(str(z["header"]))
+                arrays = {k: z[k] for k in ("W", "centres", "dual_coef", "mean")}
+        except FileNotFoundError:
+            raise ModelError(f"model file not found: {path}") from None
+        except (OSError, KeyError, ValueError, EOFError) as exc:
+            raise ModelError(f"{path}: not an spm model file ({type(exc).__name__}: {exc})") from None
+        if header.get("kind") != "spm" or header.get("format", 0) > MODEL_FORMAT:
+            raise ModelError(f"{path}: model format {header.get('format')} is not one this spm reads "
+                             f"({MODEL_FORMAT}); retrain or upgrade spm")
+        model = cls(**header["params"], features=FeatureConfig(**header["features"]))
+        model.projection_ = SparseProjection(W=arrays["W"])
+        reg = model._regressor()
+        reg.gamma_, reg.X_fit_, reg.dual_coef_, reg.mean_ = (header["gamma_"], arrays["centres"],
+                                                              arrays["dual_coef"], arrays["mean"])
+        model.regressor_ = reg
+        return model

@@ -1,0 +1,156 @@
+"""Per-frame SPM features (keypoints -> bunches -> ellipse -> 16-d manifold vector)
+and raw image vectors for the baselines. Pure numpy + OpenCV; no renderer.
+
+Two feature vectors per frame, by the keypoint rule of docs/method.md:
+- ``train``: keypoints that are RANSAC-homography inliers against the frame's
+  5-degree path neighbours (the previous and the next view of the same
+  instance in the same shard; a keypoint kept by either counts);
+- ``query``: every keypoint inside the object mask, as for a single image.
+A frame with fewer than 2 * gamma usable keypoints gets NaN and is counted.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from spm_data.errors import SpmError
+from spm_model.bunches import BunchError, fit_bunches
+from spm_model.ellipse import EllipseError
+from spm_model.keypoints import homography_inliers, sift_keypoints
+from spm_model.manifold import initial_manifold
+
+FEATURE_VERSION = 1
+
+
+class FeatureError(SpmError):
+    """No SPM feature for this image (too few keypoints, or no ellipse fits)."""
+
+
+@dataclass(frozen=True)
+class FeatureConfig:
+    """gamma: EM clusters; ellipse: "pso" (Eq. 1) or "direct"; lam: Eq. 1's lambda;
+    max_side: images whose longest side exceeds it are downscaled before SIFT (the
+    manifold vector is scale invariant); raw_size: side of the baselines' raw vectors."""
+
+    gamma: int = 8
+    ellipse: str = "pso"
+    lam: float = 0.1
+    seed: int = 0
+    max_side: int = 320
+    raw_size: int = 32
+
+    def __post_init__(self):
+        if self.gamma < 5:
+            raise FeatureError(f"gamma must be >= 5 (an ellipse needs 5 centres), got {self.gamma}")
+        if self.ellipse not in ("pso", "direct"):
+            raise FeatureError(f"ellipse must be 'pso' or 'direct', got {self.ellipse!r}")
+
+    @property
+    def dims(self) -> int:
+        return 2 * self.gamma
+
+    def key(self) -> str:
+        """Short hash naming the cache files made with this configuration."""
+        text = json.dumps({**asdict(self), "version": FEATURE_VERSION}, sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+def working_image(rgb: np.ndarray, mask: np.ndarray | None, max_side: int):
+    """Downscale (H, W, 3) uint8 RGB and its (H, W) mask so the longest side is <= max_side."""
+    import cv2
+
+    h, w = rgb.shape[:2]
+    scale = max_side / max(h, w)
+    if scale >= 1:
+        return rgb, mask
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    small = cv2.resize(np.ascontiguousarray(rgb), size, interpolation=cv2.INTER_AREA)
+    if mask is not None:
+        mask = cv2.resize((np.asarray(mask) > 0).astype(np.uint8), size, interpolation=cv2.INTER_NEAREST)
+    return small, mask
+
+
+def manifold_from_keypoints(locations: np.ndarray, config: FeatureConfig) -> tuple[np.ndarray, float]:
+    """(N, 2) keypoint pixels -> ((2 * gamma,) unit manifold vector, eccentricity).
+    Raises FeatureError when N < 2 * gamma or no ellipse fits."""
+    try:
+        bunches = fit_bunches(locations, gamma=config.gamma, seed=config.seed)
+        return initial_manifold(bunches.means, method=config.ellipse, lam=config.lam, seed=config.seed)
+    except (BunchError, EllipseError) as exc:
+        raise FeatureError(str(exc)) from None
+
+
+def raw_vector(rgb: np.ndarray, mask: np.ndarray | None, size: int) -> np.ndarray:
+    """(size * size,) uint8: the grey bounding box of the mask (whole image without
+    one), resized to size x size; the PCA and LS baselines' input."""
+    import cv2
+
+    gray = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)
+    if mask is not None and np.any(mask):
+        rows, cols = np.flatnonzero(np.any(mask, axis=1)), np.flatnonzero(np.any(mask, axis=0))
+        gray = gray[rows[0]: rows[-1] + 1, cols[0]: cols[-1] + 1]
+    return cv2.resize(gray, (size, size), interpolation=cv2.INTER_AREA).ravel()
+
+
+def image_features(rgb: np.ndarray, mask: np.ndarray | None = None,
+                   config: FeatureConfig = FeatureConfig()) -> dict:
+    """Query features of one image: (H, W, 3) uint8 RGB, optional (H, W) mask or
+    region of interest. Returns {"vector": (2 gamma,) float64, "eccentricity":
+    float, "keypoints": int, "raw": (raw_size^2,) uint8}; FeatureError if SIFT
+    finds too few keypoints."""
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise FeatureError(f"expected an (H, W, 3) uint8 RGB image, got {rgb.dtype} {rgb.shape}")
+    small, small_mask = working_image(rgb, mask, config.max_side)
+    locations, _ = sift_keypoints(small, small_mask)
+    if len(locations) < config.dims:
+        raise FeatureError(f"SIFT found {len(locations)} keypoints, need at least {config.dims}")
+    vector, ecc = manifold_from_keypoints(locations, config)
+    return {"vector": vector, "eccentricity": ecc, "keypoints": len(locations),
+            "raw": raw_vector(rgb, mask, config.raw_size)}
+
+
+def path_neighbours(instance_id: np.ndarray, path_index: np.ndarray) -> list[list[int]]:
+    """For each frame, the frames of the same instance one path step before and after."""
+    where = {(int(i), int(p)): n for n, (i, p) in enumerate(zip(instance_id, path_index))}
+    return [[where[k] for k in ((int(i), int(p) - 1), (int(i), int(p) + 1)) if k in where]
+            for i, p in zip(instance_id, path_index)]
+
+
+def frames_features(rgb: np.ndarray, mask: np.ndarray, instance_id: np.ndarray, path_index: np.ndarray,
+                    config: FeatureConfig, report=lambda n: None) -> dict:
+    """Features of a run of frames (one shard): rgb (n, H, W, 3) uint8, mask (n, H, W).
+
+    Returns arrays over the n frames: train_vector / query_vector (n, 2 gamma)
+    float64 (NaN where the frame has too few keypoints), train_eccentricity /
+    query_eccentricity (n,), train_keypoints / query_keypoints (n,) int32, raw
+    (n, raw_size^2) uint8."""
+    n = len(rgb)
+    sift = []
+    for i in range(n):
+        small, small_mask = working_image(rgb[i], mask[i], config.max_side)
+        sift.append(sift_keypoints(small, small_mask))
+    neighbours = path_neighbours(instance_id, path_index)
+    out = {f"{kind}_{name}": np.full((n, config.dims) if name == "vector" else n,
+                                     np.nan if name != "keypoints" else 0,
+                                     dtype=np.float64 if name != "keypoints" else np.int32)
+           for kind in ("train", "query") for name in ("vector", "eccentricity", "keypoints")}
+    out["raw"] = np.zeros((n, config.raw_size ** 2), np.uint8)
+    for i in range(n):
+        loc, desc = sift[i]
+        keep = np.zeros(len(loc), dtype=bool)
+        for j in neighbours[i]:
+            keep |= homography_inliers(loc, desc, *sift[j])
+        for kind, points in (("query", loc), ("train", loc[keep])):
+            out[f"{kind}_keypoints"][i] = len(points)
+            try:
+                out[f"{kind}_vector"][i], out[f"{kind}_eccentricity"][i] = manifold_from_keypoints(points, config)
+            except FeatureError:
+                pass
+        out["raw"][i] = raw_vector(rgb[i], mask[i], config.raw_size)
+        report(1)
+    return out

@@ -1,0 +1,77 @@
+import shutil
+
+import numpy as np
+import pytest
+
+from spm_data.errors import ShardError
+from spm_data.shards import read_shard, write_shard
+from spm_model import dataset
+from spm_model.dataset import cache_path, find_shards, load_features
+from spm_model.features import FeatureConfig, FeatureError, image_features, path_neighbours, raw_vector
+
+
+def test_path_neighbours_stay_within_an_instance():
+    inst = np.array([0, 0, 0, 1, 1])
+    path = np.array([0, 1, 2, 0, 2])
+    assert path_neighbours(inst, path) == [[1], [0, 2], [1], [], []]
+
+
+def test_raw_vector_crops_the_mask_box():
+    rgb = np.zeros((40, 60, 3), np.uint8)
+    rgb[10:20, 30:50] = 200
+    mask = (rgb[..., 0] > 0).astype(np.uint8)
+    v = raw_vector(rgb, mask, 8)
+    assert v.shape == (64,) and v.dtype == np.uint8 and (v == 200).all()   # the box fills the crop
+
+
+def test_image_features_on_a_render_and_errors(model_shards):
+    d = read_shard(find_shards(model_shards)[0], ["rgb", "mask"], frames=slice(0, 1))
+    f = image_features(d["rgb"][0], d["mask"][0])
+    assert f["vector"].shape == (16,) and np.isclose(np.linalg.norm(f["vector"]), 1.0)
+    assert 0 <= f["eccentricity"] < 1 and f["keypoints"] >= 16
+    with pytest.raises(FeatureError, match="SIFT found 0 keypoints, need at least 16"):
+        image_features(np.zeros((64, 64, 3), np.uint8))
+    with pytest.raises(FeatureError, match=r"expected an \(H, W, 3\) uint8"):
+        image_features(np.zeros((64, 64), np.uint8))
+
+
+def test_features_are_cached_next_to_the_shards_and_refreshed(model_shards, tmp_path, monkeypatch):
+    folder = tmp_path / "shards"
+    shutil.copytree(model_shards, folder / "nested")      # found recursively
+    config = FeatureConfig(ellipse="direct")
+    table = load_features(folder, config)
+    assert len(table) == 144 and sorted(set(table.class_name)) == ["box", "car", "cup"]
+    assert table.train_vector.shape == (144, 16) and table.raw.shape == (144, 1024)
+    ok = np.isfinite(table.train_vector).all(axis=1)
+    assert ok.mean() > 0.5 and np.isfinite(table.query_vector).all(axis=1).mean() > 0.9
+    # A failed frame is NaN, never zeros.
+    assert not (table.train_vector == 0).all(axis=1).any()
+    shard = find_shards(folder)[0]
+    assert cache_path(shard, config).is_file() and cache_path(shard, config).parent.name == ".spm-features"
+
+    calls = []
+    monkeypatch.setattr(dataset, "frames_features", lambda *a, **k: calls.append(1))
+    again = load_features(folder, config)                 # second run: nothing recomputed
+    assert calls == [] and np.array_equal(again.query_vector, table.query_vector, equal_nan=True)
+    monkeypatch.undo()
+
+    # Rewriting a shard invalidates its cache entry only.
+    arrays = read_shard(shard)
+    arrays["pose"][:, 2] += 1.0
+    write_shard(shard, arrays, {"renderer": "pyrender", "seed": 1})
+    refreshed = load_features(folder, config)
+    changed = refreshed.shard == str(shard)
+    assert np.allclose(refreshed.pose[changed, 2], table.pose[changed, 2] + 1.0)
+
+
+def test_no_shards_and_missing_class_are_one_line_errors(tmp_path, model_shards):
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ShardError, match="no shards"):
+        load_features(tmp_path / "empty")
+    shard = find_shards(model_shards)[0]
+    arrays = read_shard(shard)
+    arrays["class_name"] = np.array([""] * len(arrays["pose"]), dtype=object)
+    (tmp_path / "nameless").mkdir()
+    write_shard(tmp_path / "nameless" / "x.h5", arrays, {"renderer": "pyrender", "seed": 1})
+    with pytest.raises(Exception, match="without a class_name"):
+        load_features(tmp_path / "nameless")

@@ -1,0 +1,62 @@
+import numpy as np
+
+from spm_model.baselines import KNNPose, LSPose, PCAPose
+from spm_model.metrics import pose_errors, success_rate, summarise
+
+
+def test_success_sums_the_absolute_wrapped_angle_errors():
+    true = np.array([[90.0, 0, 179, 0, 0, 0.7]] * 4)
+    pred = true.copy()
+    pred[0, :3] = [91, 1, -179]        # 1 + 1 + 2 (across the wrap) = 4 degrees: success at 5, not at 3
+    pred[1, :3] = [92, 2, 179]         # 4 again, in two angles
+    pred[2, :3] = [90, 0, 174]         # exactly 5 (float noise must not decide): failure
+    pred[3] = np.nan                   # no estimate: failure
+    e = pose_errors(pred, true)
+    assert np.allclose(e["rotation_sum"][:3], [4, 4, 5]) and np.isinf(e["rotation_sum"][3])
+    s = summarise(e)
+    assert s["frames"] == 4 and s["estimated"] == 3
+    assert s["success_5"] == 50.0 and s["success_3"] == 0.0
+    assert success_rate(np.array([4.9999999999, 5.0000000001]), 5) == 0.0
+
+
+def test_geodesic_and_translation_errors():
+    true = np.array([[90.0, 0, 0, 0, 0, 0.7]])
+    pred = np.array([[90.0, 0, 30, 0.003, 0.004, 0.7]])   # 30 degrees about the camera's... any single axis
+    e = pose_errors(pred, true)
+    assert np.isclose(e["geodesic"][0], 30.0) and np.isclose(e["translation"][0], 0.005)
+
+
+def test_only_measured_components_are_scored():
+    true = np.array([[0.0, 0, 10, 0, 0, 1]])
+    pred = np.array([[50.0, 50, 12, 9, 9, 9]])
+    measured = np.array([[False, False, True, False, False, False]])   # e.g. COIL-100: azimuth only
+    e = pose_errors(pred, true, measured)
+    assert e["rotation_sum"][0] == 2.0 and np.isnan(e["geodesic"][0]) and np.isnan(e["translation"][0])
+    nothing = pose_errors(pred, true, np.zeros((1, 6), bool))
+    assert np.isnan(nothing["rotation_sum"][0]) and summarise(nothing)["success_5"] is None
+
+
+def test_knn_averages_angles_on_the_circle():
+    X = np.array([[0.0], [1.0], [2.0], [10.0]])
+    y = np.zeros((4, 6))
+    y[:, 2] = [179, -179, 177, 0]
+    y[:, 5] = [0.6, 0.7, 0.8, 0.0]
+    one = KNNPose(k=1).fit(X, y).predict(np.array([[0.9]]))
+    three = KNNPose(k=3).fit(X, y).predict(np.array([[1.0]]))
+    assert np.isclose(one[0, 2], -179)
+    assert np.isclose(abs(three[0, 2]), 179, atol=0.01) and np.isclose(three[0, 5], 0.7)  # not (179-179+177)/3
+
+
+def test_pca_and_ls_baselines_on_raw_vectors():
+    rng = np.random.default_rng(0)
+    angles = np.arange(0, 360, 10.0)
+    basis = rng.normal(size=(3, 64))
+    raw = np.clip(128 + 40 * (np.cos(np.radians(angles))[:, None] * basis[0]
+                              + np.sin(np.radians(angles))[:, None] * basis[1]), 0, 255)
+    y = np.zeros((len(angles), 6))
+    y[:, 2] = (angles + 180) % 360 - 180
+    pca = PCAPose(components=4).fit(raw, y)
+    assert np.allclose(pca.predict(raw)[:, 2], y[:, 2])        # a training image finds itself
+    ls = LSPose(alpha=1e-3).fit(raw, y)
+    err = np.abs((ls.predict(raw)[:, 2] - y[:, 2] + 180) % 360 - 180)
+    assert np.median(err) < 5
