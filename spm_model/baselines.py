@@ -15,6 +15,7 @@ All follow scikit-learn's contract: keyword-only parameters, ``fit`` returns sel
 from __future__ import annotations
 
 import numpy as np
+from scipy.linalg import eigh
 from scipy.spatial import cKDTree
 
 from spm_model.regressor import _labels, _targets
@@ -54,8 +55,12 @@ class PCAPose:
     def fit(self, raw, y) -> "PCAPose":
         x = _unit_rows(raw)
         self.mean_ = x.mean(axis=0)
-        _, _, vt = np.linalg.svd(x - self.mean_, full_matrices=False)
-        self.basis_ = vt[: self.components].T
+        xc = x - self.mean_
+        d = x.shape[1]
+        k = min(self.components, d, len(x))
+        # Top eigenvectors of the (d x d) scatter: far cheaper than an SVD of (n x d) for n >> d.
+        _, vectors = eigh(xc.T @ xc, subset_by_index=[d - k, d - 1])
+        self.basis_ = vectors[:, ::-1]
         self.knn_ = KNNPose(k=1).fit((x - self.mean_) @ self.basis_, y)
         return self
 

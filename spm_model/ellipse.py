@@ -119,9 +119,12 @@ def pso_conic(p: np.ndarray, lam: float = LAMBDA, particles: int = 48, iteration
     position, ok = _onto_constraint(start)
     velocity = rng.normal(0, 0.1, position.shape)
 
+    # Eq. 1 is the quadratic form x^T G x: a 6 x 6 matrix, whatever the number of points.
+    G = design.T @ design / len(design) + lam * np.diag([1.0, 1, 1, 1, 1, 0])
+
     def score(x):
         x, valid = _onto_constraint(x)
-        return x, np.where(valid, conic_cost(x, design, lam), np.inf)
+        return x, np.where(valid, np.einsum("pi,ij,pj->p", x, G, x), np.inf)
 
     position, cost = score(position)
     best_own, best_own_cost = position.copy(), cost.copy()

@@ -50,7 +50,7 @@ def check_xy(X, y=None, dims=None):
 class SPMEstimator:
     """fit(X (n, 2 gamma), y (n, 6)) -> self; predict(X) -> (n, 6) labels."""
 
-    def __init__(self, *, projection: str = "knn", neighbours: int = 64, projection_samples: int = 4000,
+    def __init__(self, *, projection: str = "knn", neighbours: int = 64, projection_samples: int = 1000,
                  dims: int | None = None, alpha: float = 1e-3, noise: float = 0.01, noise_copies: int = 1,
                  landmarks: int = 2000, seed: int = 0, features: FeatureConfig = FeatureConfig()):
         self.projection = projection
@@ -96,7 +96,7 @@ class SPMEstimator:
     def predict_image(self, rgb, mask=None) -> dict:
         """One (H, W, 3) uint8 image (optional (H, W) mask / region of interest) ->
         {"pose": (6,), "eccentricity", "keypoints"}; FeatureError when SIFT finds too little."""
-        f = image_features(rgb, mask, self.features)
+        f = image_features(rgb, mask, self.features, raw=False)
         return {"pose": self.predict(f["vector"][None])[0], "eccentricity": f["eccentricity"],
                 "keypoints": f["keypoints"]}
 

@@ -8,8 +8,9 @@
 Training uses the frames' ``train`` features (path-neighbour keypoint rule),
 testing their ``query`` features (a single image: keypoints in the mask). A
 test frame without a query feature counts as a failure for SPM and KNN; the raw
-image baselines (PCA, LS) estimate every frame. Runs differ in their seed (EM,
-PSO and the model's sampling are seeded per run; the features are not re-extracted).
+image baselines (PCA, LS) estimate every frame. Runs differ in their seed: the
+model's projection subset, noise copies and Nystrom centres, and the views split
+(the features are extracted once, with a fixed seed, and cached).
 """
 
 from __future__ import annotations

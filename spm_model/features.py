@@ -4,7 +4,10 @@ and raw image vectors for the baselines. Pure numpy + OpenCV; no renderer.
 Two feature vectors per frame, by the keypoint rule of docs/method.md:
 - ``train``: keypoints that are RANSAC-homography inliers against the frame's
   5-degree path neighbours (the previous and the next view of the same
-  instance in the same shard; a keypoint kept by either counts);
+  instance in the same shard; a keypoint kept by either counts). A frame with
+  no path neighbour in its shard (``spm-data render --limit`` spreads frames
+  over views; imported folders may hold single views) falls back to the query
+  rule, and ``train_neighbours`` (0) records that it did;
 - ``query``: every keypoint inside the object mask, as for a single image.
 A frame with fewer than 2 * gamma usable keypoints gets NaN and is counted.
 """
@@ -23,7 +26,7 @@ from spm_model.ellipse import EllipseError
 from spm_model.keypoints import homography_inliers, sift_keypoints
 from spm_model.manifold import initial_manifold
 
-FEATURE_VERSION = 1
+FEATURE_VERSION = 2
 
 
 class FeatureError(SpmError):
@@ -97,11 +100,11 @@ def raw_vector(rgb: np.ndarray, mask: np.ndarray | None, size: int) -> np.ndarra
 
 
 def image_features(rgb: np.ndarray, mask: np.ndarray | None = None,
-                   config: FeatureConfig = FeatureConfig()) -> dict:
+                   config: FeatureConfig = FeatureConfig(), raw: bool = True) -> dict:
     """Query features of one image: (H, W, 3) uint8 RGB, optional (H, W) mask or
     region of interest. Returns {"vector": (2 gamma,) float64, "eccentricity":
-    float, "keypoints": int, "raw": (raw_size^2,) uint8}; FeatureError if SIFT
-    finds too few keypoints."""
+    float, "keypoints": int, "raw": (raw_size^2,) uint8 (when ``raw``)};
+    FeatureError if SIFT finds too few keypoints."""
     rgb = np.asarray(rgb)
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
         raise FeatureError(f"expected an (H, W, 3) uint8 RGB image, got {rgb.dtype} {rgb.shape}")
@@ -110,8 +113,10 @@ def image_features(rgb: np.ndarray, mask: np.ndarray | None = None,
     if len(locations) < config.dims:
         raise FeatureError(f"SIFT found {len(locations)} keypoints, need at least {config.dims}")
     vector, ecc = manifold_from_keypoints(locations, config)
-    return {"vector": vector, "eccentricity": ecc, "keypoints": len(locations),
-            "raw": raw_vector(rgb, mask, config.raw_size)}
+    out = {"vector": vector, "eccentricity": ecc, "keypoints": len(locations)}
+    if raw:
+        out["raw"] = raw_vector(rgb, mask, config.raw_size)
+    return out
 
 
 def path_neighbours(instance_id: np.ndarray, path_index: np.ndarray) -> list[list[int]]:
@@ -128,7 +133,8 @@ def frames_features(rgb: np.ndarray, mask: np.ndarray, instance_id: np.ndarray, 
     Returns arrays over the n frames: train_vector / query_vector (n, 2 gamma)
     float64 (NaN where the frame has too few keypoints), train_eccentricity /
     query_eccentricity (n,), train_keypoints / query_keypoints (n,) int32, raw
-    (n, raw_size^2) uint8."""
+    (n, raw_size^2) uint8, train_neighbours (n,) int8 (path neighbours matched;
+    0: the training feature used the query rule)."""
     n = len(rgb)
     sift = []
     for i in range(n):
@@ -140,9 +146,10 @@ def frames_features(rgb: np.ndarray, mask: np.ndarray, instance_id: np.ndarray, 
                                      dtype=np.float64 if name != "keypoints" else np.int32)
            for kind in ("train", "query") for name in ("vector", "eccentricity", "keypoints")}
     out["raw"] = np.zeros((n, config.raw_size ** 2), np.uint8)
+    out["train_neighbours"] = np.array([len(nb) for nb in neighbours], dtype=np.int8)
     for i in range(n):
         loc, desc = sift[i]
-        keep = np.zeros(len(loc), dtype=bool)
+        keep = np.zeros(len(loc), dtype=bool) if neighbours[i] else np.ones(len(loc), dtype=bool)
         for j in neighbours[i]:
             keep |= homography_inliers(loc, desc, *sift[j])
         for kind, points in (("query", loc), ("train", loc[keep])):

@@ -54,7 +54,8 @@ def markdown(evaluation: dict, summary: dict, context: dict) -> str:
              f"Command: `{context.get('command', '')}`", "",
              f"Data: {context.get('frames', '?')} frames under `{context.get('shards', '')}`; "
              f"features: {context.get('train_features', '?')} frames with training features, "
-             f"{context.get('query_features', '?')} with query features. Success: the sum of the absolute "
+             f"{context.get('query_features', '?')} with query features "
+             f"({context.get('without_path_neighbour', 0)} frames had no path neighbour for the training rule). Success: the sum of the absolute "
              "rotation-angle errors below 5° (3°); a frame without an estimate fails. σ: over runs.", "",
              "## Table 1 analogue: SPM", "",
              "| Class | Success % (<5°) | σ | Success % (<3°) | σ | Mean eccentricity | σ | Paper success % | Paper ecc. |",

@@ -20,6 +20,9 @@ import numpy as np
 from scipy.optimize import linprog
 
 
+BATCH = 64  # l1 problems per linear programme (knn solver)
+
+
 class SparseError(ValueError):
     """An l1 problem had no solution (too few or degenerate samples)."""
 
@@ -40,25 +43,44 @@ def l1_weights(target: np.ndarray, dictionary: np.ndarray) -> np.ndarray:
     return res.x[:n] - res.x[n:]
 
 
+def l1_weights_batch(targets: np.ndarray, dictionaries: np.ndarray) -> np.ndarray:
+    """Many independent l1 problems as one block-diagonal linear programme (HiGHS's
+    per-call overhead dominates problems this small). targets (B, m), dictionaries
+    (B, m, n) -> (B, n); a batch HiGHS cannot solve is redone one problem at a time."""
+    from scipy import sparse
+
+    B, m, n = dictionaries.shape
+    blocks = [np.vstack([D, np.ones((1, n))]) for D in dictionaries]
+    A = sparse.block_diag([np.hstack([a, -a]) for a in blocks], format="csr")
+    b = np.concatenate([np.append(t, 1.0) for t in targets])
+    res = linprog(np.ones(2 * n * B), A_eq=A, b_eq=b, bounds=(0, None), method="highs")
+    if res.status != 0:
+        return np.stack([l1_weights(t, D) for t, D in zip(targets, dictionaries)])
+    x = res.x.reshape(B, 2 * n)
+    return x[:, :n] - x[:, n:]
+
+
 def sparse_weights(M: np.ndarray, method: str = "exact", k: int = 64) -> np.ndarray:
     """S (t, t): column i holds Eq. 5's weights of sample i (M is (m, t), samples in columns)."""
     m, t = M.shape
     if t < 3:
         raise SparseError(f"need at least 3 samples, got {t}")
     S = np.zeros((t, t))
-    if method == "knn":
-        d2 = ((M.T[:, None, :] - M.T[None, :, :]) ** 2).sum(axis=2) if t <= 4096 else None
-    for i in range(t):
-        if method == "exact":
+    if method == "exact":
+        for i in range(t):
             others = np.delete(np.arange(t), i)
-        elif method == "knn":
-            dist = d2[i] if d2 is not None else ((M.T - M[:, i]) ** 2).sum(axis=1)
-            dist = dist.copy()
-            dist[i] = np.inf
-            others = np.argsort(dist, kind="stable")[: min(k, t - 1)]
-        else:
-            raise SparseError(f"method must be 'exact' or 'knn', got {method!r}")
-        S[others, i] = l1_weights(M[:, i], M[:, others])
+            S[others, i] = l1_weights(M[:, i], M[:, others])
+        return S
+    if method != "knn":
+        raise SparseError(f"method must be 'exact' or 'knn', got {method!r}")
+    k = min(k, t - 1)
+    for start in range(0, t, BATCH):
+        rows = np.arange(start, min(t, start + BATCH))
+        d2 = ((M.T[rows, None, :] - M.T[None, :, :]) ** 2).sum(axis=2)
+        d2[np.arange(len(rows)), rows] = np.inf
+        others = np.argsort(d2, axis=1, kind="stable")[:, :k]
+        weights = l1_weights_batch(M.T[rows], M.T[others].transpose(0, 2, 1))
+        S[others, rows[:, None]] = weights
     return S
 
 

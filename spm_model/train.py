@@ -44,6 +44,10 @@ def train(shards, report_dir=None, *, protocol: str = "loco", runs: int = 3, wor
     counts = check_classes(table)
     log(f"{len(table)} frames, {len(counts)} classes: " + ", ".join(f"{c} {n}" for c, n in counts.items())
         + " (frames with training features)")
+    alone = int((table.train_neighbours == 0).sum())
+    if alone:
+        log(f"{alone} frames have no 5-degree path neighbour in their shard; their training features "
+            "use every keypoint in the mask (docs/method.md)")
     model_params = dict(model_params or {}, features=features)
     evaluation = evaluate(table, protocol, runs, model_params, report=log)
     usable = np.isfinite(table.train_vector).all(axis=1)
@@ -53,6 +57,7 @@ def train(shards, report_dir=None, *, protocol: str = "loco", runs: int = 3, wor
     model_path = model.save(out / "model.npz")
     context = {"command": command, "shards": str(shards), "frames": len(table), "train_features": int(usable.sum()),
                "query_features": int(np.isfinite(table.query_vector).all(axis=1).sum()),
+               "without_path_neighbour": int((table.train_neighbours == 0).sum()),
                "frames_per_class": {c: int((table.class_name == c).sum()) for c in counts},
                "model_params": {k: v for k, v in model_params.items() if k != "features"},
                "features": asdict(features)}
