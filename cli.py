@@ -64,6 +64,28 @@ def run_with_progress(call, report=lambda summary: summary.report()):
         sys.exit(1)
 
 
+def executor_options(fn):
+    """--executor/--address/--task-cpus -> an ``executor`` argument (with --workers, --recycle-after)."""
+    @functools.wraps(fn)
+    def wrapper(*args, executor_name, address, task_cpus, **kwargs):
+        from spm_data.executor import make_executor
+
+        kwargs["executor"] = make_executor(executor_name, workers=kwargs.get("workers", 1), address=address,
+                                           task_cpus=task_cpus, recycle_after=kwargs.get("recycle_after", 0))
+        return fn(*args, **kwargs)
+
+    for option in reversed([
+        click.option("--executor", "executor_name", type=click.Choice(["local", "ray"]), default="local",
+                      show_default=True, help="Where shard jobs run: local processes, or Ray tasks (docs/scaling.md)."),
+        click.option("--address", default=None, help="Ray cluster address (auto or HOST:PORT); default: a local "
+                                                     "Ray instance with --workers CPUs."),
+        click.option("--task-cpus", default=1.0, show_default=True, type=click.FloatRange(min=0.01),
+                     help="CPUs each Ray task reserves (give Blender tasks its Cycles threads)."),
+    ]):
+        wrapper = option(wrapper)
+    return wrapper
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="spm")
 def data_cli():
@@ -82,14 +104,16 @@ def data_cli():
 @click.option("--limit", type=click.IntRange(min=1), default=None, help="At most N frames per class, spread over views.")
 @click.option("--recycle-after", default=16, show_default=True, type=click.IntRange(min=0),
               help="Replace each worker process after this many shards (0: never); bounds renderer leaks.")
+@executor_options
 @handle_errors
-def render_cmd(classes, all_classes, spec_files, specs_dir, out, workers, renderer, seed, limit, recycle_after):
+def render_cmd(classes, all_classes, spec_files, specs_dir, out, workers, renderer, seed, limit, recycle_after,
+               executor):
     """Render classes over their camera paths into shards in --out (resumes)."""
     from spm_data.render_jobs import load_run_specs, render_dataset
 
     specs = load_run_specs(classes, all_classes, spec_files, specs_dir, renderer=renderer, seed=seed)
     run_with_progress(lambda bar: render_dataset(specs, out, limit=limit, workers=workers, progress=bar,
-                                                 recycle_after=recycle_after))
+                                                 recycle_after=recycle_after, executor=executor))
 
 
 @data_cli.command("occlude")
@@ -101,13 +125,15 @@ def render_cmd(classes, all_classes, spec_files, specs_dir, out, workers, render
 @click.option("--rects", default=1, show_default=True, type=click.IntRange(min=1), help="Rectangles per frame.")
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Seed (same seed, same bytes).")
 @click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1), help="Worker processes.")
+@executor_options
 @handle_errors
-def occlude_cmd(in_dir, out_dir, low, high, copies, rects, seed, workers):
+def occlude_cmd(in_dir, out_dir, low, high, copies, rects, seed, workers, executor):
     """Write copies of shards with black rectangles covering [--min, --max] of each object."""
     from spm_data.occlude_jobs import occlude_dataset, occlusion_report
 
     run_with_progress(lambda bar: occlude_dataset(in_dir, out_dir, low=low, high=high, copies=copies, rects=rects,
-                                                  seed=seed, workers=workers, progress=bar), occlusion_report)
+                                                  seed=seed, workers=workers, progress=bar, executor=executor),
+                      occlusion_report)
 
 
 @data_cli.group("import")
@@ -149,14 +175,15 @@ def with_common(fn):
 @click.option("--distance", default=1.0, show_default=True, help="Assumed camera distance, metres (not published).")
 @click.option("--fov", default=30.0, show_default=True, help="Assumed vertical field of view, degrees.")
 @click.option("--classes", "classes_csv", type=click.Path(), default=None, help="CSV: object id,class name.")
+@executor_options
 @handle_errors
-def import_coil100_cmd(path, out, threshold, workers, elevation, distance, fov, classes_csv):
+def import_coil100_cmd(path, out, threshold, workers, elevation, distance, fov, classes_csv, executor):
     """COIL-100: the extracted folder, coil-100.zip or coil-100.tar.gz."""
     from spm_data.coil100 import import_coil100
 
     _finish_import(lambda bar: import_coil100(path, out, elevation=elevation, distance=distance, fov=fov,
                                               classes_csv=classes_csv, threshold=threshold, workers=workers,
-                                              progress=bar))
+                                              progress=bar, executor=executor))
 
 
 @import_group.command("folder")
@@ -169,14 +196,15 @@ def import_coil100_cmd(path, out, threshold, workers, elevation, distance, fov, 
 @click.option("--class", "class_name", default="folder", show_default=True, help="Class when the table has none.")
 @click.option("--depth-unit", default="mm", show_default=True, type=click.Choice(["m", "cm", "mm"]),
               help="What one step of a uint16 depth image is.")
+@executor_options
 @handle_errors
-def import_folder_cmd(path, poses_csv, out, threshold, workers, unit, euler, fov, class_name, depth_unit):
+def import_folder_cmd(path, poses_csv, out, threshold, workers, unit, euler, fov, class_name, depth_unit, executor):
     """Images plus a table of per-image poses (docs/datasets.md)."""
     from spm_data.posed_folder import import_folder
 
     _finish_import(lambda bar: import_folder(path, out, poses_csv=poses_csv, unit=unit, euler=euler, fov=fov,
                                              class_name=class_name, depth_unit=depth_unit, threshold=threshold,
-                                             workers=workers, progress=bar))
+                                             workers=workers, progress=bar, executor=executor))
 
 
 @import_group.command("cvl")
@@ -184,13 +212,14 @@ def import_folder_cmd(path, poses_csv, out, threshold, workers, unit, euler, fov
 @with_common
 @click.option("--unit", default="mm", show_default=True, type=click.Choice(["m", "cm", "mm"]), help="Translation unit.")
 @click.option("--fov", type=float, default=None, help="Vertical field of view, degrees, if tables have no fx fy cx cy.")
+@executor_options
 @handle_errors
-def import_cvl_cmd(path, out, threshold, workers, unit, fov):
+def import_cvl_cmd(path, out, threshold, workers, unit, fov, executor):
     """CVL in the assumed layout PATH/<object>/poses.csv (docs/datasets.md)."""
     from spm_data.posed_folder import import_cvl
 
     _finish_import(lambda bar: import_cvl(path, out, unit=unit, fov=fov, threshold=threshold, workers=workers,
-                                          progress=bar))
+                                          progress=bar, executor=executor))
 
 
 @import_group.command("bop")
@@ -199,13 +228,14 @@ def import_cvl_cmd(path, out, threshold, workers, unit, fov):
 @click.option("--split", default="train_pbr", show_default=True, help="BOP split folder.")
 @click.option("--crop", type=click.IntRange(min=8), default=None, help="Square crops of this size around each object.")
 @click.option("--classes", "classes_csv", type=click.Path(), default=None, help="CSV: obj_id,class name.")
+@executor_options
 @handle_errors
-def import_bop_cmd(path, out, threshold, workers, split, crop, classes_csv):
+def import_bop_cmd(path, out, threshold, workers, split, crop, classes_csv, executor):
     """A BOP dataset split: one frame per (image, object)."""
     from spm_data.bop import import_bop
 
     _finish_import(lambda bar: import_bop(path, out, split=split, crop=crop, classes_csv=classes_csv,
-                                          workers=workers, progress=bar))
+                                          workers=workers, progress=bar, executor=executor))
 
 
 @data_cli.group("export")
@@ -241,14 +271,16 @@ def export_bop_cmd(folder, out_dir, split):
 @click.option("--classes", "renames", default=None, help="Rename classes: old=new[,old=new...].")
 @click.option("--frames-per-shard", default=256, show_default=True, type=click.IntRange(min=1))
 @click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1), help="Worker processes.")
+@executor_options
 @handle_errors
-def merge_cmd(folders, out_dir, sources, renames, frames_per_shard, workers):
+def merge_cmd(folders, out_dir, sources, renames, frames_per_shard, workers, executor):
     """Combine shard folders into one, rebalanced into full shards."""
     from spm_data.merge import merge_folders, parse_renames
 
     keep = [s.strip() for s in sources.split(",") if s.strip()] if sources else None
     run_with_progress(lambda bar: merge_folders(folders, out_dir, sources=keep, renames=parse_renames(renames),
-                                                frames_per_shard=frames_per_shard, workers=workers, progress=bar))
+                                                frames_per_shard=frames_per_shard, workers=workers, progress=bar,
+                                                executor=executor))
 
 
 @data_cli.command("validate")
@@ -321,8 +353,9 @@ def _parse_roi(text):
 @click.option("--ellipse", type=click.Choice(["pso", "direct"]), default="pso", show_default=True,
               help="Ellipse fit: Eq. 1 by particle swarm (the paper's) or the direct fit.")
 @click.option("--gamma", default=8, show_default=True, type=click.IntRange(min=5), help="EM clusters per frame.")
+@executor_options
 @handle_errors
-def train_cmd(shards, report_dir, protocol, runs, workers, ellipse, gamma):
+def train_cmd(shards, report_dir, protocol, runs, workers, ellipse, gamma, executor):
     """Extract features (cached), evaluate SPM and the baselines, write the report and the model."""
     from spm_model.features import FeatureConfig
     from spm_model.train import train
@@ -330,7 +363,7 @@ def train_cmd(shards, report_dir, protocol, runs, workers, ellipse, gamma):
     bar = Progress()
     try:
         result = train(shards, report_dir, protocol=protocol, runs=runs, workers=workers,
-                       features=FeatureConfig(gamma=gamma, ellipse=ellipse), progress=bar,
+                       features=FeatureConfig(gamma=gamma, ellipse=ellipse), progress=bar, executor=executor,
                        log=lambda m: bar.bar.write(m), command="spm " + " ".join(sys.argv[1:]))
     except KeyboardInterrupt:
         bar.close()
@@ -346,8 +379,9 @@ def train_cmd(shards, report_dir, protocol, runs, workers, ellipse, gamma):
 @click.option("--shards", required=True, type=click.Path(), help="Folder of shards to score it on.")
 @click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1), help="Feature-extraction processes.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@executor_options
 @handle_errors
-def evaluate_cmd(model_path, shards, workers, as_json):
+def evaluate_cmd(model_path, shards, workers, as_json, executor):
     """Score a trained model on other shards (success < 5 and 3 degrees, errors)."""
     import json
 
@@ -355,7 +389,7 @@ def evaluate_cmd(model_path, shards, workers, as_json):
 
     bar = Progress()
     try:
-        result = evaluate_model(model_path, shards, workers=workers, progress=bar)
+        result = evaluate_model(model_path, shards, workers=workers, progress=bar, executor=executor)
     finally:
         bar.close()
     if as_json:

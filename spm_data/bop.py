@@ -80,7 +80,7 @@ def bop_records(path, split="train_pbr", crop=False, classes=None):
 
 
 def import_bop(path, out_dir, *, split="train_pbr", crop=None, classes_csv=None, frames_per_shard=256,
-               workers=1, progress=None):
+               workers=1, progress=None, executor=None):
     """Import a BOP split; ``crop``: output size in pixels of square crops around each object, or None."""
     from spm_data.coil100 import read_class_map
 
@@ -88,7 +88,7 @@ def import_bop(path, out_dir, *, split="train_pbr", crop=None, classes_csv=None,
     records, problems = bop_records(path, split, crop=bool(crop), classes=classes)
     summary = import_records(records, out_dir, source="bop", prefix=f"bop-{split}",
                              size=(crop, crop) if crop else None, frames_per_shard=frames_per_shard,
-                             attrs={"import": "bop", "split": split}, workers=workers, progress=progress)
+                             attrs={"import": "bop", "split": split}, workers=workers, progress=progress, executor=executor)
     return summary, problems
 
 

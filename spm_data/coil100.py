@@ -93,12 +93,12 @@ def coil100_records(path, *, elevation=0.0, distance=1.0, fov=30.0, classes=None
 
 
 def import_coil100(path, out_dir, *, elevation=0.0, distance=1.0, fov=30.0, classes_csv=None, threshold=10,
-                   frames_per_shard=256, workers=1, progress=None):
+                   frames_per_shard=256, workers=1, progress=None, executor=None):
     """Import COIL-100 into ``out_dir``; returns (RunSummary, problems)."""
     classes = read_class_map(classes_csv) if classes_csv else None
     records, problems = coil100_records(path, elevation=elevation, distance=distance, fov=fov, classes=classes)
     attrs = {"import": "coil100", "assumed_elevation": elevation, "assumed_distance": distance,
              "assumed_fov": fov, "mask_source": f"threshold: brightest channel > {threshold}"}
     summary = import_records(records, out_dir, source="coil100", prefix="coil100", threshold=threshold,
-                             frames_per_shard=frames_per_shard, attrs=attrs, workers=workers, progress=progress)
+                             frames_per_shard=frames_per_shard, attrs=attrs, workers=workers, progress=progress, executor=executor)
     return summary, problems

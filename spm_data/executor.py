@@ -217,3 +217,33 @@ def _run_jobs(fn, jobs, workers, retries, recycle_after, on_progress, on_outcome
             if w.job_id is not None and on_worker_death:
                 on_worker_death(jobs[w.job_id])
     return outcomes
+
+
+class LocalExecutor:
+    """Worker processes on this machine (the default): ``run_jobs`` with ``workers``
+    processes; ``in_process`` runs in this process when workers <= 1 (not for Blender)."""
+
+    name = "local"
+
+    def __init__(self, workers: int = 1, retries: int = 1, recycle_after: int = 0):
+        self.workers = workers
+        self.retries = retries
+        self.recycle_after = recycle_after
+
+    def run(self, fn, jobs, *, in_process=True, on_progress=None, on_outcome=None, on_worker_death=None):
+        workers = 0 if (in_process and self.workers <= 1) else max(1, self.workers)
+        return run_jobs(fn, jobs, workers=workers, retries=self.retries, recycle_after=self.recycle_after,
+                        on_progress=on_progress, on_outcome=on_outcome, on_worker_death=on_worker_death)
+
+
+def make_executor(name: str = "local", *, workers: int = 1, address: str | None = None,
+                  task_cpus: float = 1.0, retries: int = 1, recycle_after: int = 0):
+    """``local`` (processes here) or ``ray`` (spm_data.ray_executor; needs the ``ray`` extra)."""
+    if name == "local":
+        return LocalExecutor(workers=workers, retries=retries, recycle_after=recycle_after)
+    if name == "ray":
+        from spm_data.ray_executor import RayExecutor
+
+        return RayExecutor(address=address, workers=workers, task_cpus=task_cpus, retries=retries,
+                           recycle_after=recycle_after)
+    raise SpmError(f"executor must be 'local' or 'ray', got {name!r}")

@@ -283,7 +283,7 @@ def import_shard(job: ImportJob, report=lambda n: None) -> dict:
 
 
 def import_records(records, out_dir, *, source: str, prefix: str, frames_per_shard=256, threshold=10,
-                   size=None, attrs=None, workers=1, progress=None) -> RunSummary:
+                   size=None, attrs=None, workers=1, progress=None, executor=None) -> RunSummary:
     """Write ``records`` as shards ``PREFIX-NNNNN.h5`` in ``out_dir`` (resuming)."""
     if not records:
         raise SpmError("nothing to import: no frames were found")
@@ -295,7 +295,8 @@ def import_records(records, out_dir, *, source: str, prefix: str, frames_per_sha
         key = hashlib.sha256((key_base + repr(chunk)).encode()).hexdigest()
         jobs.append(ImportJob(f"{prefix}-{i:05d}.h5", key, str(out_dir), chunk, source, threshold,
                               tuple(size) if size else None, attrs_json))
-    return run_shard_jobs(import_shard, jobs, out_dir, workers=workers, progress=progress, verb="imported")
+    return run_shard_jobs(import_shard, jobs, out_dir, workers=workers, progress=progress, verb="imported",
+                          executor=executor)
 
 
 def import_report(summary: RunSummary, problems=()) -> str:

@@ -125,10 +125,10 @@ def merge_shard(job: MergeJob, report=lambda n: None) -> dict:
 
 
 def merge_folders(inputs, out_dir, *, sources=None, renames=None, frames_per_shard=256, workers=1,
-                  progress=None) -> RunSummary:
+                  progress=None, executor=None) -> RunSummary:
     """Merge shard folders into ``out_dir``; the manifest records every source folder."""
     jobs = plan_merge(inputs, out_dir, sources=sources, renames=renames, frames_per_shard=frames_per_shard)
     record = {"sources": [{"folder": str(Path(f)), "shards": len(list_shards(f))} for f in inputs],
               "filters": {"sources": list(sources or []), "classes": renames or {}}}
     return run_shard_jobs(merge_shard, jobs, out_dir, workers=workers, progress=progress, verb="merged",
-                          manifest_extra=record)
+                          manifest_extra=record, executor=executor)

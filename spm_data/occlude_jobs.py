@@ -118,9 +118,10 @@ def occlude_shard(job: OccludeJob, report=lambda n: None) -> dict:
 
 
 def occlude_dataset(in_dir, out_dir, *, low=0.0, high=0.6, copies=1, rects=1, seed=0, workers=1,
-                    progress=None) -> RunSummary:
+                    progress=None, executor=None) -> RunSummary:
     """Occlude every shard of ``in_dir`` into ``out_dir`` (resuming), then write its manifest.
     Everything is checked before anything is written."""
     shards = check_inputs(in_dir, out_dir)
     jobs = plan_occlusion(shards, out_dir, low, high, copies, rects, seed)
-    return run_shard_jobs(occlude_shard, jobs, out_dir, workers=workers, progress=progress, verb="occluded")
+    return run_shard_jobs(occlude_shard, jobs, out_dir, workers=workers, progress=progress, verb="occluded",
+                          executor=executor)

@@ -107,7 +107,7 @@ def folder_records(poses_csv, *, unit="m", euler="XYZ", fov=None, class_name="fo
 
 def import_folder(folder, out_dir, *, poses_csv=None, unit="m", euler="XYZ", fov=None, class_name="folder",
                   depth_unit="mm", threshold=10, source="folder", prefix=None, frames_per_shard=256, workers=1,
-                  progress=None):
+                  progress=None, executor=None):
     """Import ``folder``'s images listed in ``poses_csv`` (default FOLDER/poses.csv; image paths
     are relative to FOLDER)."""
     folder = Path(folder)
@@ -117,13 +117,13 @@ def import_folder(folder, out_dir, *, poses_csv=None, unit="m", euler="XYZ", fov
     records, problems = folder_records(poses_csv, unit=unit, euler=euler, fov=fov, class_name=class_name,
                                        depth_unit=depth_unit, base=folder)
     summary = import_records(records, out_dir, source=source, prefix=prefix or source, threshold=threshold,
-                             frames_per_shard=frames_per_shard, workers=workers, progress=progress,
+                             frames_per_shard=frames_per_shard, workers=workers, progress=progress, executor=executor,
                              attrs={"import": source, "poses": str(poses_csv), "unit": unit, "euler": euler})
     return summary, problems
 
 
 def import_cvl(path, out_dir, *, unit="mm", euler="XYZ", fov=None, threshold=10, frames_per_shard=256,
-               workers=1, progress=None):
+               workers=1, progress=None, executor=None):
     """The assumed CVL layout: ``PATH/<object>/poses.csv`` beside that object's images
     (docs/datasets.md). The object folder names the class unless the CSV has a class column."""
     path = Path(path)
@@ -138,6 +138,6 @@ def import_cvl(path, out_dir, *, unit="mm", euler="XYZ", fov=None, threshold=10,
         records += r
         problems += p
     summary = import_records(records, out_dir, source="cvl", prefix="cvl", threshold=threshold,
-                             frames_per_shard=frames_per_shard, workers=workers, progress=progress,
+                             frames_per_shard=frames_per_shard, workers=workers, progress=progress, executor=executor,
                              attrs={"import": "cvl", "unit": unit, "euler": euler})
     return summary, problems

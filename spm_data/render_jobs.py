@@ -176,7 +176,7 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
 
 
 def render_dataset(specs: list[RenderSpec], out_dir, *, limit=None, workers=1, progress=None,
-                   recycle_after=16) -> RunSummary:
+                   recycle_after=16, executor=None) -> RunSummary:
     """Render every spec into ``out_dir`` (resuming), then write manifest.json.
 
     workers: processes; 1 renders in this process with pyrender, and Blender
@@ -184,6 +184,8 @@ def render_dataset(specs: list[RenderSpec], out_dir, *, limit=None, workers=1, p
     and a ``total`` attribute (e.g. a tqdm bar), or None. recycle_after: a worker
     process is replaced after this many shards (0: never), so a leak in a
     renderer (Blender's grows over long runs) cannot grow without bound.
+    executor: where shards are rendered (spm_data.executor.make_executor; it
+    carries its own worker count and recycling); default: local processes.
     """
     jobs = [job for spec in specs for job in plan_shards(spec, out_dir, limit)]
     names = [j.name for j in jobs]
@@ -191,4 +193,4 @@ def render_dataset(specs: list[RenderSpec], out_dir, *, limit=None, workers=1, p
         raise SpecError("two specs share a class name; each class needs its own name")
     in_process = all(j.spec.render.renderer == "pyrender" for j in jobs)
     return run_shard_jobs(render_shard, jobs, out_dir, workers=workers, in_process=in_process,
-                          progress=progress, verb="rendered", recycle_after=recycle_after)
+                          progress=progress, verb="rendered", recycle_after=recycle_after, executor=executor)

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from spm_data.errors import ShardError
-from spm_data.executor import run_jobs
+from spm_data.executor import LocalExecutor
 from spm_data.locking import OutputLock
 from spm_data.shards import partial_path, read_attrs, remove_partials, write_manifest
 
@@ -82,13 +82,18 @@ def _discard_partial(job) -> None:
 
 
 def run_shard_jobs(fn, jobs, out_dir, *, workers=1, in_process=True, progress=None, verb="wrote",
-                   manifest_extra=None, recycle_after=0) -> RunSummary:
+                   manifest_extra=None, recycle_after=0, executor=None) -> RunSummary:
     """Run ``fn(job, report)`` for the jobs whose shard is missing, then write the manifest.
 
     in_process: with ``workers <= 1``, run in this process (else always in
     worker processes, as Blender must). progress: a callable taking frame
-    deltas with a ``total`` attribute (a tqdm bar), or None.
+    deltas with a ``total`` attribute (a tqdm bar), or None. executor: where the
+    jobs run (spm_data.executor.make_executor); default: local processes. Jobs
+    write their shard themselves; only their small results come back here, and
+    the manifest is written here, last.
     """
+    if executor is None:
+        executor = LocalExecutor(workers=workers, retries=1, recycle_after=recycle_after)
     out = prepare_out_dir(out_dir)
     started = time.perf_counter()
     summary = RunSummary(out_dir=out, verb=verb, planned=len(jobs))
@@ -110,9 +115,8 @@ def run_shard_jobs(fn, jobs, out_dir, *, workers=1, in_process=True, progress=No
                 entries[o.job.name] = o.result["entry"]
 
         try:
-            run_jobs(fn, todo, workers=0 if (in_process and workers <= 1) else max(1, workers), retries=1,
-                     recycle_after=recycle_after, on_outcome=on_outcome, on_progress=progress,
-                     on_worker_death=_discard_partial)
+            executor.run(fn, todo, in_process=in_process, on_outcome=on_outcome, on_progress=progress,
+                         on_worker_death=_discard_partial)
         except KeyboardInterrupt:
             summary.interrupted = True
         finally:

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from spm_data.errors import ShardError, SpmError
-from spm_data.executor import run_jobs
+from spm_data.executor import LocalExecutor
 from spm_data.shards import PARTIAL_PREFIX, SHARD_SUFFIX, read_attrs, read_shard
 from spm_model.features import FeatureConfig, frames_features
 
@@ -62,8 +62,8 @@ def cached(shard: Path, config: FeatureConfig) -> Path | None:
 def extract_shard(job, report=lambda n: None) -> str:
     """Compute and cache one shard's features; job = (shard path, FeatureConfig)."""
     shard, config = Path(job[0]), job[1]
+    n = int(read_attrs(shard)["frames"])  # a missing or foreign file: a ShardError naming it
     identity = _identity(shard)
-    n = int(read_attrs(shard)["frames"])
     labels = read_shard(shard, LABEL_FIELDS)
     if np.any(labels["class_name"].astype(str) == ""):
         raise ShardError(f"{shard}: frames without a class_name; set one when importing")
@@ -111,16 +111,17 @@ class FeatureTable:
 
 
 def load_features(folder, config: FeatureConfig = FeatureConfig(), *, workers: int = 1,
-                  progress=None) -> FeatureTable:
-    """Extract (or reuse) the features of every shard under ``folder``; progress is
-    a callable taking frame deltas, with a settable ``total`` (a tqdm bar)."""
+                  progress=None, executor=None) -> FeatureTable:
+    """Extract (or reuse) the features of every shard under ``folder``, one job per
+    shard on ``executor`` (default: ``workers`` local processes); progress is a
+    callable taking frame deltas, with a settable ``total`` (a tqdm bar)."""
     shards = find_shards(folder)
     frames = [int(read_attrs(s)["frames"]) for s in shards]
     todo = [(str(s), config) for s in shards if cached(s, config) is None]
     if progress is not None:
         progress.total = sum(f for s, f in zip(shards, frames) if cached(s, config) is None)
-    outcomes = run_jobs(extract_shard, todo, workers=0 if workers <= 1 else workers, retries=1,
-                        on_progress=progress)
+    executor = executor or LocalExecutor(workers=workers, retries=1)
+    outcomes = executor.run(extract_shard, todo, on_progress=progress)
     failed = [o for o in outcomes if o.error]
     if failed:
         raise SpmError(f"feature extraction failed for {len(failed)} shard(s); first: "

@@ -34,13 +34,13 @@ def check_classes(table: FeatureTable) -> dict:
 
 def train(shards, report_dir=None, *, protocol: str = "loco", runs: int = 3, workers: int = 1,
           features: FeatureConfig = FeatureConfig(), model_params: dict | None = None, progress=None,
-          log=lambda message: None, command: str = "spm train") -> dict:
+          log=lambda message: None, command: str = "spm train", executor=None) -> dict:
     """Features of every shard under ``shards`` (cached), the evaluation protocol
     over ``runs`` seeds, a final model on every frame, and the report files.
     Returns {"report": folder, "model": path, "summary", "evaluation", "table1": text}."""
     if runs < 1:
         raise ModelError(f"--runs must be at least 1, got {runs}")
-    table = load_features(shards, features, workers=workers, progress=progress)
+    table = load_features(shards, features, workers=workers, progress=progress, executor=executor)
     counts = check_classes(table)
     log(f"{len(table)} frames, {len(counts)} classes: " + ", ".join(f"{c} {n}" for c, n in counts.items())
         + " (frames with training features)")
@@ -66,11 +66,11 @@ def train(shards, report_dir=None, *, protocol: str = "loco", runs: int = 3, wor
             "table1": table1_text(evaluation, summary)}
 
 
-def evaluate_model(model_path, shards, *, workers: int = 1, progress=None) -> dict:
+def evaluate_model(model_path, shards, *, workers: int = 1, progress=None, executor=None) -> dict:
     """Score a saved model on the query features of every frame under ``shards``:
     {"classes": {class: summary}, "all": summary}."""
     model = SPMEstimator.load(model_path)
-    table = load_features(shards, model.features, workers=workers, progress=progress)
+    table = load_features(shards, model.features, workers=workers, progress=progress, executor=executor)
     ok = np.isfinite(table.query_vector).all(axis=1)
     pred = np.full((len(table), 6), np.nan)
     if ok.any():

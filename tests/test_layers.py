@@ -8,7 +8,9 @@ CORE = ["spm_data", "spm_data.poses", "spm_data.paths", "spm_data.meshes", "spm_
         "spm_data.render_jobs", "spm_data.executor", "spm_data.occlusion", "spm_data.importing",
         "spm_data.validate", "spm_model.ellipse", "spm_model.manifold",
         "spm_model.keypoints", "spm_model.bunches", "spm_model.sparse",
-        "spm_model.regressor", "cli"]
+        "spm_model.regressor", "spm_model.features", "spm_model.dataset", "spm_model.estimator",
+        "spm_model.baselines", "spm_model.metrics", "spm_model.evaluation", "spm_model.report",
+        "spm_model.train", "cli"]
 FORBIDDEN = ("bpy", "OpenGL", "pyrender", "pyglet")
 
 

@@ -1,0 +1,130 @@
+"""The Ray executor: same arrays as the local pool, and a killed task is retried.
+
+A local Ray instance with 2 CPUs, listening on loopback only, is started by the
+executor itself (spm_data/ray_executor.py)."""
+
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ray = pytest.importorskip("ray")
+
+from spm_data.errors import SpmError  # noqa: E402
+from spm_data.executor import make_executor  # noqa: E402
+from spm_data.occlude_jobs import occlude_dataset  # noqa: E402
+from spm_data.render_jobs import load_run_specs, render_dataset  # noqa: E402
+from spm_data.shards import list_shards, read_manifest, read_shard  # noqa: E402
+
+SPEC = """
+class = "{cls}"
+seed = 2
+[mesh]
+instances = 1
+[camera]
+azimuth = [0, 95, 5]
+elevation = [10, 15, 5]
+distances = [0.6]
+[image]
+width = 128
+height = 128
+[render]
+renderer = "pyrender"
+frames_per_shard = 20
+"""
+
+
+@pytest.fixture
+def specs(tmp_path):
+    folder = tmp_path / "specs"
+    folder.mkdir()
+    for cls in ("cup", "car"):
+        (folder / f"{cls}.toml").write_text(SPEC.format(cls=cls))
+    return load_run_specs(all_classes=True, specs_dir=folder)
+
+
+def assert_same_arrays(a: Path, b: Path):
+    sa, sb = list_shards(a), list_shards(b)
+    assert [p.name for p in sa] == [p.name for p in sb] and sa
+    for pa, pb in zip(sa, sb):
+        da, db = read_shard(pa), read_shard(pb)
+        assert sorted(da) == sorted(db)
+        for k in da:
+            assert np.array_equal(da[k], db[k]), f"{pa.name}:{k}"
+
+
+def test_ray_renders_and_occludes_the_same_arrays_as_local_processes(specs, tmp_path):
+    ray_exec = make_executor("ray", workers=2)
+    local = render_dataset(specs, tmp_path / "local", workers=1)
+    remote = render_dataset(specs, tmp_path / "ray", executor=ray_exec)
+    assert remote.failed == [] and remote.frames == local.frames == 80 and len(remote.done) == 4
+    assert_same_arrays(tmp_path / "local", tmp_path / "ray")
+    assert [e["sha256"] for e in read_manifest(tmp_path / "ray")["shards"]] == \
+           [e["sha256"] for e in read_manifest(tmp_path / "local")["shards"]]
+    occlude_dataset(tmp_path / "local", tmp_path / "local_occ", high=0.5, seed=4)
+    occlude_dataset(tmp_path / "ray", tmp_path / "ray_occ", high=0.5, seed=4, executor=ray_exec)
+    assert_same_arrays(tmp_path / "local_occ", tmp_path / "ray_occ")
+    assert not ray.is_initialized()  # the local instance it started is stopped
+
+
+def _kill_first_running_task(found: list, stop: threading.Event):
+    """SIGKILL the first Ray worker seen running a task (its title is ray::_ray_task)."""
+    while not stop.is_set() and not found:
+        for pid in os.listdir("/proc"):
+            if not pid.isdigit():
+                continue
+            try:
+                cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
+            except OSError:
+                continue
+            if cmdline.startswith(b"ray::_ray_task"):
+                os.kill(int(pid), signal.SIGKILL)
+                found.append(int(pid))
+                return
+        time.sleep(0.002)
+
+
+def test_a_killed_task_is_retried_and_the_run_completes(specs, tmp_path):
+    render_dataset(specs, tmp_path / "local", workers=1)
+    found, stop = [], threading.Event()
+    killer = threading.Thread(target=_kill_first_running_task, args=(found, stop), daemon=True)
+    killer.start()
+    try:
+        summary = render_dataset(specs, tmp_path / "ray", executor=make_executor("ray", workers=2, retries=2))
+    finally:
+        stop.set()
+        killer.join()
+    assert found, "no running Ray task was seen to kill"
+    assert summary.failed == [] and len(summary.done) == 4 and summary.complete == 4
+    assert not list((tmp_path / "ray").glob(".*.partial"))
+    assert_same_arrays(tmp_path / "local", tmp_path / "ray")
+
+
+def test_features_on_ray_equal_local_and_a_failing_job_is_reported(specs, tmp_path):
+    from spm_model.dataset import extract_shard, load_features
+    from spm_model.features import FeatureConfig
+
+    render_dataset(specs, tmp_path / "shards", workers=1)
+    config = FeatureConfig(ellipse="direct")
+    shards = list_shards(tmp_path / "shards")
+    jobs = [(str(shards[0]), config), (str(tmp_path / "missing.h5"), config), (str(shards[1]), config)]
+    outcomes = make_executor("ray", workers=2).run(extract_shard, jobs)
+    assert outcomes[0].error is None and outcomes[2].error is None
+    assert "shard not found" in outcomes[1].error and outcomes[1].result is None
+    # Feature extraction for `spm train` on Ray: the same cached arrays as in this process.
+    cached = {p: np.load(p) for p in (outcomes[0].result, outcomes[2].result)}
+    local = load_features(tmp_path / "shards", config)               # reuses the two Ray-made cache files...
+    for p in cached:
+        Path(p).unlink()
+    again = load_features(tmp_path / "shards", config)               # ...and recomputes them here
+    for k in ("train_vector", "query_vector", "raw", "pose"):
+        assert np.array_equal(local.arrays[k], again.arrays[k], equal_nan=True), k
+
+
+def test_unknown_executor_is_a_one_line_error():
+    with pytest.raises(SpmError, match="executor must be 'local' or 'ray'"):
+        make_executor("slurm")
