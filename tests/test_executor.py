@@ -2,6 +2,8 @@ import os
 import signal
 from pathlib import Path
 
+import pytest
+
 from spm_data.errors import SpmError
 from spm_data.executor import run_jobs
 
@@ -55,3 +57,14 @@ def test_workers_are_recycled_after_n_jobs():
 def test_in_process_mode():
     outcomes = run_jobs(crashing_job, [(1, None, ""), (2, None, "error")], workers=0)
     assert outcomes[0].result == 2 and outcomes[1].error == "bad job 2"
+
+
+def test_ray_executor_without_ray_says_how_to_install_it(monkeypatch):
+    import sys
+
+    from spm_data.errors import SpmError
+    from spm_data.executor import make_executor
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # as if not installed: import ray raises ImportError
+    with pytest.raises(SpmError, match=r"pip install 'spm\[ray\]'"):
+        make_executor("ray").run(len, [1])
