@@ -71,8 +71,10 @@ def fit_bunches(locations, gamma: int = GAMMA, seed: int = 0, tol: float = 1e-3,
         # M-step: Eq. 8 for the means and covariances, Eq. 9 for the priors.
         nk = resp.sum(axis=0) + 1e-12
         new_means = (resp.T @ x) / nk[:, None]
-        d = x[None, :, :] - new_means[:, None, :]
-        covs = np.einsum("nk,kni,knj->kij", resp, d, d) / nk[:, None, None] + ridge * np.eye(2)
+        dx, dy = x[:, 0][:, None] - new_means[:, 0], x[:, 1][:, None] - new_means[:, 1]  # (N, k)
+        sxx, sxy, syy = ((resp * dx * dx).sum(0), (resp * dx * dy).sum(0), (resp * dy * dy).sum(0))
+        covs = np.stack([np.stack([sxx, sxy], -1), np.stack([sxy, syy], -1)], -2) / nk[:, None, None] \
+            + ridge * np.eye(2)
         weights = nk / len(x)
         moved = np.abs(new_means - means).max()
         means = new_means

@@ -26,7 +26,7 @@ from spm_model.ellipse import EllipseError
 from spm_model.keypoints import homography_inliers, sift_keypoints
 from spm_model.manifold import initial_manifold
 
-FEATURE_VERSION = 2
+FEATURE_VERSION = 3
 
 
 class FeatureError(SpmError):
