@@ -10,6 +10,7 @@ shard on ``workers`` processes (spm_data.executor), with per-frame progress.
 from __future__ import annotations
 
 import os
+import socket
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -77,7 +78,7 @@ def extract_shard(job, report=lambda n: None) -> str:
     features = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
     out = cache_path(shard, config)
     out.parent.mkdir(exist_ok=True)
-    tmp = out.parent / f"{PARTIAL_PREFIX}{out.name}.{os.getpid()}.partial"
+    tmp = out.parent / f"{PARTIAL_PREFIX}{out.name}.{socket.gethostname()}.{os.getpid()}.partial"
     with open(tmp, "wb") as fh:
         np.savez(fh, identity=identity, **features,
                  **{k: (v.astype(str) if v.dtype == object else v) for k, v in labels.items()})
@@ -110,12 +111,33 @@ class FeatureTable:
         return FeatureTable({k: v[index] for k, v in self.arrays.items()})
 
 
+def remove_stale_partials(shards: list[Path]) -> list[Path]:
+    """Delete cache files half-written by processes of this host that are gone
+    (a killed run); another host's, or a live process's, are left alone."""
+    removed = []
+    host = socket.gethostname()
+    for folder in {s.parent / CACHE_DIR for s in shards}:
+        for path in folder.glob(PARTIAL_PREFIX + "*.partial") if folder.is_dir() else []:
+            parts = path.name.rsplit(".", 3)  # .NAME.npz . host . pid . partial
+            if len(parts) != 4 or parts[1] != host or not parts[2].isdigit():
+                continue
+            try:
+                os.kill(int(parts[2]), 0)
+            except ProcessLookupError:
+                path.unlink(missing_ok=True)
+                removed.append(path)
+            except PermissionError:
+                pass  # alive, another user's
+    return removed
+
+
 def load_features(folder, config: FeatureConfig = FeatureConfig(), *, workers: int = 1,
                   progress=None, executor=None) -> FeatureTable:
     """Extract (or reuse) the features of every shard under ``folder``, one job per
     shard on ``executor`` (default: ``workers`` local processes); progress is a
     callable taking frame deltas, with a settable ``total`` (a tqdm bar)."""
     shards = find_shards(folder)
+    remove_stale_partials(shards)
     frames = [int(read_attrs(s)["frames"]) for s in shards]
     todo = [(str(s), config) for s in shards if cached(s, config) is None]
     if progress is not None:

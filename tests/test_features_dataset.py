@@ -1,3 +1,4 @@
+import os
 import shutil
 
 import numpy as np
@@ -75,3 +76,25 @@ def test_no_shards_and_missing_class_are_one_line_errors(tmp_path, model_shards)
     write_shard(tmp_path / "nameless" / "x.h5", arrays, {"renderer": "pyrender", "seed": 1})
     with pytest.raises(Exception, match="without a class_name"):
         load_features(tmp_path / "nameless")
+
+
+def test_half_written_cache_files_of_dead_processes_are_removed(tmp_path):
+    import socket
+    import subprocess
+    import sys
+
+    from spm_model.dataset import CACHE_DIR, remove_stale_partials
+
+    shard = tmp_path / "a.h5"
+    cache = tmp_path / CACHE_DIR
+    cache.mkdir()
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True).stdout.strip()
+    host = socket.gethostname()
+    stale = cache / f".a-x.npz.{host}.{dead}.partial"
+    live = cache / f".a-y.npz.{host}.{os.getpid()}.partial"
+    other = cache / f".a-z.npz.otherhost.{dead}.partial"
+    for p in (stale, live, other):
+        p.write_bytes(b"half")
+    assert remove_stale_partials([shard]) == [stale]
+    assert not stale.exists() and live.exists() and other.exists()
