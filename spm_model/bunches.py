@@ -49,7 +49,7 @@ def _log_gauss(x, means, covs):
     return -0.5 * (quad + np.log(det) + 2 * np.log(2 * np.pi))
 
 
-def fit_bunches(locations, gamma: int = GAMMA, seed: int = 0, tol: float = 1e-3, max_iter: int = 200,
+def fit_bunches(locations, gamma: int = GAMMA, seed: int = 0, tol: float = 1e-2, max_iter: int = 100,
                 ridge: float = 0.25) -> Bunches:
     """EM (Algorithm 1) on (N, 2) keypoint locations; N must be >= 2 * gamma."""
     x = np.asarray(locations, dtype=np.float64)

@@ -26,7 +26,7 @@ from spm_model.ellipse import EllipseError
 from spm_model.keypoints import homography_inliers, sift_keypoints
 from spm_model.manifold import initial_manifold
 
-FEATURE_VERSION = 3
+FEATURE_VERSION = 4
 
 
 class FeatureError(SpmError):
@@ -43,7 +43,7 @@ class FeatureConfig:
     ellipse: str = "pso"
     lam: float = 0.1
     seed: int = 0
-    max_side: int = 320
+    max_side: int = 256
     raw_size: int = 32
 
     def __post_init__(self):

@@ -128,3 +128,19 @@ def test_features_on_ray_equal_local_and_a_failing_job_is_reported(specs, tmp_pa
 def test_unknown_executor_is_a_one_line_error():
     with pytest.raises(SpmError, match="executor must be 'local' or 'ray'"):
         make_executor("slurm")
+
+
+def test_cli_occlude_with_the_ray_executor(specs, tmp_path):
+    from click.testing import CliRunner
+
+    from cli import data_cli
+
+    render_dataset(specs, tmp_path / "in", workers=1)
+    runner = CliRunner()
+    args = ["occlude", "--in", str(tmp_path / "in"), "--max", "0.4", "--workers", "2"]
+    r = runner.invoke(data_cli, args + ["--out", str(tmp_path / "ray"), "--executor", "ray"])
+    assert r.exit_code == 0, r.output
+    assert "occluded 4 shards (80 frames)" in r.output and "0 failed" in r.output
+    r = runner.invoke(data_cli, args + ["--out", str(tmp_path / "local")])
+    assert r.exit_code == 0, r.output
+    assert_same_arrays(tmp_path / "local", tmp_path / "ray")
