@@ -6,7 +6,7 @@ import sys
 CORE = ["spm_data", "spm_data.poses", "spm_data.paths", "spm_data.meshes", "spm_data.textures", "spm_data.specs",
         "spm_data.shards", "spm_data.backgrounds", "spm_data.sheet", "spm_data.info", "spm_data.render",
         "spm_data.render_jobs", "spm_data.executor", "spm_data.occlusion", "spm_data.importing",
-        "spm_data.validate", "spm_model.ellipse", "spm_model.manifold",
+        "spm_data.validate", "spm_data.ray_executor", "spm_model.ellipse", "spm_model.manifold",
         "spm_model.keypoints", "spm_model.bunches", "spm_model.sparse",
         "spm_model.regressor", "spm_model.features", "spm_model.dataset", "spm_model.estimator",
         "spm_model.baselines", "spm_model.metrics", "spm_model.evaluation", "spm_model.report",
