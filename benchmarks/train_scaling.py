@@ -90,20 +90,26 @@ def resample(X, y, n, rng):
     return Xn / np.linalg.norm(Xn, axis=1, keepdims=True), y[idx]
 
 
-def accuracy_against_exact(table, subset: int = 1200) -> dict:
-    """Views protocol on up to ``subset`` training frames: default solver vs exact l1 over all of them."""
+def accuracy_against_exact(table, subset: int = 1200, seeds=(0, 1, 2)) -> dict:
+    """Views protocol on up to ``subset`` training frames: the default solver (knn
+    l1 over a 1,000-sample subset) against the exact l1 over every training frame,
+    each fitted with several seeds (the noise copies and Nystrom centres vary with
+    the seed, and that variation is of the same size as the difference sought)."""
     (_, train, test), = splits(table, "views", seed=0)
     train = train[np.isfinite(table.train_vector[train]).all(axis=1)][:subset]
     test = test[np.isfinite(table.query_vector[test]).all(axis=1)]
     out = {}
     for name, params in (("exact l1, every sample", {"projection": "exact", "projection_samples": len(train)}),
                          ("knn l1 (k=64), 1,000-sample subset", {})):
-        started = time.perf_counter()
-        model = SPMEstimator(**params).fit(table.train_vector[train], table.pose[train])
-        fit_s = time.perf_counter() - started
-        s = summarise(pose_errors(model.predict(table.query_vector[test]), table.pose[test]))
-        own = summarise(pose_errors(model.predict(table.train_vector[train]), table.pose[train]))
-        out[name] = (s, own, fit_s, len(train), len(test))
+        rows = []
+        for seed in seeds:
+            started = time.perf_counter()
+            model = SPMEstimator(**params, seed=seed).fit(table.train_vector[train], table.pose[train])
+            fit_s = time.perf_counter() - started
+            new = summarise(pose_errors(model.predict(table.query_vector[test]), table.pose[test]))
+            own = summarise(pose_errors(model.predict(table.train_vector[train]), table.pose[train]))
+            rows.append((new["success_5"], own["success_5"], own["success_3"], fit_s))
+        out[name] = (np.array(rows), len(train), len(test))
     return out
 
 
@@ -125,6 +131,7 @@ def main() -> None:
     parser.add_argument("--shards", type=Path, default=None)
     parser.add_argument("--sizes", default="5000,20000,100000,250000")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--accuracy-only", action="store_true", help="stop after the exact-solve comparison")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         shards = args.shards or make_shards(Path(tmp) / "shards")
@@ -147,11 +154,13 @@ def main() -> None:
         print(f"ellipse fit per frame: PSO (Eq. 1) {pso_ms:.2f} ms, direct {direct_ms:.3f} ms "
               f"({pso_ms / direct_ms:.0f}x)")
 
-        for name, (s, own, fit_s, n_train, n_test) in accuracy_against_exact(table).items():
-            print(f"{name}: fit {fit_s:.1f} s on {n_train} frames; on {n_test} new views: success<5 "
-                  f"{s['success_5']:.1f}%, <3 {s['success_3']:.1f}%, geodesic median {s['geodesic_median']:.1f} deg; "
-                  f"on its training frames: success<5 {own['success_5']:.1f}%, <3 {own['success_3']:.1f}%")
-
+        for name, (rows, n_train, n_test) in accuracy_against_exact(table).items():
+            mean, std = rows.mean(axis=0), rows.std(axis=0)
+            print(f"{name}, {n_train} training frames, seeds 0-{len(rows) - 1}: fit {mean[3]:.1f} s; success<5 on "
+                  f"{n_test} new views {mean[0]:.1f}% (sigma {std[0]:.1f}); on its training frames "
+                  f"success<5 {mean[1]:.1f}% (sigma {std[1]:.1f}), <3 {mean[2]:.1f}% (sigma {std[2]:.1f})")
+        if args.accuracy_only:
+            return
         ok = np.isfinite(table.train_vector).all(axis=1)
         X, y = table.train_vector[ok], table.pose[ok]
         rng = np.random.default_rng(0)
