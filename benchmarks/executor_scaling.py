@@ -23,14 +23,9 @@ from pathlib import Path
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from spm_data.executor import make_executor  # noqa: E402
+from spm_data.executor import make_executor, probe_job  # noqa: E402
 from spm_data.paths import AngleRange  # noqa: E402
 from spm_data.render_jobs import load_run_specs, plan_shards, render_dataset, render_shard  # noqa: E402
-
-
-def noop_job(job, report):
-    report(1)
-    return {"frames": 0}
 
 
 def spec_for(renderer: str, frames: int, per_shard: int):
@@ -57,20 +52,20 @@ def shard_seconds(tmp: Path) -> float:
 
 def overhead_per_job(name: str, jobs: int = 64) -> float:
     executor = make_executor(name, workers=1)
-    executor.run(noop_job, list(range(4)), in_process=False)  # start-up, not counted
+    executor.run(probe_job, list(range(4)), in_process=False)  # start-up, not counted
     if name == "ray":
         import ray
 
         ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False, configure_logging=False)
         try:
-            executor.run(noop_job, list(range(4)))  # warm workers
+            executor.run(probe_job, list(range(4)))  # warm workers
             started = time.perf_counter()
-            executor.run(noop_job, list(range(jobs)))
+            executor.run(probe_job, list(range(jobs)))
             return (time.perf_counter() - started) / jobs
         finally:
             ray.shutdown()
     started = time.perf_counter()
-    executor.run(noop_job, list(range(jobs)), in_process=False)
+    executor.run(probe_job, list(range(jobs)), in_process=False)
     return (time.perf_counter() - started) / jobs
 
 

@@ -219,6 +219,14 @@ def _run_jobs(fn, jobs, workers, retries, recycle_after, on_progress, on_outcome
     return outcomes
 
 
+def probe_job(job, report):
+    """A job that does nothing but say which process ran it (benchmarks, tests)."""
+    import os
+
+    report(1)
+    return {"job": job, "pid": os.getpid()}
+
+
 class LocalExecutor:
     """Worker processes on this machine (the default): ``run_jobs`` with ``workers``
     processes; ``in_process`` runs in this process when workers <= 1 (not for Blender)."""

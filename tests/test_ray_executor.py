@@ -125,6 +125,16 @@ def test_features_on_ray_equal_local_and_a_failing_job_is_reported(specs, tmp_pa
         assert np.array_equal(local.arrays[k], again.arrays[k], equal_nan=True), k
 
 
+def test_recycle_after_replaces_ray_worker_processes():
+    from spm_data.executor import probe_job
+
+    recycled = make_executor("ray", workers=1, recycle_after=2).run(probe_job, list(range(6)))
+    pids = [o.result["pid"] for o in recycled]
+    assert [o.result["job"] for o in recycled] == list(range(6))
+    assert len(set(pids)) >= 3                      # at most 2 jobs per worker process
+    assert all(pids.count(p) <= 2 for p in pids)
+
+
 def test_unknown_executor_is_a_one_line_error():
     with pytest.raises(SpmError, match="executor must be 'local' or 'ray'"):
         make_executor("slurm")
