@@ -43,6 +43,17 @@ def _import_ray():
     return ray
 
 
+def _loopback_only() -> None:
+    """Keep a local instance on 127.0.0.1 even when Ray was imported before us (the
+    environment variable above is read at import): Ray decides whether "localhost"
+    means the loopback address from this module constant, read at each call."""
+    try:
+        from ray._private import ray_constants
+    except ImportError:  # a Ray without it: the environment variable is all we have
+        return
+    ray_constants.ENABLE_RAY_CLUSTER = False
+
+
 def _ray_task(fn, job):
     """Runs in a Ray worker: the job, its frame count and any error as a message."""
     sys.path[:] = [p for p in sys.path if not _blender_script_dir(p)]
@@ -77,6 +88,7 @@ class RayExecutor:
             if self.address:
                 ray.init(address=self.address, **options)
             else:
+                _loopback_only()
                 ray.init(num_cpus=max(1, int(self.workers)), **options)
         except Exception as exc:  # noqa: BLE001 - Ray raises many kinds; the user needs one line
             where = self.address or "a local instance"

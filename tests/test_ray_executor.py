@@ -135,6 +135,19 @@ def test_recycle_after_replaces_ray_worker_processes():
     assert all(pids.count(p) <= 2 for p in pids)
 
 
+def test_the_local_instance_listens_on_loopback_only():
+    from spm_data.ray_executor import RayExecutor
+
+    executor = RayExecutor(workers=2)
+    assert executor._connect(ray)          # started here, although ray was imported first
+    try:
+        assert ray.cluster_resources()["CPU"] == 2
+        assert [n["NodeManagerAddress"] for n in ray.nodes()] == ["127.0.0.1"]
+        assert ray.get_runtime_context().gcs_address.startswith("127.0.0.1:")
+    finally:
+        ray.shutdown()
+
+
 def test_unknown_executor_is_a_one_line_error():
     with pytest.raises(SpmError, match="executor must be 'local' or 'ray'"):
         make_executor("slurm")
