@@ -2,10 +2,12 @@
 -> RBF regressor -> 6-DoF label; saved and loaded as one ``.npz`` file together
 with the feature configuration, so ``spm predict`` can start from an image.
 
-Scaling: Eq. 5 is solved for at most ``projection_samples`` training vectors
-(a seeded random subset) over their ``neighbours`` nearest neighbours; the
-projection is a (2 gamma x d) matrix, which a subset estimates as well as the
-whole set (benchmarks/train_scaling.py compares it with the exact solve). The
+Scaling: Eq. 5 is solved exactly (one linear programme per vector, over all the
+others) for at most ``projection_samples`` training vectors, a seeded random
+subset: the projection is a (2 gamma x d) matrix, which the subset estimates as
+well as the whole set, at a cost that does not grow with n (about 14 s here).
+``projection="knn"`` restricts each problem to the ``neighbours`` nearest
+vectors (faster, measurably less accurate: benchmarks/train_scaling.py). The
 regressor switches to ``landmarks`` Nystrom centres above that many vectors.
 """
 
@@ -50,7 +52,7 @@ def check_xy(X, y=None, dims=None):
 class SPMEstimator:
     """fit(X (n, 2 gamma), y (n, 6)) -> self; predict(X) -> (n, 6) labels."""
 
-    def __init__(self, *, projection: str = "knn", neighbours: int = 64, projection_samples: int = 1000,
+    def __init__(self, *, projection: str = "exact", neighbours: int = 64, projection_samples: int = 1000,
                  dims: int | None = None, alpha: float = 1e-3, noise: float = 0.01, noise_copies: int = 1,
                  landmarks: int = 2000, seed: int = 0, features: FeatureConfig = FeatureConfig()):
         self.projection = projection
