@@ -7,6 +7,7 @@ A shard is written to a hidden ``.NAME.partial`` file in the same folder and
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -269,15 +270,26 @@ def manifest_entry(path) -> dict:
             "renderer": str(attrs.get("renderer", "")), "schema_version": int(attrs["schema_version"])}
 
 
-def write_json_atomic(path, payload) -> None:
+@contextlib.contextmanager
+def atomic_file(path, tmp=None):
+    """Yield a temporary path beside ``path`` (default ``.NAME.partial``); when the
+    block completes it becomes ``path`` (os.replace), when it raises it is removed,
+    so ``path`` is either the old file or the whole new one."""
     path = Path(path)
-    tmp = partial_path(path)
-    with open(tmp, "w") as fh:
+    tmp = Path(tmp) if tmp is not None else partial_path(path)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_json_atomic(path, payload) -> None:
+    with atomic_file(path) as tmp, open(tmp, "w") as fh:
         json.dump(payload, fh, indent=2, sort_keys=True)
         fh.write("\n")
         fh.flush()
         os.fsync(fh.fileno())
-    os.replace(tmp, path)
 
 
 def write_manifest(folder, known: dict | None = None, extra: dict | None = None) -> dict:

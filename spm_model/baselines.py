@@ -48,20 +48,25 @@ def _unit_rows(raw) -> np.ndarray:
     return x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-12)
 
 
+def _fit_centred(raw) -> tuple[np.ndarray, np.ndarray]:
+    """Training raw vectors -> (per-pixel mean of the unit rows, the rows minus it)."""
+    x = _unit_rows(raw)
+    mean = x.mean(axis=0)
+    return mean, x - mean
+
+
 class PCAPose:
     def __init__(self, *, components: int = 20):
         self.components = components
 
     def fit(self, raw, y) -> "PCAPose":
-        x = _unit_rows(raw)
-        self.mean_ = x.mean(axis=0)
-        xc = x - self.mean_
-        d = x.shape[1]
-        k = min(self.components, d, len(x))
+        self.mean_, xc = _fit_centred(raw)
+        d = xc.shape[1]
+        k = min(self.components, d, len(xc))
         # Top eigenvectors of the (d x d) scatter: far cheaper than an SVD of (n x d) for n >> d.
         _, vectors = eigh(xc.T @ xc, subset_by_index=[d - k, d - 1])
         self.basis_ = vectors[:, ::-1]
-        self.knn_ = KNNPose(k=1).fit((x - self.mean_) @ self.basis_, y)
+        self.knn_ = KNNPose(k=1).fit(xc @ self.basis_, y)
         return self
 
     def predict(self, raw) -> np.ndarray:
@@ -73,12 +78,10 @@ class LSPose:
         self.alpha = alpha
 
     def fit(self, raw, y) -> "LSPose":
-        x = _unit_rows(raw)
-        self.mean_ = x.mean(axis=0)
+        self.mean_, xc = _fit_centred(raw)
         z = _targets(np.asarray(y, dtype=np.float64))
         self.target_mean_ = z.mean(axis=0)
-        xc = x - self.mean_
-        self.coef_ = np.linalg.solve(xc.T @ xc + self.alpha * np.eye(x.shape[1]), xc.T @ (z - self.target_mean_))
+        self.coef_ = np.linalg.solve(xc.T @ xc + self.alpha * np.eye(xc.shape[1]), xc.T @ (z - self.target_mean_))
         return self
 
     def predict(self, raw) -> np.ndarray:

@@ -18,7 +18,7 @@ import numpy as np
 
 from spm_data.errors import ShardError, SpmError
 from spm_data.executor import LocalExecutor
-from spm_data.shards import PARTIAL_PREFIX, SHARD_SUFFIX, read_attrs, read_shard
+from spm_data.shards import PARTIAL_PREFIX, SHARD_SUFFIX, atomic_file, read_attrs, read_shard
 from spm_model.features import FeatureConfig, frames_features
 
 CACHE_DIR = ".spm-features"
@@ -78,11 +78,11 @@ def extract_shard(job, report=lambda n: None) -> str:
     features = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
     out = cache_path(shard, config)
     out.parent.mkdir(exist_ok=True)
+    # Host and pid in the temporary name: remove_stale_partials can tell a dead writer's leftovers.
     tmp = out.parent / f"{PARTIAL_PREFIX}{out.name}.{socket.gethostname()}.{os.getpid()}.partial"
-    with open(tmp, "wb") as fh:
+    with atomic_file(out, tmp), open(tmp, "wb") as fh:
         np.savez(fh, identity=identity, **features,
                  **{k: (v.astype(str) if v.dtype == object else v) for k, v in labels.items()})
-    os.replace(tmp, out)
     return str(out)
 
 
@@ -138,10 +138,9 @@ def load_features(folder, config: FeatureConfig = FeatureConfig(), *, workers: i
     callable taking frame deltas, with a settable ``total`` (a tqdm bar)."""
     shards = find_shards(folder)
     remove_stale_partials(shards)
-    frames = [int(read_attrs(s)["frames"]) for s in shards]
     todo = [(str(s), config) for s in shards if cached(s, config) is None]
     if progress is not None:
-        progress.total = sum(f for s, f in zip(shards, frames) if cached(s, config) is None)
+        progress.total = sum(int(read_attrs(path)["frames"]) for path, _ in todo)
     executor = executor or LocalExecutor(workers=workers, retries=1)
     outcomes = executor.run(extract_shard, todo, on_progress=progress)
     failed = [o for o in outcomes if o.error]

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from spm_data.errors import SpmError
+from spm_data.shards import atomic_file
 from spm_model.features import FeatureConfig, image_features
 from spm_model.regressor import RBFPoseRegressor
 from spm_model.sparse import SparseError, SparseProjection, fit_projection
@@ -110,12 +111,10 @@ class SPMEstimator:
         params = {k: v for k, v in vars(self).items() if not k.endswith("_") and k != "features"}
         header = {"format": MODEL_FORMAT, "kind": "spm", "params": params, "features": asdict(self.features),
                   "gamma_": self.regressor_.gamma_}
-        tmp = path.with_name(f".{path.name}.partial")
-        with open(tmp, "wb") as fh:
+        with atomic_file(path) as tmp, open(tmp, "wb") as fh:
             np.savez(fh, header=np.array(json.dumps(header)), W=self.projection_.W,
                      centres=self.regressor_.X_fit_, dual_coef=self.regressor_.dual_coef_,
                      mean=self.regressor_.mean_)
-        tmp.replace(path)
         return path
 
     @classmethod

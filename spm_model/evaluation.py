@@ -66,27 +66,30 @@ def fit_predict(table: FeatureTable, train: np.ndarray, test: np.ndarray, seed: 
     return out
 
 
-def _per_class(table, index, predictions, classes):
+def _select(errors: dict, sel) -> dict:
+    return {k: v[sel] for k, v in errors.items()}
+
+
+def _per_class(table, index, errors, classes):
+    """{class: {method: summary}} from each method's per-frame errors over ``index``."""
     result = {}
     for c in classes:
         sel = table.class_name[index] == c
-        if not sel.any():
-            continue
-        result[c] = {m: summarise(pose_errors(p[sel], table.pose[index][sel], table.label_measured[index][sel]))
-                     for m, p in predictions.items()}
+        if sel.any():
+            result[c] = {m: summarise(_select(e, sel)) for m, e in errors.items()}
     return result
 
 
-def _occlusion_curve(table, index, predictions):
+def _occlusion_curve(table, index, errors):
     occ = table.occlusion_fraction[index]
     curve = {}
-    for m, p in predictions.items():
-        errors = pose_errors(p, table.pose[index], table.label_measured[index])["rotation_sum"]
+    for m, e in errors.items():
+        rot = e["rotation_sum"]
         rows = []
         for lo, hi in zip(OCCLUSION_BINS[:-1], OCCLUSION_BINS[1:]):
-            sel = (occ >= lo) & ((occ < hi) | (hi == 1.0)) & ~np.isnan(errors)
+            sel = (occ >= lo) & ((occ < hi) | (hi == 1.0)) & ~np.isnan(rot)
             rows.append({"low": float(lo), "high": float(hi), "frames": int(sel.sum()),
-                         **{f"success_{th:g}": success_rate(errors[sel], th) for th in THRESHOLDS}})
+                         **{f"success_{th:g}": success_rate(rot[sel], th) for th in THRESHOLDS}})
         curve[m] = rows
     return curve
 
@@ -107,11 +110,12 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
             index_parts.append(test)
             prediction_parts.append(fit_predict(table, train, test, seed=run, model_params=model_params))
         index = np.concatenate(index_parts)
-        predictions = {m: np.concatenate([p[m] for p in prediction_parts]) for m in METHODS}
-        results.append({"seed": run, "classes": _per_class(table, index, predictions, classes),
-                        "overall": {m: summarise(pose_errors(p, table.pose[index], table.label_measured[index]))
-                                    for m, p in predictions.items()},
-                        "occlusion": _occlusion_curve(table, index, predictions)})
+        # Each method's per-frame errors once; the tables and the curve slice them.
+        errors = {m: pose_errors(np.concatenate([p[m] for p in prediction_parts]), table.pose[index],
+                                 table.label_measured[index]) for m in METHODS}
+        results.append({"seed": run, "classes": _per_class(table, index, errors, classes),
+                        "overall": {m: summarise(e) for m, e in errors.items()},
+                        "occlusion": _occlusion_curve(table, index, errors)})
     eccentricity = {}
     for c in classes:
         e = table.query_eccentricity[(table.class_name == c)]

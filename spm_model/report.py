@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spm_data.shards import write_json_atomic
+from spm_data.shards import atomic_file, write_json_atomic
 
 METHOD_NAMES = {"spm": "SPM", "knn1": "KNN K=1", "knn3": "KNN K=3", "pca": "PCA-based", "ls": "LS-based"}
 PAPER_TABLE1 = {"box": (97.2, 0.9, 0.31, 0.09), "car": (95.6, 1.1, 0.44, 0.12), "motorcycle": (92.8, 1.6, 0.61, 0.11),
@@ -113,10 +113,9 @@ def plot_occlusion(summary: dict, path) -> Path:
     ax.legend()
     fig.tight_layout()
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.partial.png")
-    fig.savefig(tmp)
+    with atomic_file(path, path.with_name(f".{path.name}.partial.png")) as tmp:  # savefig wants the suffix
+        fig.savefig(tmp)
     plt.close(fig)
-    tmp.replace(path)
     return path
 
 
@@ -127,9 +126,8 @@ def write_report(evaluation: dict, context: dict, out_dir) -> dict:
     summary = aggregate(evaluation)
     plot_occlusion(summary, out / "occlusion.png")
     text = markdown(evaluation, summary, context)
-    tmp = out / ".results.md.partial"
-    tmp.write_text(text)
-    tmp.replace(out / "results.md")
+    with atomic_file(out / "results.md") as tmp:
+        tmp.write_text(text)
     write_json_atomic(out / "results.json", {"context": context, "summary": summary, "evaluation": evaluation})
     return summary
 

@@ -32,22 +32,29 @@ def small_specs_dir(tmp_path):
     return folder
 
 
-MODEL_SPEC = """
+# One instance at 128x128 over azimuth 0..AZ_STOP x two elevations (EL, EL + 5):
+# enough keypoints for the SPM pipeline (model tests) and quick to render (executor tests).
+PYRENDER_128_SPEC = """
 class = "{cls}"
-seed = 1
+seed = {seed}
 [mesh]
 instances = 1
 [camera]
-azimuth = [0, 115, 5]
-elevation = [20, 25, 5]
+azimuth = [0, {az_stop}, 5]
+elevation = [{el}, {el_stop}, 5]
 distances = [0.6]
 [image]
 width = 128
 height = 128
 [render]
 renderer = "pyrender"
-frames_per_shard = 48
+frames_per_shard = {per_shard}
 """
+
+
+def write_pyrender_128_spec(folder, cls, *, seed, az_stop, el, per_shard):
+    (folder / f"{cls}.toml").write_text(PYRENDER_128_SPEC.format(cls=cls, seed=seed, az_stop=az_stop, el=el,
+                                                                 el_stop=el + 5, per_shard=per_shard))
 
 
 @pytest.fixture(scope="session")
@@ -60,6 +67,6 @@ def model_shards(tmp_path_factory):
     specs = root / "specs"
     specs.mkdir()
     for cls in ("box", "car", "cup"):
-        (specs / f"{cls}.toml").write_text(MODEL_SPEC.format(cls=cls))
+        write_pyrender_128_spec(specs, cls, seed=1, az_stop=115, el=20, per_shard=48)
     render_dataset(load_run_specs(all_classes=True, specs_dir=specs), root / "shards")
     return root / "shards"

@@ -14,36 +14,19 @@ import pytest
 
 ray = pytest.importorskip("ray")
 
+from conftest import write_pyrender_128_spec  # noqa: E402
 from spm_data.errors import SpmError  # noqa: E402
 from spm_data.executor import make_executor  # noqa: E402
 from spm_data.occlude_jobs import occlude_dataset  # noqa: E402
 from spm_data.render_jobs import load_run_specs, render_dataset  # noqa: E402
 from spm_data.shards import list_shards, read_manifest, read_shard  # noqa: E402
 
-SPEC = """
-class = "{cls}"
-seed = 2
-[mesh]
-instances = 1
-[camera]
-azimuth = [0, 95, 5]
-elevation = [10, 15, 5]
-distances = [0.6]
-[image]
-width = 128
-height = 128
-[render]
-renderer = "pyrender"
-frames_per_shard = 20
-"""
-
-
 @pytest.fixture
 def specs(tmp_path):
     folder = tmp_path / "specs"
     folder.mkdir()
     for cls in ("cup", "car"):
-        (folder / f"{cls}.toml").write_text(SPEC.format(cls=cls))
+        write_pyrender_128_spec(folder, cls, seed=2, az_stop=95, el=10, per_shard=20)
     return load_run_specs(all_classes=True, specs_dir=folder)
 
 
