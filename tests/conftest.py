@@ -1,8 +1,31 @@
 import os
+import time
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 import pytest
+
+
+def wait_for(predicate, what, *, timeout=120.0, interval=0.05, proc=None):
+    """Poll ``predicate()`` until it is truthy and return its value: tests wait for a
+    state (a shard on disk, a lock taken), never a fixed time, so a loaded machine only
+    makes them slower. AssertionError naming ``what`` after ``timeout`` seconds, or as
+    soon as ``proc`` (a Popen) exits without the state reached (with its output)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if proc is not None and proc.poll() is not None:
+            value = predicate()  # reached just before it exited
+            if value:
+                return value
+            output = proc.communicate()[0] if proc.stdout is not None else ""
+            raise AssertionError(f"the process exited with status {proc.returncode} before {what}:\n{output}")
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+        time.sleep(interval)
+
 
 SMALL_SPEC = """
 class = "{cls}"

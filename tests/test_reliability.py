@@ -5,13 +5,13 @@ import random
 import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from conftest import wait_for
 from spm_data.errors import SpmError
 from spm_data.locking import LOCK_NAME
 from spm_data.render_jobs import load_run_specs, render_dataset
@@ -48,16 +48,52 @@ def assert_clean(folder):
     assert [e["file"] for e in read_manifest(folder)["shards"]] == [p.name for p in list_shards(folder)]
 
 
-def interrupt(cmd, folder, sig, after):
+def progress(folder):
+    """(complete shards, partial shards being written) in ``folder`` now."""
+    if not folder.is_dir():
+        return 0, 0
+    return len(list_shards(folder)), len(list(folder.glob(".*.partial")))
+
+
+def interrupt(cmd, folder, sig, point):
+    """Run ``cmd`` and send it ``sig`` at ``point`` = (k, mid): once k shards are complete
+    and, if mid, a shard is being written (a ``.partial`` exists). A state, not a time, so
+    the kill lands at the same stage of the run however loaded the machine is. If the run
+    ends first, it is left alone: its folder is as valid a starting point for a resume."""
+    k, mid = point
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL), start_new_session=True)
-    time.sleep(after)
-    if sig == signal.SIGKILL:
-        os.killpg(proc.pid, signal.SIGKILL)  # the CLI and its workers, as a killed terminal would
-    else:
-        proc.send_signal(sig)
-    out, _ = proc.communicate(timeout=120)
+    try:
+        def reached():
+            done, partial = progress(folder)
+            return done >= k and (partial > 0 or not mid)
+
+        # Short polls: a shard's .partial lives for tens of milliseconds.
+        wait_for(lambda: proc.poll() is not None or reached(), f"{k} complete shards{' and a partial' * mid}",
+                 interval=0.01)
+        if sig == signal.SIGKILL:
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)  # the CLI and its workers, as a killed terminal would
+            except ProcessLookupError:
+                pass  # the run had ended, workers and all
+        else:
+            proc.send_signal(sig)  # a no-op if it has ended
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
     return proc.returncode, out
+
+
+def interruption_points(rng, shards, count, workers=1):
+    """``count`` random points in a run of ``shards`` shards (see interrupt), alternately
+    mid-shard and between shards (which first is random). At most shards - 1 - workers
+    complete: with every worker busy, at least one shard is still to start, so the
+    signal (almost always) lands mid-run rather than in the run's final bookkeeping."""
+    first = rng.random() < 0.5
+    mids = [first != (i % 2 == 1) for i in range(count)]
+    return [(rng.randint(0 if mid else 1, shards - 1 - workers), mid) for mid in mids]
 
 
 @pytest.mark.parametrize("renderer, per, workers, seeds", [("pyrender", 24, 1, (1, 2, 3)), ("pyrender", 24, 2, (4,)),
@@ -70,16 +106,20 @@ def test_killed_and_interrupted_renders_resume_to_the_same_arrays(tmp_path, rend
         base += ["--limit", "48"]
     reference = tmp_path / "reference"
     assert subprocess.run(base + ["--out", str(reference)], capture_output=True, timeout=300).returncode == 0
+    shards = len(list_shards(reference))
     for seed in seeds:
         rng = random.Random(seed)
-        for sig in (signal.SIGKILL, signal.SIGINT):
+        sigs = (signal.SIGKILL, signal.SIGINT)
+        for sig, point in zip(sigs, interruption_points(rng, shards, len(sigs), workers)):
             out = tmp_path / f"run-{seed}-{int(sig)}"
-            code, text = interrupt(base + ["--out", str(out)], out, sig, rng.uniform(1.5, 4.0))
-            assert "Traceback" not in text
+            code, text = interrupt(base + ["--out", str(out)], out, sig, point)
+            assert "Traceback" not in text, (point, text)
+            if sig == signal.SIGKILL:
+                assert code in (0, -signal.SIGKILL), (point, code, text)  # 0: it had ended
             if sig == signal.SIGINT and code == 130:
                 assert "run the same command again to resume" in text
             again = subprocess.run(base + ["--out", str(out)], capture_output=True, text=True, timeout=300)
-            assert again.returncode == 0, again.stdout + again.stderr
+            assert again.returncode == 0, (point, again.stdout + again.stderr)
             assert_clean(out)
             assert_same(arrays(out), arrays(reference))
 
@@ -90,9 +130,11 @@ def test_killed_occlude_resumes_to_the_same_bytes(tmp_path):
     render_dataset(load_run_specs(spec_files=[spec]), tmp_path / "r")
     base = CLI + ["occlude", "--in", str(tmp_path / "r"), "--copies", "4", "--seed", "9"]
     assert subprocess.run(base + ["--out", str(tmp_path / "ref")], capture_output=True).returncode == 0
-    for after in (0.9, 1.4):
-        out = tmp_path / f"occ-{after}"
-        interrupt(base + ["--out", str(out)], out, signal.SIGKILL, after)
+    shards = len(list_shards(tmp_path / "ref"))
+    # Killed while writing the first shard, then at a random later point.
+    for k, mid in [(0, True)] + interruption_points(random.Random(9), shards, 1):
+        out = tmp_path / f"occ-{k}-{int(mid)}"
+        interrupt(base + ["--out", str(out)], out, signal.SIGKILL, (k, mid))
         assert subprocess.run(base + ["--out", str(out)], capture_output=True).returncode == 0
         assert_clean(out)
         ref = {p.name: p.read_bytes() for p in list_shards(tmp_path / "ref")}
@@ -120,15 +162,35 @@ def test_a_second_run_on_the_same_folder_is_refused_and_stale_locks_are_taken(tm
 def test_two_concurrent_cli_runs_do_not_corrupt_a_folder(tmp_path):
     spec = tmp_path / "cup.toml"
     spec.write_text(SPEC.format(renderer="pyrender", per=24))
-    cmd = CLI + ["render", "--spec", str(spec), "--out", str(tmp_path / "out")]
+    out = tmp_path / "out"
+    cmd = CLI + ["render", "--spec", str(spec), "--out", str(out)]
     first = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    time.sleep(1.5)
-    second = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
-    first.communicate(timeout=300)
-    assert second.returncode == 1
+    lock = out / LOCK_NAME
+
+    def first_holds_the_lock():
+        try:
+            return lock.read_text().strip() == str(first.pid)  # the pid is written just after the file is made
+        except FileNotFoundError:
+            return False
+
+    try:
+        # Once the first run holds the lock, freeze it there: the second one meets it mid-run,
+        # however fast or slow the machine.
+        wait_for(first_holds_the_lock, f"the first run to take {lock}", interval=0.01, proc=first)
+        first.send_signal(signal.SIGSTOP)
+        try:
+            second = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+        finally:
+            first.send_signal(signal.SIGCONT)
+        output, _ = first.communicate(timeout=300)
+    finally:
+        if first.poll() is None:
+            first.kill()
+            first.communicate()
+    assert second.returncode == 1, second.stdout + second.stderr
     assert "another run is writing to" in second.stderr and "(pid " in second.stderr
-    assert first.returncode == 0
-    assert_clean(tmp_path / "out")
+    assert first.returncode == 0, output
+    assert_clean(out)
 
 
 toml_values = st.recursive(
