@@ -346,16 +346,19 @@ def _parse_roi(text):
 @model_cli.command("train")
 @click.option("--shards", required=True, type=click.Path(), help="Folder of shards (searched recursively).")
 @click.option("--report", "report_dir", default=None, type=click.Path(), help="Report folder [default: SHARDS/report].")
-@click.option("--protocol", type=click.Choice(["loco", "views"]), default="loco", show_default=True,
-              help="loco: leave one class out; views: new views of seen objects.")
+@click.option("--protocol", type=click.Choice(["loco", "views", "instances"]), default="loco", show_default=True,
+              help="loco: leave one class out; views: new views of seen objects; instances: leave one instance "
+                   "out of every class (category level).")
 @click.option("--runs", default=3, show_default=True, type=click.IntRange(min=1), help="Repeated runs (seeds) for sigma.")
 @click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1), help="Feature-extraction processes.")
 @click.option("--ellipse", type=click.Choice(["pso", "direct"]), default="pso", show_default=True,
               help="Ellipse fit: Eq. 1 by particle swarm (the paper's) or the direct fit.")
 @click.option("--gamma", default=8, show_default=True, type=click.IntRange(min=5), help="EM clusters per frame.")
+@click.option("--estimator", "estimators", multiple=True, metavar="MODULE:CLASS",
+              help="Also evaluate your estimator (fit(frames, poses), predict(frames)); repeatable. docs/estimators.md")
 @executor_options
 @handle_errors
-def train_cmd(shards, report_dir, protocol, runs, workers, ellipse, gamma, executor):
+def train_cmd(shards, report_dir, protocol, runs, workers, ellipse, gamma, estimators, executor):
     """Extract features (cached), evaluate SPM and the baselines, write the report and the model."""
     from spm_model.features import FeatureConfig
     from spm_model.train import train
@@ -364,25 +367,27 @@ def train_cmd(shards, report_dir, protocol, runs, workers, ellipse, gamma, execu
     try:
         result = train(shards, report_dir, protocol=protocol, runs=runs, workers=workers,
                        features=FeatureConfig(gamma=gamma, ellipse=ellipse), progress=bar, executor=executor,
-                       log=lambda m: bar.bar.write(m), command="spm " + " ".join(sys.argv[1:]))
+                       log=lambda m: bar.bar.write(m), command="spm " + " ".join(sys.argv[1:]),
+                       estimators=estimators)
     except KeyboardInterrupt:
         bar.close()
         click.echo("interrupted; features already cached are kept", err=True)
         sys.exit(130)
     bar.close()
-    click.echo(result["table1"])
-    click.echo(f"report: {result['report']}/results.md, model: {result['model']}")
+    click.echo(result["text"])
+    click.echo(f"report: {result['report']}/results.md, models: {result['model']} (SPM), "
+               f"{result['reference_model']} (reference)")
 
 
 @model_cli.command("evaluate")
-@click.option("--model", "model_path", required=True, type=click.Path(), help="A model.npz from spm train.")
+@click.option("--model", "model_path", required=True, type=click.Path(), help="model.npz (SPM) or reference-model.npz from spm train.")
 @click.option("--shards", required=True, type=click.Path(), help="Folder of shards to score it on.")
 @click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1), help="Feature-extraction processes.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @executor_options
 @handle_errors
 def evaluate_cmd(model_path, shards, workers, as_json, executor):
-    """Score a trained model on other shards (success < 5 and 3 degrees, errors)."""
+    """Score a trained model (SPM or reference) on other shards: ±5°, sum < 5° and < 3°, errors."""
     import json
 
     from spm_model.train import evaluate_model
@@ -395,15 +400,16 @@ def evaluate_cmd(model_path, shards, workers, as_json, executor):
     if as_json:
         click.echo(json.dumps(result, indent=2))
         return
-    click.echo(f"{'class':<12}{'frames':>8}{'<5 %':>8}{'<3 %':>8}{'geo med':>9}{'t med mm':>10}")
+    click.echo(f"{'class':<12}{'frames':>8}{'±5° %':>8}{'sum<5 %':>9}{'sum<3 %':>9}{'geo med':>9}{'t med mm':>10}")
     for name, s in [*result["classes"].items(), ("all", result["all"])]:
-        fmt = lambda v, k=1: "-" if v is None else f"{v * k:.1f}"  # noqa: E731
-        click.echo(f"{name:<12}{s['frames']:>8}{fmt(s['success_5']):>8}{fmt(s['success_3']):>8}"
-                   f"{fmt(s['geodesic_median']):>9}{fmt(s['translation_median'], 1000):>10}")
+        fmt = lambda v: "-" if v is None else f"{v:.1f}"  # noqa: E731
+        click.echo(f"{name:<12}{s['frames']:>8}{fmt(s['success_tol5']):>8}{fmt(s['success_sum5']):>9}"
+                   f"{fmt(s['success_sum3']):>9}{fmt(s['geodesic_median_deg']):>9}{fmt(s['translation_median_mm']):>10}")
 
 
 @model_cli.command("predict")
-@click.option("--model", "model_path", required=True, type=click.Path(), help="A model.npz from spm train.")
+@click.option("--model", "model_path", required=True, type=click.Path(),
+              help="model.npz (SPM) or reference-model.npz from spm train.")
 @click.argument("images", nargs=-1, required=True, type=click.Path())
 @click.option("--roi", default=None, help="Region of interest x,y,width,height (pixels) holding the object.")
 @click.option("--mask", "mask_path", default=None, type=click.Path(), help="Object mask image (non-zero = object).")

@@ -109,20 +109,11 @@ def _bbox(mask: np.ndarray) -> list[int]:
     return [int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1)]
 
 
-def _model_for(attrs: dict, instance_id: int):
-    """The mesh a synthetic shard was rendered from (rebuilt from its spec and seed), or None."""
-    if attrs.get("source") != "synthetic" or not attrs.get("spec"):
-        return None
-    from spm_data.render_jobs import load_instance
-    from spm_data.specs import parse_spec
-
-    spec = parse_spec(attrs["spec"]).replace(seed=int(attrs.get("seed", 0)))
-    return load_instance(spec, instance_id)
-
-
 def export_bop(in_dir, out_dir, *, split="train", progress=None) -> dict:
     """Write the shards of ``in_dir`` as a BOP dataset at ``out_dir``. Returns counts."""
     import trimesh
+
+    from spm_data.render_jobs import shard_mesh
 
     out_dir = Path(out_dir)
     if out_dir.exists() and any(out_dir.iterdir()):
@@ -144,7 +135,7 @@ def export_bop(in_dir, out_dir, *, split="train", progress=None) -> dict:
                 key = (str(data["class_name"][i]), str(data["instance_name"][i]))
                 if key not in objects:
                     objects[key] = obj_id = len(objects) + 1
-                    mesh = _model_for(attrs, int(data["instance_id"][i]))
+                    mesh = shard_mesh(attrs, int(data["instance_id"][i]))
                     if mesh is None:
                         no_model.add(key)
                     else:

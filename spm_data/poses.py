@@ -114,6 +114,34 @@ def label_to_pose(label):
     return (R[0], t[0]) if single else (R, t)
 
 
+def label_to_view(label):
+    """label (N, 6) or (6,) -> the camera path point it was seen from, assuming
+    the camera looks at the object origin (every default path does).
+
+    Returns a dict of (N,) float64 arrays (scalars for one label): ``azimuth``
+    (-180, 180] and ``elevation`` [-90, 90] of the camera centre in the object
+    frame, ``roll`` (-180, 180] about the optical axis (0 keeps the object's +z
+    up in the image), all degrees; ``distance``, metres from the object origin
+    to the camera centre. The inverse of :func:`camera_poses` for ``look_at = 0``.
+    """
+    label = np.asarray(label, dtype=np.float64)
+    single = label.ndim == 1
+    R, t = label_to_pose(label.reshape(-1, 6))
+    centre = -np.einsum("nji,nj->ni", R, t)             # camera centre, object frame
+    distance = np.linalg.norm(centre, axis=1)
+    direction = centre / np.maximum(distance, 1e-300)[:, None]
+    azimuth = wrap_degrees(np.degrees(np.arctan2(direction[:, 1], direction[:, 0])))
+    elevation = np.degrees(np.arcsin(np.clip(direction[:, 2], -1.0, 1.0)))
+    # Roll: the angle from the unrolled camera x, (-sin az, cos az, 0), to the actual one.
+    a = np.radians(azimuth)
+    right = np.stack([-np.sin(a), np.cos(a), np.zeros_like(a)], axis=1)
+    down = np.cross(-direction, right)
+    roll = wrap_degrees(np.degrees(np.arctan2(np.einsum("ni,ni->n", R[:, 0], down),
+                                              np.einsum("ni,ni->n", R[:, 0], right))))
+    view = {"azimuth": azimuth, "elevation": elevation, "roll": roll, "distance": distance}
+    return {k: float(v[0]) for k, v in view.items()} if single else view
+
+
 def intrinsics_from_fov(fov_y_deg, width, height):
     """Pinhole ``K`` (3, 3) float64 with square pixels and a centred principal point.
 

@@ -74,6 +74,17 @@ def load_instance(spec: RenderSpec, instance: int):
                           texture=m.texture)
 
 
+def shard_mesh(attrs: dict, instance_id: int):
+    """The TexturedMesh a synthetic shard's frame was rendered from (rebuilt from the
+    spec and seed in the shard's attributes), or None for other sources."""
+    if attrs.get("source") != "synthetic" or not attrs.get("spec"):
+        return None
+    from spm_data.specs import parse_spec
+
+    spec = parse_spec(attrs["spec"]).replace(seed=int(attrs.get("seed", 0)))
+    return load_instance(spec, instance_id)
+
+
 # --------------------------------------------------------------------------- planning
 
 def effective_spec(spec: RenderSpec, renderer: str | None = None, seed: int | None = None) -> RenderSpec:

@@ -22,7 +22,7 @@ from spm_data.shards import PARTIAL_PREFIX, SHARD_SUFFIX, atomic_file, read_attr
 from spm_model.features import FeatureConfig, frames_features
 
 CACHE_DIR = ".spm-features"
-LABEL_FIELDS = ("pose", "label_measured", "class_name", "instance_name", "instance_id", "path_index",
+LABEL_FIELDS = ("pose", "K", "label_measured", "class_name", "instance_name", "instance_id", "path_index",
                 "occlusion_fraction", "source")
 READ_BLOCK = 256  # frames read from a shard at a time (bounded memory for big shards)
 
@@ -74,7 +74,8 @@ def extract_shard(job, report=lambda n: None) -> str:
         block = slice(start, min(n, start + READ_BLOCK))
         images = read_shard(shard, ("rgb", "mask"), frames=block)
         parts.append(frames_features(images["rgb"], images["mask"], labels["instance_id"][block],
-                                     labels["path_index"][block], config, report))
+                                     labels["path_index"][block], config, report, K=labels["K"][block]))
+        parts[-1]["width"] = np.full(block.stop - block.start, images["rgb"].shape[2], dtype=np.int64)
     features = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
     out = cache_path(shard, config)
     out.parent.mkdir(exist_ok=True)
@@ -91,10 +92,12 @@ class FeatureTable:
     """Features and labels of every frame found, concatenated (n frames).
 
     train_vector / query_vector (n, 2 gamma) float64, NaN where the frame had
-    too few keypoints; *_eccentricity (n,); raw (n, s^2) uint8; pose (n, 6)
-    (rx, ry, rz degrees, t metres); label_measured (n, 6) bool; class_name,
-    instance (n,) str; path_index (n,) int64; occlusion_fraction (n,) float32;
-    shard (n,) str; frame (n,) int64."""
+    too few keypoints; *_eccentricity (n,); raw (n, s^2) uint8; template (n,
+    3535) float32 (spm_model/template.py); pose (n, 6) (rx, ry, rz degrees, t
+    metres); K (n, 3, 3); width (n,) int64 pixels; label_measured (n, 6) bool;
+    class_name, instance (n,) str (instance: source:class/name, unique per
+    object); instance_id (n,) int64 (within its shard's spec); path_index (n,)
+    int64; occlusion_fraction (n,) float32; shard (n,) str; frame (n,) int64."""
 
     arrays: dict
 
@@ -157,6 +160,5 @@ def load_features(folder, config: FeatureConfig = FeatureConfig(), *, workers: i
                                                      arrays.pop("instance_name")))
         arrays["shard"] = np.full(n, str(shard))
         arrays["frame"] = np.arange(n, dtype=np.int64)
-        arrays.pop("instance_id")
         tables.append(arrays)
     return FeatureTable({k: np.concatenate([t[k] for t in tables]) for k in tables[0]})

@@ -50,6 +50,33 @@ def check_xy(X, y=None, dims=None):
     return X, y
 
 
+def save_model_file(path, kind: str, params: dict, arrays: dict, extra: dict | None = None) -> Path:
+    """One ``.npz``: a JSON header (format, kind, parameters) and named arrays; no pickle."""
+    path = Path(path)
+    header = {"format": MODEL_FORMAT, "kind": kind, "params": params, **(extra or {})}
+    with atomic_file(path) as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, header=np.array(json.dumps(header)), **arrays)
+    return path
+
+
+def load_model_file(path, kind: str | None = None) -> tuple[dict, dict]:
+    """(header, arrays) of a model file; ModelError for a missing, foreign or newer file."""
+    try:
+        with np.load(path) as z:
+            header = json.loads(str(z["header"]))
+            arrays = {k: z[k] for k in z.files if k != "header"}
+    except FileNotFoundError:
+        raise ModelError(f"model file not found: {path}") from None
+    except (OSError, KeyError, ValueError, EOFError) as exc:
+        raise ModelError(f"{path}: not an spm model file ({type(exc).__name__}: {exc})") from None
+    if not isinstance(header, dict) or header.get("format", 0) > MODEL_FORMAT or \
+            (kind is not None and header.get("kind") != kind):
+        raise ModelError(f"{path}: model format {header.get('format') if isinstance(header, dict) else '?'} "
+                         f"of kind {header.get('kind') if isinstance(header, dict) else '?'} is not one this spm "
+                         f"reads here ({kind or 'any'}, format {MODEL_FORMAT}); retrain or upgrade spm")
+    return header, arrays
+
+
 class SPMEstimator:
     """fit(X (n, 2 gamma), y (n, 6)) -> self; predict(X) -> (n, 6) labels."""
 
@@ -107,29 +134,15 @@ class SPMEstimator:
     def save(self, path) -> Path:
         if not hasattr(self, "regressor_"):
             raise ModelError("fit the model before saving it")
-        path = Path(path)
         params = {k: v for k, v in vars(self).items() if not k.endswith("_") and k != "features"}
-        header = {"format": MODEL_FORMAT, "kind": "spm", "params": params, "features": asdict(self.features),
-                  "gamma_": self.regressor_.gamma_}
-        with atomic_file(path) as tmp, open(tmp, "wb") as fh:
-            np.savez(fh, header=np.array(json.dumps(header)), W=self.projection_.W,
-                     centres=self.regressor_.X_fit_, dual_coef=self.regressor_.dual_coef_,
-                     mean=self.regressor_.mean_)
-        return path
+        return save_model_file(path, "spm", params,
+                               {"W": self.projection_.W, "centres": self.regressor_.X_fit_,
+                                "dual_coef": self.regressor_.dual_coef_, "mean": self.regressor_.mean_},
+                               {"features": asdict(self.features), "gamma_": self.regressor_.gamma_})
 
     @classmethod
     def load(cls, path) -> "SPMEstimator":
-        try:
-            with np.load(path) as z:
-                header = json.loads(str(z["header"]))
-                arrays = {k: z[k] for k in ("W", "centres", "dual_coef", "mean")}
-        except FileNotFoundError:
-            raise ModelError(f"model file not found: {path}") from None
-        except (OSError, KeyError, ValueError, EOFError) as exc:
-            raise ModelError(f"{path}: not an spm model file ({type(exc).__name__}: {exc})") from None
-        if header.get("kind") != "spm" or header.get("format", 0) > MODEL_FORMAT:
-            raise ModelError(f"{path}: model format {header.get('format')} is not one this spm reads "
-                             f"({MODEL_FORMAT}); retrain or upgrade spm")
+        header, arrays = load_model_file(path, "spm")
         model = cls(**header["params"], features=FeatureConfig(**header["features"]))
         model.projection_ = SparseProjection(W=arrays["W"])
         reg = model._regressor()

@@ -1,35 +1,57 @@
-"""Protocols and repeated runs: SPM and every baseline on the same splits.
+"""Protocols and repeated runs: every method (spm_model/methods.py, plus any
+``--estimator``) on the same splits.
 
 - ``loco`` (the paper's): for each class, train on the other classes, test on it.
 - ``views``: new views of seen objects; a seeded 20% of the (instance, view)
   groups is held out per run. Occluded copies of a view share its group, so a
   view is never on both sides of a split.
+- ``instances``: category-level pose; fold f tests the f-th instance of every
+  class (in a seeded order per run) and trains on the others, so every frame
+  is tested once per run and no instance is on both sides of a split.
 
-Training uses the frames' ``train`` features (path-neighbour keypoint rule),
-testing their ``query`` features (a single image: keypoints in the mask). A
-test frame without a query feature counts as a failure for SPM and KNN; the raw
-image baselines (PCA, LS) estimate every frame. Runs differ in their seed: the
-model's projection subset, noise copies and Nystrom centres, and the views split
-(the features are extracted once, with a fixed seed, and cached).
+Methods get frames (spm_model/frames.py) and the training poses, and return
+(n, 6) labels; a NaN row is a frame without an estimate and counts as a
+failure. Runs differ in their seed: the model's random choices, the views
+split and the instances order (the features are extracted once, with a fixed
+seed, and cached).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from spm_model.baselines import KNNPose, LSPose, PCAPose
 from spm_model.dataset import FeatureTable
-from spm_model.estimator import ModelError, SPMEstimator
-from spm_model.metrics import THRESHOLDS, pose_errors, success_rate, summarise
+from spm_model.estimator import ModelError
+from spm_model.frames import Frames
+from spm_model.methods import builtin_methods, check_predictions
+from spm_model.metrics import SUM_THRESHOLDS, TOLERANCE_DEG, accuracy_curve, pose_errors, summarise, \
+    success_rate, tolerance_rate
+from spm_model.surface_metrics import frame_surface_errors, mesh_keys
 
-METHODS = ("spm", "knn1", "knn3", "pca", "ls")
-PROTOCOLS = ("loco", "views")
-MIN_TRAIN_FRAMES = 10
+PROTOCOLS = ("loco", "views", "instances")
 OCCLUSION_BINS = np.linspace(0.0, 1.0, 11)  # tenths of the object hidden; the last bin includes 1
 
 
+def _instances_splits(table: FeatureTable, seed: int):
+    rng = np.random.default_rng(seed)
+    order = {}
+    for c in sorted(set(table.class_name.tolist())):
+        names = sorted(set(table.instance[table.class_name == c].tolist()))
+        if len(names) < 2:
+            raise ModelError(f"the instances protocol needs at least 2 instances of every class; {c!r} has "
+                             f"{len(names)}; render more instances or use --protocol views")
+        order[c] = [names[i] for i in rng.permutation(len(names))]
+    out = []
+    for fold in range(max(len(v) for v in order.values())):
+        held = [names[fold] for names in order.values() if fold < len(names)]
+        test = np.isin(table.instance, held)
+        out.append((f"fold {fold + 1}", np.flatnonzero(~test), np.flatnonzero(test)))
+    return out
+
+
 def splits(table: FeatureTable, protocol: str, seed: int, held_out: float = 0.2):
-    """[(class tested, train index, test index)]: per class for loco; one split for views."""
+    """[(what is tested, train index, test index)]: per class for loco, per fold
+    for instances, one split for views."""
     classes = sorted(set(table.class_name.tolist()))
     if protocol == "loco":
         if len(classes) < 2:
@@ -42,84 +64,95 @@ def splits(table: FeatureTable, protocol: str, seed: int, held_out: float = 0.2)
         test_groups = np.random.default_rng(seed).random(len(unique)) < held_out
         test = test_groups[inverse]
         return [("all", np.flatnonzero(~test), np.flatnonzero(test))]
+    if protocol == "instances":
+        return _instances_splits(table, seed)
     raise ModelError(f"protocol must be one of {PROTOCOLS}, got {protocol!r}")
 
 
-def fit_predict(table: FeatureTable, train: np.ndarray, test: np.ndarray, seed: int, model_params: dict) -> dict:
-    """Predictions (len(test), 6) of every method, NaN where a method has no estimate."""
-    ok_train = train[np.isfinite(table.train_vector[train]).all(axis=1)]
-    if len(ok_train) < MIN_TRAIN_FRAMES:
-        raise ModelError(f"only {len(ok_train)} training frames have features (need {MIN_TRAIN_FRAMES}); "
-                         "render more views or larger images")
-    ok_test = np.isfinite(table.query_vector[test]).all(axis=1)
-    spm = SPMEstimator(**model_params, seed=seed).fit(table.train_vector[ok_train], table.pose[ok_train])
-    out = {m: np.full((len(test), 6), np.nan) for m in METHODS}
-    if ok_test.any():
-        query = table.query_vector[test[ok_test]]
-        out["spm"][ok_test] = spm.predict(query)
-        train_z, query_z = spm.transform(table.train_vector[ok_train]), spm.transform(query)
-        for k in (1, 3):
-            out[f"knn{k}"][ok_test] = KNNPose(k=k).fit(train_z, table.pose[ok_train]).predict(query_z)
-    raw_train, raw_test = table.raw[train], table.raw[test]
-    out["pca"] = PCAPose().fit(raw_train, table.pose[train]).predict(raw_test)
-    out["ls"] = LSPose().fit(raw_train, table.pose[train]).predict(raw_test)
+def fit_predict(methods: dict, table: FeatureTable, train: np.ndarray, test: np.ndarray,
+                report=lambda message: None) -> dict:
+    """{name: (len(test), 6) predictions} of every method fitted on ``train``."""
+    out = {}
+    for name, method in methods.items():
+        fitted = method.fit(Frames(table, train), table.pose[train].copy())
+        if fitted is None:
+            raise ModelError(f"estimator {name}: fit(frames, poses) must return self, got None")
+        out[name] = check_predictions(name, fitted.predict(Frames(table, test)), len(test))
     return out
+
+
+def frame_errors(table: FeatureTable, index: np.ndarray, pred: np.ndarray, keys: list) -> dict:
+    """Per-frame pose errors (spm_model/metrics.py) and surface errors
+    (spm_model/surface_metrics.py) of predictions for the frames ``index``."""
+    errors = pose_errors(pred, table.pose[index], table.label_measured[index])
+    errors.update(frame_surface_errors(pred, table.pose[index], table.K[index], table.width[index],
+                                       [keys[i] for i in index]))
+    return errors
 
 
 def _select(errors: dict, sel) -> dict:
     return {k: v[sel] for k, v in errors.items()}
 
 
-def _per_class(table, index, errors, classes):
-    """{class: {method: summary}} from each method's per-frame errors over ``index``."""
-    result = {}
-    for c in classes:
-        sel = table.class_name[index] == c
-        if sel.any():
-            result[c] = {m: summarise(_select(e, sel)) for m, e in errors.items()}
-    return result
-
-
 def _occlusion_curve(table, index, errors):
     occ = table.occlusion_fraction[index]
     curve = {}
     for m, e in errors.items():
-        rot = e["rotation_sum"]
         rows = []
         for lo, hi in zip(OCCLUSION_BINS[:-1], OCCLUSION_BINS[1:]):
-            sel = (occ >= lo) & ((occ < hi) | (hi == 1.0)) & ~np.isnan(rot)
+            sel = (occ >= lo) & ((occ < hi) | (hi == 1.0)) & ~np.isnan(e["rotation_max"])
             rows.append({"low": float(lo), "high": float(hi), "frames": int(sel.sum()),
-                         **{f"success_{th:g}": success_rate(rot[sel], th) for th in THRESHOLDS}})
+                         "success_tol5": tolerance_rate(e["rotation_max"][sel], TOLERANCE_DEG),
+                         **{f"success_sum{th:g}": success_rate(e["rotation_sum"][sel], th) for th in SUM_THRESHOLDS}})
         curve[m] = rows
     return curve
 
 
-def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_params: dict | None = None,
-             report=lambda message: None) -> dict:
-    """Every run x split: per-class summaries per method, and the occlusion curve
-    (all test frames of a run pooled). Returns {"runs": [...]}."""
-    model_params = dict(model_params or {})
+def _run(table, protocol, run, make_methods, keys, report):
+    index_parts, prediction_parts = [], []
+    for tested, train, test in splits(table, protocol, seed=run):
+        if len(test) == 0:
+            continue
+        report(f"run {run + 1}: {protocol} test {tested} ({len(train)} train / {len(test)} test frames)")
+        index_parts.append(test)
+        prediction_parts.append(fit_predict(make_methods(run), table, train, test, report))
+    index = np.concatenate(index_parts)
+    names = list(prediction_parts[0])
+    # Each method's per-frame errors once; the tables, curves and bins slice them.
+    errors = {m: frame_errors(table, index, np.concatenate([p[m] for p in prediction_parts]), keys) for m in names}
     classes = sorted(set(table.class_name.tolist()))
-    results = []
-    for run in range(runs):
-        index_parts, prediction_parts = [], []
-        for tested, train, test in splits(table, protocol, seed=run):
-            report(f"run {run + 1}/{runs}: {protocol} test {tested} ({len(train)} train / {len(test)} test frames)")
-            if len(test) == 0:
-                continue
-            index_parts.append(test)
-            prediction_parts.append(fit_predict(table, train, test, seed=run, model_params=model_params))
-        index = np.concatenate(index_parts)
-        # Each method's per-frame errors once; the tables and the curve slice them.
-        errors = {m: pose_errors(np.concatenate([p[m] for p in prediction_parts]), table.pose[index],
-                                 table.label_measured[index]) for m in METHODS}
-        results.append({"seed": run, "classes": _per_class(table, index, errors, classes),
-                        "overall": {m: summarise(e) for m, e in errors.items()},
-                        "occlusion": _occlusion_curve(table, index, errors)})
+    per_class = {}
+    for c in classes:
+        sel = table.class_name[index] == c
+        if sel.any():
+            per_class[c] = {m: summarise(_select(e, sel)) for m, e in errors.items()}
+    curves = {m: accuracy_curve(e["geodesic"], int(e["rotation_measured"].sum())).tolist() for m, e in errors.items()}
+    return {"seed": run, "classes": per_class, "overall": {m: summarise(e) for m, e in errors.items()},
+            "occlusion": _occlusion_curve(table, index, errors), "accuracy_curve": curves}
+
+
+def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_params: dict | None = None,
+             estimators: dict | None = None, report=lambda message: None) -> dict:
+    """Every run x split for the built-in methods and ``estimators`` ({name:
+    class}, instantiated fresh per split): per-class and overall summaries per
+    method, the geodesic accuracy curve and the occlusion bins. Returns
+    {"protocol", "runs": [...], "eccentricity", "classes", "methods"}."""
+    params = dict(model_params or {})
+    features = params.pop("features")
+
+    def make_methods(seed):
+        methods = builtin_methods(seed, features, params)
+        methods.update({name: cls() for name, cls in (estimators or {}).items()})
+        return methods
+
+    keys = mesh_keys(table.shard, table.instance_id)
+    results = [_run(table, protocol, run, make_methods, keys, report) for run in range(runs)]
+    classes = sorted(set(table.class_name.tolist()))
     eccentricity = {}
     for c in classes:
         e = table.query_eccentricity[(table.class_name == c)]
         e = e[np.isfinite(e)]
         eccentricity[c] = {"mean": float(e.mean()) if len(e) else None, "std": float(e.std()) if len(e) else None,
                            "frames": int(len(e))}
-    return {"protocol": protocol, "runs": results, "eccentricity": eccentricity, "classes": classes}
+    return {"protocol": protocol, "runs": results, "eccentricity": eccentricity, "classes": classes,
+            "methods": list(results[0]["overall"])}

@@ -26,7 +26,7 @@ from spm_model.ellipse import EllipseError
 from spm_model.keypoints import homography_inliers, sift_keypoints
 from spm_model.manifold import initial_manifold
 
-FEATURE_VERSION = 4
+FEATURE_VERSION = 5  # 5: template descriptors and K in the cache
 
 
 class FeatureError(SpmError):
@@ -127,14 +127,19 @@ def path_neighbours(instance_id: np.ndarray, path_index: np.ndarray) -> list[lis
 
 
 def frames_features(rgb: np.ndarray, mask: np.ndarray, instance_id: np.ndarray, path_index: np.ndarray,
-                    config: FeatureConfig, report=lambda n: None) -> dict:
-    """Features of a run of frames (one shard): rgb (n, H, W, 3) uint8, mask (n, H, W).
+                    config: FeatureConfig, report=lambda n: None, K: np.ndarray | None = None) -> dict:
+    """Features of a run of frames (one shard): rgb (n, H, W, 3) uint8, mask (n, H, W),
+    K (n, 3, 3) (for the template descriptors; omitted: none are computed).
 
     Returns arrays over the n frames: train_vector / query_vector (n, 2 gamma)
     float64 (NaN where the frame has too few keypoints), train_eccentricity /
     query_eccentricity (n,), train_keypoints / query_keypoints (n,) int32, raw
     (n, raw_size^2) uint8, train_neighbours (n,) int8 (path neighbours matched;
-    0: the training feature used the query rule)."""
+    0: the training feature used the query rule), and with K, template (n, 3535)
+    float64 (spm_model/template.py's descriptor)."""
+    from spm_model.template import _hog, describe
+
+    hog = _hog()
     n = len(rgb)
     sift = []
     for i in range(n):
@@ -147,6 +152,8 @@ def frames_features(rgb: np.ndarray, mask: np.ndarray, instance_id: np.ndarray, 
            for kind in ("train", "query") for name in ("vector", "eccentricity", "keypoints")}
     out["raw"] = np.zeros((n, config.raw_size ** 2), np.uint8)
     out["train_neighbours"] = np.array([len(nb) for nb in neighbours], dtype=np.int8)
+    if K is not None:
+        out["template"] = np.stack([describe(rgb[i], mask[i] > 0, K[i], hog) for i in range(n)])
     for i in range(n):
         loc, desc = sift[i]
         keep = np.zeros(len(loc), dtype=bool) if neighbours[i] else np.ones(len(loc), dtype=bool)

@@ -1,5 +1,7 @@
-"""Reports of an evaluation: results.json, results.md (the paper's Table 1 and
-Table 2 analogues, errors of every method) and the success-against-occlusion plot."""
+"""Reports of an evaluation: results.json (schema: docs/results-schema.md),
+results.md (a plain summary first, then the paper's Table 1, Table 2 and Fig. 5
+analogues and every method's errors), accuracy.png (accuracy against geodesic
+threshold) and occlusion.png (success against occlusion)."""
 
 from __future__ import annotations
 
@@ -8,91 +10,204 @@ from pathlib import Path
 import numpy as np
 
 from spm_data.shards import atomic_file, write_json_atomic
+from spm_model.methods import METHOD_NAMES
+from spm_model.metrics import CURVE_THRESHOLDS
 
-METHOD_NAMES = {"spm": "SPM", "knn1": "KNN K=1", "knn3": "KNN K=3", "pca": "PCA-based", "ls": "LS-based"}
+SCHEMA = "spm-results"
+SCHEMA_VERSION = 2
 PAPER_TABLE1 = {"box": (97.2, 0.9, 0.31, 0.09), "car": (95.6, 1.1, 0.44, 0.12), "motorcycle": (92.8, 1.6, 0.61, 0.11),
                 "ball": (88.4, 2.5, 0.76, 0.08), "animal4": (87.9, 2.9, 0.84, 0.09), "cup": (86.6, 3.3, 0.87, 0.07)}
 PAPER_TABLE2 = {"box": (94.7, 2.6, 94.2, 2.3), "car": (91.5, 3.2, 94.5, 3.0), "motorcycle": (92.0, 1.8, 95.5, 1.1),
                 "ball": (86.2, 3.4, 86.1, 2.5), "animal4": (83.3, 3.7, 83.8, 2.9), "cup": (82.6, 3.4, 82.8, 3.2)}
+DOF = (("azimuth_deg", "azimuth", "°"), ("azimuth_mod180_deg", "azimuth mod 180°", "°"),
+       ("elevation_deg", "elevation", "°"), ("roll_deg", "in-plane roll", "°"), ("distance_mm", "distance", " mm"))
+COUNTS = ("frames", "estimated")
 
 
-def _mean_std(values):
-    values = [v for v in values if v is not None]
-    return (float(np.mean(values)), float(np.std(values))) if values else (None, None)
+def _mean_tree(items: list):
+    """Mean over runs of every number in a list of same-shaped dicts (None where all are None)."""
+    first = next((i for i in items if i is not None), None)
+    if isinstance(first, dict):
+        return {k: _mean_tree([i.get(k) if i else None for i in items]) for k in first}
+    values = [v for v in items if v is not None]
+    return float(np.mean(values)) if values else None
+
+
+def _std_tree(items: list):
+    first = next((i for i in items if i is not None), None)
+    if isinstance(first, dict):
+        return {k: _std_tree([i.get(k) if i else None for i in items]) for k in first if k not in COUNTS}
+    values = [v for v in items if v is not None]
+    return float(np.std(values)) if values else None
+
+
+def _summary(per_run: list) -> dict:
+    out = _mean_tree(per_run)
+    for k in COUNTS:
+        out[k] = per_run[0][k]
+    out["std"] = _std_tree(per_run)
+    return out
 
 
 def aggregate(evaluation: dict) -> dict:
-    """Per class (and "all") and method: mean and sigma over runs of each summary figure."""
-    runs = evaluation["runs"]
-    rows = {}
-    for c in [*evaluation["classes"], "all"]:
-        per_run = [r["overall"] if c == "all" else r["classes"].get(c) for r in runs]
-        per_run = [p for p in per_run if p]
-        if not per_run:
+    """The ``summary`` of results.json: means over runs with σ (docs/results-schema.md)."""
+    runs, names = evaluation["runs"], evaluation["methods"]
+    overall = {m: _summary([r["overall"][m] for r in runs]) for m in names}
+    classes = {}
+    for c in evaluation["classes"]:
+        per_run = [r["classes"][c] for r in runs if c in r["classes"]]
+        if per_run:
+            classes[c] = {m: _summary([p[m] for p in per_run]) for m in names}
+    occlusion = {m: [{**{k: row[k] for k in ("low", "high", "frames")},
+                      **_mean_tree([{k: r["occlusion"][m][b][k] for k in ("success_tol5", "success_sum5", "success_sum3")}
+                                    for r in runs])}
+                     for b, row in enumerate(runs[0]["occlusion"][m])] for m in names}
+    curve = {"thresholds_deg": CURVE_THRESHOLDS.tolist(),
+             **{m: np.mean([r["accuracy_curve"][m] for r in runs], axis=0).tolist() for m in names}}
+    return {"protocol": evaluation["protocol"], "runs": len(runs),
+            "methods": {m: overall[m] for m in names if m != "chance"}, "chance": overall.get("chance"),
+            "classes": classes, "occlusion": occlusion, "accuracy_curve": curve}
+
+
+def _fmt(value, digits=1):
+    return "–" if value is None else f"{value:.{digits}f}"
+
+
+def _name(m: str) -> str:
+    return METHOD_NAMES.get(m, m)
+
+
+def plain_summary(summary: dict) -> list[str]:
+    """The first lines a newcomer reads: the best method, how far above chance,
+    and which degrees of freedom it recovers (median error at most half of chance's)."""
+    methods, chance = summary["methods"], summary["chance"] or {}
+    best = max(methods, key=lambda m: (methods[m]["success_tol5"] or 0, methods[m]["auc_45"] or 0))
+    b = methods[best]
+    lines = [f"- **Best method, {summary['protocol']} protocol: {_name(best)}**, {_fmt(b['success_tol5'])}% within "
+             f"±5° (chance {_fmt(chance.get('success_tol5'))}%), geodesic median {_fmt(b['geodesic_median_deg'])}° "
+             f"(chance {_fmt(chance.get('geodesic_median_deg'))}°), AUC of accuracy to 45° {_fmt(b['auc_45'])} "
+             f"(chance {_fmt(chance.get('auc_45'))})."]
+    spm = methods.get("spm")
+    if spm and best != "spm":
+        lines.append(f"- SPM: {_fmt(spm['success_tol5'])}% within ±5°, geodesic median {_fmt(spm['geodesic_median_deg'])}°.")
+    good, bad, constant = [], [], []
+    for key, label, unit in DOF:
+        mine, base = b["median_error"].get(key), (chance.get("median_error") or {}).get(key)
+        if mine is None or base is None:
             continue
-        rows[c] = {m: {key: dict(zip(("mean", "std"), _mean_std([p[m][key] for p in per_run])))
-                       for key in per_run[0][m] if key not in ("frames", "estimated")}
-                   | {"frames": per_run[0][m]["frames"], "estimated": per_run[0][m]["estimated"]}
-                   for m in per_run[0]}
-    curve = {}
-    for m in METHOD_NAMES:
-        curve[m] = []
-        for b, row in enumerate(runs[0]["occlusion"][m]):
-            mean, std = _mean_std([r["occlusion"][m][b]["success_5"] for r in runs])
-            curve[m].append({**{k: row[k] for k in ("low", "high", "frames")}, "success_5": mean, "std": std})
-    return {"table": rows, "occlusion": curve}
+        if base < 0.5:  # a random training pose gets it right: the data does not vary it
+            constant.append(label)
+            continue
+        text = f"{label} {_fmt(mine)}{unit} (chance {_fmt(base)}{unit})"
+        (good if mine <= 0.5 * base else bad).append(text)
+    if good:
+        lines.append(f"- Recovered by {_name(best)} (median error at most half of chance's): " + "; ".join(good) + ".")
+    if bad:
+        lines.append("- Not recovered (median error above half of chance's): " + "; ".join(bad) + ".")
+    if constant:
+        lines.append("- Not varied in this data (a random training pose has a median error under 0.5): "
+                     + ", ".join(constant) + ".")
+    return lines
 
 
-def _fmt(value, digits=1, scale=1.0):
-    return "–" if value is None else f"{value * scale:.{digits}f}"
+def _surface_cell(s, key, digits=1):
+    return _fmt((s.get("surface") or {}).get(key), digits)
 
 
 def markdown(evaluation: dict, summary: dict, context: dict) -> str:
-    table, ecc = summary["table"], evaluation["eccentricity"]
-    runs = len(evaluation["runs"])
-    lines = [f"# SPM results ({evaluation['protocol']} protocol, {runs} run{'s' if runs != 1 else ''})", "",
+    runs = summary["runs"]
+    ecc, classes = evaluation["eccentricity"], summary["classes"]
+    names = list(summary["methods"]) + (["chance"] if summary["chance"] else [])
+    lines = [f"# Pose benchmark ({summary['protocol']} protocol, {runs} run{'s' if runs != 1 else ''})", "",
+             *plain_summary(summary), "",
              f"Command: `{context.get('command', '')}`", "",
-             f"Data: {context.get('frames', '?')} frames under `{context.get('shards', '')}`; "
-             f"features: {context.get('train_features', '?')} frames with training features, "
-             f"{context.get('query_features', '?')} with query features "
-             f"({context.get('without_path_neighbour', 0)} frames had no path neighbour for the training rule). Success: the sum of the absolute "
-             "rotation-angle errors below 5° (3°); a frame without an estimate fails. σ: over runs.", "",
+             f"Data: {context.get('frames', '?')} frames under `{context.get('shards', '')}`; SPM features: "
+             f"{context.get('train_features', '?')} frames with training features, {context.get('query_features', '?')}"
+             f" with query features ({context.get('without_path_neighbour', 0)} frames had no path neighbour for the "
+             "training rule). Criteria (the paper's): **±5° tolerance** (Table 2), every rotation angle within 5°, "
+             "inclusive; **sum < 5° (3°)** (Fig. 5), the summed absolute angle errors below 5° (3°). A frame without "
+             "an estimate fails. σ: over runs. Schema of results.json: docs/results-schema.md.", "",
              "## Table 1 analogue: SPM", "",
-             "| Class | Success % (<5°) | σ | Success % (<3°) | σ | Mean eccentricity | σ | Paper success % | Paper ecc. |",
+             "The paper's Table 1 counts successful grasps; its pose criterion is Table 2's ±5°, used here.", "",
+             "| Class | ±5° % | σ | sum<5° % | sum<3° % | Mean eccentricity | σ | Paper success % | Paper ecc. |",
              "|---|---|---|---|---|---|---|---|---|"]
-    for c, row in table.items():
-        s5, s3 = row["spm"]["success_5"], row["spm"]["success_3"]
-        e = ecc.get(c, {})
-        paper = PAPER_TABLE1.get(c)
-        lines.append(f"| {c} | {_fmt(s5['mean'])} | {_fmt(s5['std'])} | {_fmt(s3['mean'])} | {_fmt(s3['std'])} | "
-                     f"{_fmt(e.get('mean'), 2)} | {_fmt(e.get('std'), 2)} | "
+    for c, row in classes.items():
+        s, e, paper = row["spm"], ecc.get(c, {}), PAPER_TABLE1.get(c)
+        lines.append(f"| {c} | {_fmt(s['success_tol5'])} | {_fmt(s['std']['success_tol5'])} | {_fmt(s['success_sum5'])} "
+                     f"| {_fmt(s['success_sum3'])} | {_fmt(e.get('mean'), 2)} | {_fmt(e.get('std'), 2)} | "
                      f"{paper[0] if paper else '–'} | {paper[2] if paper else '–'} |")
-    lines += ["", "## Table 2 analogue: KNN on the same features", "",
+    lines += ["", "## Table 2 analogue: KNN on SPM's vectors, ±5° tolerance", "",
               "| Class | K=1 % | σ | K=3 % | σ | Paper K=1 % | Paper K=3 % |", "|---|---|---|---|---|---|---|"]
-    for c, row in table.items():
-        k1, k3 = row["knn1"]["success_5"], row["knn3"]["success_5"]
-        paper = PAPER_TABLE2.get(c)
-        lines.append(f"| {c} | {_fmt(k1['mean'])} | {_fmt(k1['std'])} | {_fmt(k3['mean'])} | {_fmt(k3['std'])} | "
-                     f"{paper[0] if paper else '–'} | {paper[2] if paper else '–'} |")
-    lines += ["", "## Every method: success and errors (mean over runs)", "",
-              "| Class | Method | Estimated | Success % (<5°) | Success % (<3°) | Geodesic median ° | p90 ° "
-              "| Translation median mm | p90 mm |", "|---|---|---|---|---|---|---|---|---|"]
-    for c, row in table.items():
-        for m, name in METHOD_NAMES.items():
-            r = row[m]
-            lines.append(f"| {c} | {name} | {r['estimated']}/{r['frames']} | {_fmt(r['success_5']['mean'])} | "
-                         f"{_fmt(r['success_3']['mean'])} | {_fmt(r['geodesic_median']['mean'])} | "
-                         f"{_fmt(r['geodesic_p90']['mean'])} | {_fmt(r['translation_median']['mean'], 0, 1000)} | "
-                         f"{_fmt(r['translation_p90']['mean'], 0, 1000)} |")
-    lines += ["", "## Success (<5°) against occlusion (Fig. 5 analogue)", "",
-              "| Occlusion | Frames | " + " | ".join(METHOD_NAMES.values()) + " |",
-              "|---|---|" + "---|" * len(METHOD_NAMES)]
-    for b, row in enumerate(summary["occlusion"]["spm"]):
+    for c, row in classes.items():
+        k1, k3, paper = row["knn1"], row["knn3"], PAPER_TABLE2.get(c)
+        lines.append(f"| {c} | {_fmt(k1['success_tol5'])} | {_fmt(k1['std']['success_tol5'])} | {_fmt(k3['success_tol5'])} "
+                     f"| {_fmt(k3['std']['success_tol5'])} | {paper[0] if paper else '–'} | {paper[2] if paper else '–'} |")
+    lines += ["", "## Every method, all test frames", "",
+              "| Method | Estimated | ±5° % | σ | sum<5° % | sum<3° % | AUC 45° | Geodesic median ° | p90 ° "
+              "| Azimuth ° | Az. mod 180 ° | Elevation ° | Roll ° | Distance mm |", "|---|" + "---|" * 14]
+    for m in names:
+        s = summary["methods"].get(m) or summary["chance"]
+        d = s["median_error"]
+        lines.append(f"| {_name(m)} | {s['estimated']}/{s['frames']} | {_fmt(s['success_tol5'])} | "
+                     f"{_fmt(s['std']['success_tol5'])} | {_fmt(s['success_sum5'])} | {_fmt(s['success_sum3'])} | "
+                     f"{_fmt(s['auc_45'])} | {_fmt(s['geodesic_median_deg'])} | {_fmt(s['geodesic_p90_deg'])} | "
+                     f"{_fmt(d['azimuth_deg'])} | {_fmt(d['azimuth_mod180_deg'])} | {_fmt(d['elevation_deg'])} | "
+                     f"{_fmt(d['roll_deg'])} | {_fmt(d['distance_mm'])} |")
+    lines += ["", "Per DoF: median absolute errors (spm_data/poses.py's viewing angles and distance).", "",
+              "## Surface errors (BOP), where the mesh is known", "",
+              "| Method | Frames | ADD(-S) <10% d % | ADD <10% d % | ADD-S <10% d % | AR MSSD % | AR MSPD % "
+              "| MSSD median mm | MSPD median px |", "|---|---|---|---|---|---|---|---|---|"]
+    for m in names:
+        s = summary["methods"].get(m) or summary["chance"]
+        lines.append(f"| {_name(m)} | {_surface_cell(s, 'frames', 0)} | {_surface_cell(s, 'add_s_recall')} | "
+                     f"{_surface_cell(s, 'add_recall')} | {_surface_cell(s, 'adds_recall')} | {_surface_cell(s, 'ar_mssd')} "
+                     f"| {_surface_cell(s, 'ar_mspd')} | {_surface_cell(s, 'mssd_median_mm')} | "
+                     f"{_surface_cell(s, 'mspd_median_px')} |")
+    lines += ["", "## Per class, ±5° % (geodesic median °)", "",
+              "| Class | " + " | ".join(_name(m) for m in names) + " |", "|---|" + "---|" * len(names)]
+    for c, row in classes.items():
+        lines.append(f"| {c} | " + " | ".join(f"{_fmt(row[m]['success_tol5'])} ({_fmt(row[m]['geodesic_median_deg'], 0)})"
+                                               for m in names) + " |")
+    lines += ["", "## Fig. 5 analogue: success (sum < 5°) against occlusion", "",
+              "| Occlusion | Frames | " + " | ".join(_name(m) for m in names) + " |", "|---|---|" + "---|" * len(names)]
+    for b, row in enumerate(summary["occlusion"][names[0]]):
         if row["frames"]:
-            cells = " | ".join(_fmt(summary["occlusion"][m][b]["success_5"]) for m in METHOD_NAMES)
+            cells = " | ".join(_fmt(summary["occlusion"][m][b]["success_sum5"]) for m in names)
             lines.append(f"| {row['low']:.0%}–{row['high']:.0%} | {row['frames']} | {cells} |")
-    lines += ["", "Plot: `occlusion.png`. Model trained on every frame: `model.npz`.", ""]
+    lines += ["", "Plots: `accuracy.png` (accuracy against geodesic threshold), `occlusion.png`. Models trained on "
+              "every frame: `model.npz` (SPM) and `reference-model.npz` (HOG templates).", ""]
     return "\n".join(lines)
+
+
+def _save_figure(fig, path) -> Path:
+    path = Path(path)
+    with atomic_file(path, path.with_name(f".{path.name}.partial.png")) as tmp:  # savefig wants the suffix
+        fig.savefig(tmp)
+    return path
+
+
+def plot_accuracy(summary: dict, path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    curve = summary["accuracy_curve"]
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
+    for m in [*summary["methods"], *(["chance"] if summary["chance"] else [])]:
+        s = summary["methods"].get(m) or summary["chance"]
+        ax.plot(curve["thresholds_deg"], curve[m], label=f"{_name(m)} (AUC {_fmt(s['auc_45'])})",
+                linestyle="--" if m == "chance" else "-")
+    ax.set_xlabel("geodesic rotation error threshold (°)")
+    ax.set_ylabel("frames within threshold (%)")
+    ax.set_xlim(0, curve["thresholds_deg"][-1])
+    ax.set_ylim(0, 100)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    _save_figure(fig, path)
+    plt.close(fig)
+    return Path(path)
 
 
 def plot_occlusion(summary: dict, path) -> Path:
@@ -102,41 +217,42 @@ def plot_occlusion(summary: dict, path) -> Path:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
-    for m, name in METHOD_NAMES.items():
-        rows = [r for r in summary["occlusion"][m] if r["frames"] and r["success_5"] is not None]
-        x = [50 * (r["low"] + r["high"]) for r in rows]
-        ax.plot(x, [r["success_5"] for r in rows], marker="o", label=name)
+    for m, rows in summary["occlusion"].items():
+        rows = [r for r in rows if r["frames"] and r["success_sum5"] is not None]
+        ax.plot([50 * (r["low"] + r["high"]) for r in rows], [r["success_sum5"] for r in rows], marker="o",
+                label=_name(m))
     ax.set_xlabel("occlusion of the object (%)")
     ax.set_ylabel("success rate (%), rotation error sum < 5°")
     ax.set_ylim(0, 100)
     ax.grid(alpha=0.3)
-    ax.legend()
+    ax.legend(fontsize=7)
     fig.tight_layout()
-    path = Path(path)
-    with atomic_file(path, path.with_name(f".{path.name}.partial.png")) as tmp:  # savefig wants the suffix
-        fig.savefig(tmp)
+    _save_figure(fig, path)
     plt.close(fig)
-    return path
+    return Path(path)
 
 
 def write_report(evaluation: dict, context: dict, out_dir) -> dict:
-    """results.json, results.md and occlusion.png in ``out_dir``; returns the aggregate."""
+    """results.json, results.md, accuracy.png and occlusion.png in ``out_dir``; returns the summary."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     summary = aggregate(evaluation)
+    plot_accuracy(summary, out / "accuracy.png")
     plot_occlusion(summary, out / "occlusion.png")
-    text = markdown(evaluation, summary, context)
     with atomic_file(out / "results.md") as tmp:
-        tmp.write_text(text)
-    write_json_atomic(out / "results.json", {"context": context, "summary": summary, "evaluation": evaluation})
+        tmp.write_text(markdown(evaluation, summary, context))
+    write_json_atomic(out / "results.json", {"schema": SCHEMA, "schema_version": SCHEMA_VERSION,
+                                             "context": context, "summary": summary, "evaluation": evaluation})
     return summary
 
 
-def table1_text(evaluation: dict, summary: dict) -> str:
-    """The Table 1 analogue as plain text for the terminal."""
-    lines = [f"{'class':<12}{'success% <5':>12}{'sigma':>8}{'<3':>8}{'sigma':>8}{'ecc':>7}{'sigma':>7}"]
-    for c, row in summary["table"].items():
-        s5, s3, e = row["spm"]["success_5"], row["spm"]["success_3"], evaluation["eccentricity"].get(c, {})
-        lines.append(f"{c:<12}{_fmt(s5['mean']):>12}{_fmt(s5['std']):>8}{_fmt(s3['mean']):>8}{_fmt(s3['std']):>8}"
-                     f"{_fmt(e.get('mean'), 2):>7}{_fmt(e.get('std'), 2):>7}")
+def summary_text(summary: dict) -> str:
+    """The plain summary and every method's headline figures, for the terminal."""
+    lines = [line.replace("**", "") for line in plain_summary(summary)]
+    lines.append(f"{'method':<32}{'±5° %':>8}{'sum<5 %':>9}{'geo med':>9}{'AUC45':>7}{'elev °':>8}{'dist mm':>9}")
+    for m in [*summary["methods"], *(["chance"] if summary["chance"] else [])]:
+        s = summary["methods"].get(m) or summary["chance"]
+        lines.append(f"{_name(m):<32}{_fmt(s['success_tol5']):>8}{_fmt(s['success_sum5']):>9}"
+                     f"{_fmt(s['geodesic_median_deg']):>9}{_fmt(s['auc_45']):>7}"
+                     f"{_fmt(s['median_error']['elevation_deg']):>8}{_fmt(s['median_error']['distance_mm']):>9}")
     return "\n".join(lines)

@@ -1,0 +1,216 @@
+"""The reference estimator: HOG templates of the object's box, matched by
+nearest neighbour (a template matcher in the spirit of LINEMOD and of
+Murase & Nayar's appearance manifolds; Dalal & Triggs' HOG from OpenCV).
+
+Per frame, the object's box (from the mask; the region of interest when there
+is no mask) is cut out as a square around the box centre with 5% margin, the
+grey image masked to the object, resized to 64 x 64, and described by HOG
+(16-pixel blocks, 8-pixel cells, 18 signed-gradient bins: 3,528 values). Training keeps the
+unit-normalised descriptors projected on their top ``components`` principal
+axes, with each template's pose and box geometry. A query takes its nearest
+template's pose, mapped to the query's box:
+
+- rotation: the template's rotation; with ``ray_correction``, turned by the
+  rotation that takes the template's viewing ray to the query's (an object
+  seen off the optical axis keeps its appearance: the allocentric
+  correction). It is off by default: every frame spm renders looks at the
+  object, where the correction only adds the sub-degree noise of the
+  estimated centre (enough to fail the ±5° tolerance on a 5° grid);
+- distance: the median distance of the ``size_neighbours`` training frames
+  whose apparent size (the box's longer side over the focal length, in log)
+  is closest: size in the image is inverse to distance, and objects are
+  normalised to one size, so this transfers between classes;
+- position: the template's offset from box centre to object centre, scaled
+  to the query's box, back-projected through the query's K to that distance.
+
+Input: frames as in spm_model/frames.py (rgb, mask, K); output (n, 6) labels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from spm_data.poses import label_to_pose, pose_to_label
+from spm_model.frames import column
+
+SIDE = 64
+MARGIN = 0.05
+HOG_SIZE = 3528
+GEOMETRY = ("box_u", "box_v", "box_side", "fx", "fy", "cx", "cy")  # pixels: box centre and longer side; K
+
+
+def _hog():
+    import cv2
+
+    # Signed gradients, 18 bins: a dark-to-light edge differs from light-to-dark (97.6% vs 97.0%
+    # within ±5° with 9 unsigned bins, views protocol of the default dataset).
+    return cv2.HOGDescriptor((SIDE, SIDE), (16, 16), (8, 8), (8, 8), 18, 1, -1, 0, 0.2, True, 64, True)
+
+
+def box_of(mask: np.ndarray) -> tuple[float, float, float] | None:
+    """(H, W) bool -> (u, v, side): the box centre (OpenCV pixels) and its longer side; None if empty."""
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if not len(rows):
+        return None
+    return (cols[0] + cols[-1]) / 2.0, (rows[0] + rows[-1]) / 2.0, float(max(rows[-1] - rows[0], cols[-1] - cols[0]) + 1)
+
+
+def describe(rgb: np.ndarray, mask: np.ndarray, K: np.ndarray, hog=None) -> np.ndarray:
+    """(H, W, 3) uint8, (H, W) bool, (3, 3) -> (HOG_SIZE + 7,) float32: the HOG
+    descriptor then GEOMETRY; NaN when the mask is empty."""
+    import cv2
+
+    out = np.full(HOG_SIZE + len(GEOMETRY), np.nan, dtype=np.float32)
+    mask = np.asarray(mask) > 0
+    box = box_of(mask)
+    if box is None:
+        return out
+    u, v, side = box
+    scale = SIDE / (side * (1 + 2 * MARGIN))
+    warp = np.array([[scale, 0, SIDE / 2 - 0.5 - scale * u], [0, scale, SIDE / 2 - 0.5 - scale * v]], np.float32)
+    grey = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)
+    grey = np.where(mask, grey, 0).astype(np.uint8)
+    crop = cv2.warpAffine(grey, warp, (SIDE, SIDE), flags=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
+    out[:HOG_SIZE] = (hog or _hog()).compute(crop).ravel()
+    out[HOG_SIZE:] = (u, v, side, K[0, 0], K[1, 1], K[0, 2], K[1, 2])
+    return out
+
+
+def describe_frames(frames) -> np.ndarray:
+    """(n, HOG_SIZE + 7) descriptors of a frame sequence (cached column ``template`` when present)."""
+    hog = _hog()
+    return column(frames, "template", lambda f: describe(f["rgb"], f["mask"], f["K"], hog))
+
+
+def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(n, 3) unit vectors -> (n, 3, 3) the smallest rotations taking a to b (Rodrigues)."""
+    v = np.cross(a, b)
+    c = np.einsum("ni,ni->n", a, b)
+    vx = np.zeros((len(a), 3, 3))
+    vx[:, 0, 1], vx[:, 0, 2], vx[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    vx = vx - vx.transpose(0, 2, 1)
+    return np.eye(3) + vx + vx @ vx / (1 + np.maximum(c, -1 + 1e-12))[:, None, None]
+
+
+def _rays(K: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """K (n, 3, 3), uv (n, 2) pixels -> (n, 3) unit viewing rays (camera frame)."""
+    h = np.concatenate([uv, np.ones((len(uv), 1))], axis=1)
+    r = np.linalg.solve(K, h[:, :, None])[:, :, 0]
+    return r / np.linalg.norm(r, axis=1, keepdims=True)
+
+
+class TemplatePose:
+    """fit(frames, poses (n, 6)) -> self; predict(frames) -> (n, 6), NaN for an empty mask."""
+
+    def __init__(self, *, components: int = 128, size_neighbours: int = 15, ray_correction: bool = False):
+        self.components = components
+        self.size_neighbours = size_neighbours
+        self.ray_correction = ray_correction
+
+    def fit(self, frames, poses) -> "TemplatePose":
+        from spm_model.estimator import check_xy
+
+        desc = describe_frames(frames)
+        poses = np.asarray(poses, dtype=np.float64)
+        ok = np.isfinite(desc).all(axis=1)
+        check_xy(desc[ok, :HOG_SIZE], poses[ok] if len(poses) == len(desc) else poses)
+        hog = _unit(desc[ok, :HOG_SIZE])
+        self.mean_ = hog.mean(axis=0)
+        centred = hog - self.mean_
+        k = min(self.components, centred.shape[1], len(centred))
+        _, vectors = np.linalg.eigh(centred.T @ centred)
+        self.basis_ = vectors[:, ::-1][:, :k].copy()
+        self.codes_ = centred @ self.basis_
+        self.poses_ = poses[ok]
+        self.geometry_ = desc[ok, HOG_SIZE:].astype(np.float64)
+        self.distance_ = np.linalg.norm(self.poses_[:, 3:], axis=1)
+        # For images without K (spm predict): the training focal length per image height (cy = (H - 1) / 2).
+        self.focal_per_height_ = np.array(np.median(self.geometry_[:, 4] / (2 * self.geometry_[:, 6] + 1)))
+        return self
+
+    def _distance(self, geometry: np.ndarray) -> np.ndarray:
+        """(m, 7) query geometry -> (m,) metres: median distance of the training frames of closest apparent size."""
+        size_t = np.log(self.geometry_[:, 2] / self.geometry_[:, 3])
+        order = np.argsort(size_t)
+        k = min(self.size_neighbours, len(order))
+        pos = np.searchsorted(size_t[order], np.log(geometry[:, 2] / geometry[:, 3]))
+        # The k nearest on a line lie in the 2k-window around the insertion point.
+        window = np.clip(pos[:, None] + np.arange(-k, k)[None], 0, len(order) - 1)
+        gap = np.abs(size_t[order][window] - np.log(geometry[:, 2] / geometry[:, 3])[:, None])
+        nearest = np.take_along_axis(window, np.argsort(gap, axis=1, kind="stable")[:, :k], axis=1)
+        return np.median(self.distance_[order][nearest], axis=1)
+
+    def _check_fitted(self):
+        from spm_model.estimator import ModelError
+
+        if not all(hasattr(self, k) for k in ("codes_", "basis_", "mean_", "poses_", "geometry_", "distance_",
+                                                "focal_per_height_")):
+            raise ModelError("this TemplatePose is not fitted yet; call fit(frames, poses) first")
+
+    def nearest(self, hog: np.ndarray) -> np.ndarray:
+        """(m, HOG_SIZE) descriptors -> (m,) index of the nearest template."""
+        self._check_fitted()
+        z = (_unit(hog) - self.mean_) @ self.basis_
+        sq = (self.codes_ ** 2).sum(axis=1)
+        return np.concatenate([np.argmin(sq[None] - 2 * z[s: s + 1024] @ self.codes_.T, axis=1)
+                               for s in range(0, len(z), 1024)]) if len(z) else np.zeros(0, np.int64)
+
+    def predict_descriptors(self, desc: np.ndarray, K: np.ndarray) -> np.ndarray:
+        """(n, HOG_SIZE + 7) descriptors, (n, 3, 3) K -> (n, 6) labels."""
+        self._check_fitted()
+        out = np.full((len(desc), 6), np.nan)
+        ok = np.isfinite(desc).all(axis=1)
+        if not ok.any():
+            return out
+        j = self.nearest(desc[ok, :HOG_SIZE])
+        R_t, t_t = label_to_pose(self.poses_[j])
+        g_t, g_q, K_q = self.geometry_[j], desc[ok, HOG_SIZE:].astype(np.float64), np.asarray(K, np.float64)[ok]
+        # The template's object centre in its image, as an offset from its box centre in box sides.
+        centre_t = t_t[:, :2] / t_t[:, 2:3] * g_t[:, 3:5] + g_t[:, 5:7]
+        offset = (centre_t - g_t[:, :2]) / g_t[:, 2:3]
+        ray_q = _rays(K_q, g_q[:, :2] + offset * g_q[:, 2:3])
+        R_q = R_t
+        if self.ray_correction:
+            R_q = _rotation_between(t_t / np.linalg.norm(t_t, axis=1, keepdims=True), ray_q) @ R_t
+        t_q = ray_q * self._distance(g_q)[:, None]
+        out[ok] = pose_to_label(R_q, t_q)
+        return out
+
+    def predict_image(self, rgb: np.ndarray, mask=None, K=None) -> dict:
+        """One (H, W, 3) uint8 image, its (H, W) mask or region of interest (None: the
+        whole image), K (None: the training images' field of view, centred) -> {"pose": (6,)}."""
+        self._check_fitted()
+        h, w = rgb.shape[:2]
+        if K is None:
+            f = self.focal_per_height_ * h
+            K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1.0]])
+        mask = np.ones((h, w), bool) if mask is None else np.asarray(mask) > 0
+        return {"pose": self.predict_descriptors(describe(rgb, mask, K)[None], K[None])[0]}
+
+    def save(self, path):
+        from spm_model.estimator import save_model_file
+
+        self._check_fitted()
+        return save_model_file(path, "template", {k: v for k, v in vars(self).items() if not k.endswith("_")},
+                               {k[:-1]: v for k, v in vars(self).items() if k.endswith("_")})
+
+    @classmethod
+    def load(cls, path) -> "TemplatePose":
+        from spm_model.estimator import load_model_file
+
+        header, arrays = load_model_file(path, "template")
+        model = cls(**header["params"])
+        for k, v in arrays.items():
+            setattr(model, k + "_", v)
+        model._check_fitted()
+        return model
+
+    def predict(self, frames) -> np.ndarray:
+        desc = describe_frames(frames)
+        K = column(frames, "K", lambda f: np.asarray(f["K"], np.float64))
+        return self.predict_descriptors(desc, K)
+
+
+def _unit(x: np.ndarray) -> np.ndarray:
+    x = np.asarray(x, dtype=np.float64)
+    return x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-12)
