@@ -24,8 +24,8 @@ demo: install
 	$(BIN)/spm-data occlude --in $(DEMO)/render --out $(DEMO)/occluded --max 0.6 --copies 2
 	$(BIN)/spm-data hist $(DEMO)/occluded --out $(DEMO)/occlusion-hist.png
 	$(BIN)/spm-data show $(DEMO)/occluded/cup-00000-occ0.h5 --out $(DEMO)/cup-occluded-sheet.png
-	$(BIN)/spm train --shards $(DEMO) --report $(DEMO)/report --workers 2
-	@echo "demo output: $(DEMO)/ (shards in render/ and occluded/, contact sheets, the occlusion histogram, report/ with results.md and model.npz)"
+	$(BIN)/spm train --shards $(DEMO) --report $(DEMO)/report --workers 2 --runs 1
+	@echo "demo output: $(DEMO)/ (shards in render/ and occluded/, contact sheets, the occlusion histogram, report/ with results.md, accuracy.png, model.npz and reference-model.npz)"
 
 test: install
 	$(BIN)/python -m pytest -q

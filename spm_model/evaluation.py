@@ -69,8 +69,7 @@ def splits(table: FeatureTable, protocol: str, seed: int, held_out: float = 0.2)
     raise ModelError(f"protocol must be one of {PROTOCOLS}, got {protocol!r}")
 
 
-def fit_predict(methods: dict, table: FeatureTable, train: np.ndarray, test: np.ndarray,
-                report=lambda message: None) -> dict:
+def fit_predict(methods: dict, table: FeatureTable, train: np.ndarray, test: np.ndarray) -> dict:
     """{name: (len(test), 6) predictions} of every method fitted on ``train``."""
     out = {}
     for name, method in methods.items():
@@ -115,7 +114,7 @@ def _run(table, protocol, run, make_methods, keys, report):
             continue
         report(f"run {run + 1}: {protocol} test {tested} ({len(train)} train / {len(test)} test frames)")
         index_parts.append(test)
-        prediction_parts.append(fit_predict(make_methods(run), table, train, test, report))
+        prediction_parts.append(fit_predict(make_methods(run), table, train, test))
     index = np.concatenate(index_parts)
     names = list(prediction_parts[0])
     # Each method's per-frame errors once; the tables, curves and bins slice them.
@@ -132,16 +131,17 @@ def _run(table, protocol, run, make_methods, keys, report):
 
 
 def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_params: dict | None = None,
-             estimators: dict | None = None, report=lambda message: None) -> dict:
-    """Every run x split for the built-in methods and ``estimators`` ({name:
-    class}, instantiated fresh per split): per-class and overall summaries per
-    method, the geodesic accuracy curve and the occlusion bins. Returns
-    {"protocol", "runs": [...], "eccentricity", "classes", "methods"}."""
+             estimators: dict | None = None, report=lambda message: None, builtins=None) -> dict:
+    """Every run x split for the built-in methods (``builtins``: their names, default
+    all) and ``estimators`` ({name: class}, instantiated fresh per split): per-class
+    and overall summaries per method, the geodesic accuracy curve and the occlusion
+    bins. Returns {"protocol", "runs": [...], "eccentricity", "classes", "methods"}."""
     params = dict(model_params or {})
     features = params.pop("features")
 
     def make_methods(seed):
-        methods = builtin_methods(seed, features, params)
+        methods = {k: v for k, v in builtin_methods(seed, features, params).items()
+                   if builtins is None or k in builtins}
         methods.update({name: cls() for name, cls in (estimators or {}).items()})
         return methods
 

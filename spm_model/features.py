@@ -24,7 +24,7 @@ from spm_data.errors import SpmError
 from spm_model.bunches import BunchError, fit_bunches
 from spm_model.ellipse import EllipseError
 from spm_model.keypoints import homography_inliers, sift_keypoints
-from spm_model.manifold import initial_manifold
+from spm_model.manifold import ORDERS, initial_manifold
 
 FEATURE_VERSION = 5  # 5: template descriptors and K in the cache
 
@@ -37,7 +37,11 @@ class FeatureError(SpmError):
 class FeatureConfig:
     """gamma: EM clusters; ellipse: "pso" (Eq. 1) or "direct"; lam: Eq. 1's lambda;
     max_side: images whose longest side exceeds it are downscaled before SIFT (the
-    manifold vector is scale invariant); raw_size: side of the baselines' raw vectors."""
+    manifold vector is scale invariant); raw_size: side of the baselines' raw vectors.
+    Opt-in variants of the manifold vector (spm_model/manifold.py; the defaults are
+    the pipeline of docs/method.md): order: cluster order, "sign" (canonical_order's
+    rule), "angle" or "distance"; normalise: scale the vector to unit length;
+    append_ellipse: append the ellipse's axis ratio and orientation (3 values)."""
 
     gamma: int = 8
     ellipse: str = "pso"
@@ -45,16 +49,21 @@ class FeatureConfig:
     seed: int = 0
     max_side: int = 256
     raw_size: int = 32
+    order: str = "sign"
+    normalise: bool = True
+    append_ellipse: bool = False
 
     def __post_init__(self):
         if self.gamma < 5:
             raise FeatureError(f"gamma must be >= 5 (an ellipse needs 5 centres), got {self.gamma}")
         if self.ellipse not in ("pso", "direct"):
             raise FeatureError(f"ellipse must be 'pso' or 'direct', got {self.ellipse!r}")
+        if self.order not in ORDERS:
+            raise FeatureError(f"order must be one of {ORDERS}, got {self.order!r}")
 
     @property
     def dims(self) -> int:
-        return 2 * self.gamma
+        return 2 * self.gamma + (3 if self.append_ellipse else 0)
 
     def key(self) -> str:
         """Short hash naming the cache files made with this configuration."""
@@ -78,11 +87,14 @@ def working_image(rgb: np.ndarray, mask: np.ndarray | None, max_side: int):
 
 
 def manifold_from_keypoints(locations: np.ndarray, config: FeatureConfig) -> tuple[np.ndarray, float]:
-    """(N, 2) keypoint pixels -> ((2 * gamma,) unit manifold vector, eccentricity).
-    Raises FeatureError when N < 2 * gamma or no ellipse fits."""
+    """(N, 2) keypoint pixels -> ((config.dims,) manifold vector, eccentricity); by
+    default a (2 * gamma,) unit vector. Raises FeatureError when N < 2 * gamma or
+    no ellipse fits."""
     try:
         bunches = fit_bunches(locations, gamma=config.gamma, seed=config.seed)
-        return initial_manifold(bunches.means, method=config.ellipse, lam=config.lam, seed=config.seed)
+        return initial_manifold(bunches.means, method=config.ellipse, lam=config.lam, seed=config.seed,
+                                order=config.order, normalise=config.normalise,
+                                append_ellipse=config.append_ellipse)
     except (BunchError, EllipseError) as exc:
         raise FeatureError(str(exc)) from None
 
@@ -102,7 +114,7 @@ def raw_vector(rgb: np.ndarray, mask: np.ndarray | None, size: int) -> np.ndarra
 def image_features(rgb: np.ndarray, mask: np.ndarray | None = None,
                    config: FeatureConfig = FeatureConfig(), raw: bool = True) -> dict:
     """Query features of one image: (H, W, 3) uint8 RGB, optional (H, W) mask or
-    region of interest. Returns {"vector": (2 gamma,) float64, "eccentricity":
+    region of interest. Returns {"vector": (config.dims,) float64, "eccentricity":
     float, "keypoints": int, "raw": (raw_size^2,) uint8 (when ``raw``)};
     FeatureError if SIFT finds too few keypoints."""
     rgb = np.asarray(rgb)
@@ -110,8 +122,8 @@ def image_features(rgb: np.ndarray, mask: np.ndarray | None = None,
         raise FeatureError(f"expected an (H, W, 3) uint8 RGB image, got {rgb.dtype} {rgb.shape}")
     small, small_mask = working_image(rgb, mask, config.max_side)
     locations, _ = sift_keypoints(small, small_mask)
-    if len(locations) < config.dims:
-        raise FeatureError(f"SIFT found {len(locations)} keypoints, need at least {config.dims}")
+    if len(locations) < 2 * config.gamma:
+        raise FeatureError(f"SIFT found {len(locations)} keypoints, need at least {2 * config.gamma}")
     vector, ecc = manifold_from_keypoints(locations, config)
     out = {"vector": vector, "eccentricity": ecc, "keypoints": len(locations)}
     if raw:
@@ -131,7 +143,7 @@ def frames_features(rgb: np.ndarray, mask: np.ndarray, instance_id: np.ndarray, 
     """Features of a run of frames (one shard): rgb (n, H, W, 3) uint8, mask (n, H, W),
     K (n, 3, 3) (for the template descriptors; omitted: none are computed).
 
-    Returns arrays over the n frames: train_vector / query_vector (n, 2 gamma)
+    Returns arrays over the n frames: train_vector / query_vector (n, config.dims)
     float64 (NaN where the frame has too few keypoints), train_eccentricity /
     query_eccentricity (n,), train_keypoints / query_keypoints (n,) int32, raw
     (n, raw_size^2) uint8, train_neighbours (n,) int8 (path neighbours matched;

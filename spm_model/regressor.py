@@ -29,11 +29,15 @@ def _labels(z: np.ndarray) -> np.ndarray:
 
 
 class RBFPoseRegressor:
-    """Kernel ridge regressor with an RBF kernel; ``gamma=None`` uses 1 / median squared distance."""
+    """Kernel ridge regressor with an RBF kernel ``exp(-gamma_ ||x - x'||^2)``;
+    ``gamma=None`` uses the median heuristic, ``gamma_ = 1 / (width_scale * median
+    squared distance)``: ``width_scale`` > 1 widens the kernel (it is ignored when
+    ``gamma`` is given). ``landmarks``: the Nystrom centres (see the module docstring)."""
 
     def __init__(self, *, gamma: float | None = None, alpha: float = 1e-3, noise: float = 0.0,
-                 noise_copies: int = 0, landmarks: int = 2000, seed: int = 0):
+                 noise_copies: int = 0, landmarks: int = 2000, seed: int = 0, width_scale: float = 1.0):
         self.gamma = gamma
+        self.width_scale = width_scale
         self.alpha = alpha
         self.noise = noise
         self.noise_copies = noise_copies
@@ -50,6 +54,8 @@ class RBFPoseRegressor:
         if X.ndim != 2 or y.ndim != 2 or y.shape[1] != 6 or len(X) != len(y):
             raise ValueError(f"expected X (n, d) and y (n, 6) with the same n; got X {X.shape}, y {y.shape}; "
                              "y holds (rx, ry, rz, tx, ty, tz) labels")
+        if not self.width_scale > 0:
+            raise ValueError(f"width_scale must be > 0, got {self.width_scale}")
         if not (np.isfinite(X).all() and np.isfinite(y).all()):
             raise ValueError("X and y must be finite; drop frames whose features failed")
         Z = _targets(y)
@@ -62,7 +68,7 @@ class RBFPoseRegressor:
             sample = X[rng.choice(len(X), size=min(len(X), 500), replace=False)]
             d2 = ((sample[:, None] - sample[None]) ** 2).sum(axis=2)
             median = np.median(d2[d2 > 0]) if (d2 > 0).any() else 1.0
-            self.gamma_ = 1.0 / median
+            self.gamma_ = 1.0 / (self.width_scale * median)
         else:
             self.gamma_ = float(self.gamma)
         self.mean_ = Z.mean(axis=0)

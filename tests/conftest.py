@@ -61,7 +61,7 @@ PYRENDER_128_SPEC = """
 class = "{cls}"
 seed = {seed}
 [mesh]
-instances = 1
+instances = {instances}
 [camera]
 azimuth = [0, {az_stop}, 5]
 elevation = [{el}, {el_stop}, 5]
@@ -75,9 +75,10 @@ frames_per_shard = {per_shard}
 """
 
 
-def write_pyrender_128_spec(folder, cls, *, seed, az_stop, el, per_shard):
+def write_pyrender_128_spec(folder, cls, *, seed, az_stop, el, per_shard, instances=1):
     (folder / f"{cls}.toml").write_text(PYRENDER_128_SPEC.format(cls=cls, seed=seed, az_stop=az_stop, el=el,
-                                                                 el_stop=el + 5, per_shard=per_shard))
+                                                                 el_stop=el + 5, per_shard=per_shard,
+                                                                 instances=instances))
 
 
 @pytest.fixture(scope="session")
@@ -91,5 +92,20 @@ def model_shards(tmp_path_factory):
     specs.mkdir()
     for cls in ("box", "car", "cup"):
         write_pyrender_128_spec(specs, cls, seed=1, az_stop=115, el=20, per_shard=48)
+    render_dataset(load_run_specs(all_classes=True, specs_dir=specs), root / "shards")
+    return root / "shards"
+
+
+@pytest.fixture(scope="session")
+def instance_shards(tmp_path_factory):
+    """Two classes (car, cup), 2 instances each, 48 views per instance (azimuth 0-115
+    at elevations 20 and 25) at 128x128 (pyrender). Read-only for tests."""
+    from spm_data.render_jobs import load_run_specs, render_dataset
+
+    root = tmp_path_factory.mktemp("instances")
+    specs = root / "specs"
+    specs.mkdir()
+    for cls in ("car", "cup"):
+        write_pyrender_128_spec(specs, cls, seed=2, az_stop=115, el=20, per_shard=96, instances=2)
     render_dataset(load_run_specs(all_classes=True, specs_dir=specs), root / "shards")
     return root / "shards"

@@ -98,3 +98,22 @@ def test_half_written_cache_files_of_dead_processes_are_removed(tmp_path):
         p.write_bytes(b"half")
     assert remove_stale_partials([shard]) == [stale]
     assert not stale.exists() and live.exists() and other.exists()
+
+
+def test_feature_config_vector_options():
+    from spm_model.features import manifold_from_keypoints
+
+    default = FeatureConfig()
+    assert (default.order, default.normalise, default.append_ellipse, default.dims) == ("sign", True, False, 16)
+    assert FeatureConfig(append_ellipse=True).dims == 19
+    with pytest.raises(FeatureError, match="order must be"):
+        FeatureConfig(order="random")
+    pts = np.random.default_rng(0).uniform(0, 100, (60, 2))
+    v, _ = manifold_from_keypoints(pts, FeatureConfig(ellipse="direct"))
+    raw, _ = manifold_from_keypoints(pts, FeatureConfig(ellipse="direct", normalise=False))
+    np.testing.assert_allclose(np.linalg.norm(v), 1.0)
+    np.testing.assert_allclose(raw / np.linalg.norm(raw), v)
+    by_angle, _ = manifold_from_keypoints(pts, FeatureConfig(ellipse="direct", order="angle"))
+    np.testing.assert_allclose(np.sort(by_angle), np.sort(v))  # the same values, another order
+    extra, _ = manifold_from_keypoints(pts, FeatureConfig(ellipse="direct", append_ellipse=True))
+    assert extra.shape == (19,) and np.array_equal(extra[:16], v)

@@ -99,3 +99,17 @@ def test_intrinsics_are_centred_on_pixel_centres():
     np.testing.assert_allclose(K[:2, 2], [49.5, 24.5])
     np.testing.assert_allclose(K[1, 1], 25.0)
     assert K[0, 0] == K[1, 1]
+
+
+def test_label_to_view_inverts_camera_poses_roll_included():
+    from spm_data.poses import label_to_view
+
+    rng = np.random.default_rng(4)
+    az, el, roll = rng.uniform(-179, 180, 50), rng.uniform(-85, 85, 50), rng.uniform(-179, 180, 50)
+    dist = rng.uniform(0.3, 2.0, 50)
+    R, t = camera_poses(az, el, roll, dist)
+    view = label_to_view(pose_to_label(R, t))
+    for key, want in (("azimuth", az), ("elevation", el), ("roll", roll), ("distance", dist)):
+        assert np.allclose(view[key], want, atol=1e-9), key
+    one = label_to_view(pose_to_label(*camera_pose(30, 20, 0, 0.7)))
+    assert np.isclose(one["azimuth"], 30) and np.isclose(one["elevation"], 20) and np.isclose(one["distance"], 0.7)

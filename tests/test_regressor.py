@@ -52,3 +52,16 @@ def test_estimator_contract_and_messages():
         m.predict(np.zeros((1, 3)))
     with pytest.raises(TypeError):
         RBFPoseRegressor(1.0)  # keyword-only
+
+
+def test_width_scale_divides_the_median_heuristic_gamma():
+    X = circle(60, 3)
+    y = smooth_labels(X)
+    base = RBFPoseRegressor().fit(X, y)
+    d2 = ((X[:, None] - X[None]) ** 2).sum(axis=2)
+    assert base.gamma_ == 1.0 / np.median(d2[d2 > 0])                 # the default: today's heuristic
+    wide = RBFPoseRegressor(width_scale=10.0).fit(X, y)
+    assert wide.gamma_ == pytest.approx(base.gamma_ / 10.0, rel=1e-12)
+    assert RBFPoseRegressor(gamma=2.0, width_scale=10.0).fit(X, y).gamma_ == 2.0  # an explicit gamma wins
+    with pytest.raises(ValueError, match="width_scale"):
+        RBFPoseRegressor(width_scale=0.0).fit(X, y)
