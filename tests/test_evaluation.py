@@ -111,3 +111,20 @@ def test_the_reference_estimator_beats_chance_on_new_views_and_instances(instanc
     # New instances of a class: still far above a random training pose.
     assert instances["template"]["success_tol5"] >= instances["chance"]["success_tol5"] + 20, instances["template"]
     assert instances["template"]["surface"]["add_s_recall"] > instances["chance"]["surface"]["add_s_recall"]
+
+
+def test_the_documented_example_estimator_runs(model_shards):
+    from pathlib import Path
+
+    from spm_model.frames import Frames
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "estimators.md").read_text()
+    code = text.split("```python\n", 1)[1].split("```", 1)[0]
+    namespace = {}
+    exec(compile(code, "docs/estimators.md", "exec"), namespace)
+    table = load_features(model_shards, FAST)
+    train, test = np.flatnonzero(table.class_name != "cup"), np.flatnonzero(table.class_name == "cup")
+    model = namespace["BoxSize"]().fit(Frames(table, train), table.pose[train])
+    pred = model.predict(list(Frames(table, test)))                  # a plain list of frame dicts works too
+    assert pred.shape == (48, 6)
+    assert np.median(np.abs(np.linalg.norm(pred[:, 3:], axis=1) - 0.6)) < 0.01   # every frame of this set is at 0.6 m
