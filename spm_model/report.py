@@ -179,57 +179,50 @@ def markdown(evaluation: dict, summary: dict, context: dict) -> str:
     return "\n".join(lines)
 
 
-def _save_figure(fig, path) -> Path:
+def _axes():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt.subplots(figsize=(6, 4), dpi=100)
+
+
+def _finish(fig, ax, path, xlabel: str, ylabel: str) -> Path:
+    """Label, grid, legend, then write ``path`` atomically and free the figure."""
+    import matplotlib.pyplot as plt
+
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_ylim(0, 100)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
     path = Path(path)
     with atomic_file(path, path.with_name(f".{path.name}.partial.png")) as tmp:  # savefig wants the suffix
         fig.savefig(tmp)
+    plt.close(fig)
     return path
 
 
 def plot_accuracy(summary: dict, path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     curve = summary["accuracy_curve"]
-    fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
+    fig, ax = _axes()
     for m in [*summary["methods"], *(["chance"] if summary["chance"] else [])]:
         s = summary["methods"].get(m) or summary["chance"]
         ax.plot(curve["thresholds_deg"], curve[m], label=f"{_name(m)} (AUC {_fmt(s['auc_45'])})",
                 linestyle="--" if m == "chance" else "-")
-    ax.set_xlabel("geodesic rotation error threshold (°)")
-    ax.set_ylabel("frames within threshold (%)")
     ax.set_xlim(0, curve["thresholds_deg"][-1])
-    ax.set_ylim(0, 100)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    _save_figure(fig, path)
-    plt.close(fig)
-    return Path(path)
+    return _finish(fig, ax, path, "geodesic rotation error threshold (°)", "frames within threshold (%)")
 
 
 def plot_occlusion(summary: dict, path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
+    fig, ax = _axes()
     for m, rows in summary["occlusion"].items():
         rows = [r for r in rows if r["frames"] and r["success_sum5"] is not None]
         ax.plot([50 * (r["low"] + r["high"]) for r in rows], [r["success_sum5"] for r in rows], marker="o",
                 label=_name(m))
-    ax.set_xlabel("occlusion of the object (%)")
-    ax.set_ylabel("success rate (%), rotation error sum < 5°")
-    ax.set_ylim(0, 100)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    _save_figure(fig, path)
-    plt.close(fig)
-    return Path(path)
+    return _finish(fig, ax, path, "occlusion of the object (%)", "success rate (%), rotation error sum < 5°")
 
 
 def write_report(evaluation: dict, context: dict, out_dir) -> dict:
