@@ -103,8 +103,10 @@ def test_the_reference_estimator_beats_chance_on_new_views_and_instances(instanc
     params = {"features": FAST, "projection_samples": 60}
     views = evaluate(table, "views", runs=1, model_params=params)["runs"][0]["overall"]
     ref, chance = views["template"], views["chance"]
-    # New views of seen objects: the adjacent 5-degree view is found almost always.
-    assert ref["success_tol5"] >= 80 and chance["success_tol5"] <= 10, (ref["success_tol5"], chance["success_tol5"])
+    # New views of seen objects: the adjacent 5-degree view is found almost always. (Chance is
+    # about 10% here: 48 views per instance, of which a +-5 degree box holds up to 9.)
+    assert ref["success_tol5"] >= 80 and ref["success_tol5"] >= chance["success_tol5"] + 60, \
+        (ref["success_tol5"], chance["success_tol5"])
     assert ref["geodesic_median_deg"] <= 6 and ref["median_error"]["distance_mm"] <= 1
     assert ref["auc_45"] >= chance["auc_45"] + 40
     instances = evaluate(table, "instances", runs=1, model_params=params)["runs"][0]["overall"]
