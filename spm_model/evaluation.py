@@ -110,11 +110,16 @@ def _occlusion_curve(table, index, errors):
 def _run(table, protocol, run, make_methods, keys, report):
     index_parts, prediction_parts = [], []
     for tested, train, test in splits(table, protocol, seed=run):
+        if len(train) == 0:
+            raise ModelError(f"{protocol} protocol, run {run + 1}: nothing left to train on when testing {tested}")
         if len(test) == 0:
             continue
         report(f"run {run + 1}: {protocol} test {tested} ({len(train)} train / {len(test)} test frames)")
         index_parts.append(test)
         prediction_parts.append(fit_predict(make_methods(run), table, train, test))
+    if not index_parts:
+        raise ModelError(f"{protocol} protocol, run {run + 1}: no frame was held out for testing "
+                         f"({len(table)} frames); add views or instances, or use another protocol")
     index = np.concatenate(index_parts)
     names = list(prediction_parts[0])
     # Each method's per-frame errors once; the tables, curves and bins slice them.
@@ -125,7 +130,8 @@ def _run(table, protocol, run, make_methods, keys, report):
         sel = table.class_name[index] == c
         if sel.any():
             per_class[c] = {m: summarise(_select(e, sel)) for m, e in errors.items()}
-    curves = {m: accuracy_curve(e["geodesic"], int(e["rotation_measured"].sum())).tolist() for m, e in errors.items()}
+    curves = {m: accuracy_curve(e["geodesic"], int(e["rotation_measured"].sum())).tolist()
+              if e["rotation_measured"].any() else None for m, e in errors.items()}
     return {"seed": run, "classes": per_class, "overall": {m: summarise(e) for m, e in errors.items()},
             "occlusion": _occlusion_curve(table, index, errors), "accuracy_curve": curves}
 

@@ -23,6 +23,9 @@ import numpy as np
 from spm_data.shards import read_shard
 
 READ_BLOCK = 256   # frames read from a shard at a time
+# What a method may read besides the images: features and intrinsics, never labels,
+# classes or instances (a method's predict must not see the test poses).
+FEATURE_COLUMNS = ("train_vector", "query_vector", "raw", "template", "K")
 CACHED_BLOCKS = 4  # blocks kept in memory per sequence
 
 
@@ -30,7 +33,7 @@ class Frames(Sequence):
     """Lazy frames of a FeatureTable (every frame, or the rows ``index``)."""
 
     def __init__(self, table, index=None):
-        self.table = table
+        self._table = table
         self.index = np.arange(len(table)) if index is None else np.asarray(index, dtype=np.int64)
         self._blocks: OrderedDict = OrderedDict()
 
@@ -39,12 +42,12 @@ class Frames(Sequence):
 
     def __getitem__(self, i):
         if isinstance(i, slice) or (np.ndim(i) == 1):
-            return Frames(self.table, self.index[i])
+            return Frames(self._table, self.index[i])
         row = int(self.index[i])
-        shard, frame = str(self.table.shard[row]), int(self.table.frame[row])
+        shard, frame = str(self._table.shard[row]), int(self._table.frame[row])
         block = self._block(shard, frame // READ_BLOCK)
         j = frame % READ_BLOCK
-        return {"rgb": block["rgb"][j], "mask": block["mask"][j] > 0, "K": self.table.K[row]}
+        return {"rgb": block["rgb"][j], "mask": block["mask"][j] > 0, "K": self._table.K[row]}
 
     def _block(self, shard: str, b: int) -> dict:
         key = (shard, b)
@@ -56,12 +59,13 @@ class Frames(Sequence):
         return self._blocks[key]
 
     def column(self, name: str):
-        """A cached per-frame feature (len(self), ...) or None when the table lacks it."""
-        values = self.table.arrays.get(name)
+        """A cached per-frame feature of FEATURE_COLUMNS (len(self), ...), or None when
+        the table lacks it or ``name`` is not a feature (labels are never served)."""
+        values = self._table.arrays.get(name) if name in FEATURE_COLUMNS else None
         return None if values is None else values[self.index]
 
     def __getstate__(self):  # picklable for process pools: without the image cache
-        return {"table": self.table, "index": self.index}
+        return {"table": self._table, "index": self.index}
 
     def __setstate__(self, state):
         self.__init__(state["table"], state["index"])

@@ -63,7 +63,8 @@ def aggregate(evaluation: dict) -> dict:
                                     for r in runs])}
                      for b, row in enumerate(runs[0]["occlusion"][m])] for m in names}
     curve = {"thresholds_deg": CURVE_THRESHOLDS.tolist(),
-             **{m: np.mean([r["accuracy_curve"][m] for r in runs], axis=0).tolist() for m in names}}
+             **{m: (np.mean([r["accuracy_curve"][m] for r in runs], axis=0).tolist()
+                    if all(r["accuracy_curve"][m] is not None for r in runs) else None) for m in names}}
     return {"protocol": evaluation["protocol"], "runs": len(runs),
             "methods": {m: overall[m] for m in names if m != "chance"}, "chance": overall.get("chance"),
             "classes": classes, "occlusion": occlusion, "accuracy_curve": curve}
@@ -210,6 +211,8 @@ def plot_accuracy(summary: dict, path) -> Path:
     fig, ax = _axes()
     for m in [*summary["methods"], *(["chance"] if summary["chance"] else [])]:
         s = summary["methods"].get(m) or summary["chance"]
+        if curve[m] is None:  # no frame with all three angles measured (e.g. COIL-100)
+            continue
         ax.plot(curve["thresholds_deg"], curve[m], label=f"{_name(m)} (AUC {_fmt(s['auc_45'])})",
                 linestyle="--" if m == "chance" else "-")
     ax.set_xlim(0, curve["thresholds_deg"][-1])

@@ -102,3 +102,16 @@ def test_accuracy_curve_and_its_normalised_area():
     assert np.isclose(curve_auc(curve, thresholds=np.array([0.0, 10.0, 20.0, 30.0, 40.0])), 56.25)
     perfect = summarise(pose_errors(np.array([[90.0, 0, 0, 0, 0, 1]]), np.array([[90.0, 0, 0, 0, 0, 1]])))
     assert np.isclose(perfect["auc_45"], 100.0) and perfect["geodesic_median_deg"] < 1e-5
+
+
+def test_the_other_euler_triple_of_a_rotation_and_unmeasured_nans_are_not_errors():
+    true = np.array([[30.0, 20, 10, 0, 0, 0.7]])
+    other = np.array([[30.0 - 180, 180 - 20, 10 - 180, 0, 0, 0.7]])      # the same rotation
+    e = pose_errors(other, true)
+    assert np.isclose(e["rotation_max"][0], 0, atol=1e-9) and e["geodesic"][0] < 1e-9
+    measured = np.array([[False, False, True, False, False, False]])      # azimuth only, as COIL-100
+    partial = pose_errors(np.array([[np.nan, np.nan, 12.0, np.nan, np.nan, np.nan]]), np.array([[0, 0, 10.0, 0, 0, 1]]),
+                          measured)
+    assert partial["rotation_max"][0] == 2.0 and summarise(partial)["success_tol5"] == 100.0
+    same = pose_errors(np.array([[91.0, 3, -47, 0, 0, 1]]), np.array([[91.0, 3, -47, 0, 0, 1]]))
+    assert same["geodesic"][0] < 1e-9                   # far below the 1e-6 of float noise the criteria allow
