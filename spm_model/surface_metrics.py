@@ -203,9 +203,13 @@ def frame_surface_errors(pred: np.ndarray, true: np.ndarray, K: np.ndarray, widt
     pR, pt = label_to_pose(safe)
     pR[~finite], pt[~finite] = np.nan, np.nan
     tR, tt = label_to_pose(true)
-    for key in {k for k in mesh_keys if k is not None}:
+    groups: dict = {}
+    for i, key in enumerate(mesh_keys):  # one pass: frames of each mesh
+        if key is not None:
+            groups.setdefault(key, []).append(i)
+    for key, index in groups.items():
         model = _model(key)
-        index = np.flatnonzero([k == key for k in mesh_keys])
+        index = np.asarray(index)
         for start in range(0, len(index), block):
             sel = index[start: start + block]
             errors = surface_errors(pR[sel], pt[sel], tR[sel], tt[sel], K[sel], model, int(width[sel[0]]))

@@ -1,3 +1,4 @@
+import contextlib
 import os
 import time
 
@@ -25,6 +26,19 @@ def wait_for(predicate, what, *, timeout=120.0, interval=0.05, proc=None):
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
         time.sleep(interval)
+
+
+@contextlib.contextmanager
+def reaped(proc, kill=None):
+    """Yield ``proc`` (a Popen); on the way out a run still alive (a test that failed
+    midway) is killed (``kill()``, default ``proc.kill``) and waited for, so no test
+    leaves a process behind."""
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            (kill or proc.kill)()
+            proc.communicate()
 
 
 SMALL_SPEC = """

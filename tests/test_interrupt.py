@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from conftest import wait_for
+from conftest import reaped, wait_for
 from spm_data.shards import list_shards, read_manifest
 
 SPEC = 'class = "cup"\n[image]\nwidth = 64\nheight = 64\n[render]\nrenderer = "pyrender"\nframes_per_shard = 128\n'
@@ -21,16 +21,12 @@ def test_sigint_keeps_complete_shards_and_resume_finishes(tmp_path, workers):
            "--workers", str(workers)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    try:
+    with reaped(proc):
         # Interrupt once the first shard is complete: at least 1 is kept, and the other 29
         # are far more work than the moment the signal takes to arrive, so 0 < n < 30.
         wait_for(lambda: out.is_dir() and list_shards(out), "the first complete shard", proc=proc)
         proc.send_signal(signal.SIGINT)
         output, _ = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
     assert proc.returncode == 130, output
     assert "Traceback" not in output
     assert "run the same command again to resume" in output

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conftest import wait_for
+from conftest import reaped, wait_for
 from spm_data.errors import SpmError
 from spm_data.locking import LOCK_NAME
 from spm_data.render_jobs import load_run_specs, render_dataset
@@ -63,7 +63,7 @@ def interrupt(cmd, folder, sig, point):
     k, mid = point
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL), start_new_session=True)
-    try:
+    with reaped(proc, kill=lambda: os.killpg(proc.pid, signal.SIGKILL)):
         def reached():
             done, partial = progress(folder)
             return done >= k and (partial > 0 or not mid)
@@ -79,10 +79,6 @@ def interrupt(cmd, folder, sig, point):
         else:
             proc.send_signal(sig)  # a no-op if it has ended
         out, _ = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.communicate()
     return proc.returncode, out
 
 
@@ -173,7 +169,7 @@ def test_two_concurrent_cli_runs_do_not_corrupt_a_folder(tmp_path):
         except FileNotFoundError:
             return False
 
-    try:
+    with reaped(first):
         # Once the first run holds the lock, freeze it there: the second one meets it mid-run,
         # however fast or slow the machine.
         wait_for(first_holds_the_lock, f"the first run to take {lock}", interval=0.01, proc=first)
@@ -183,10 +179,6 @@ def test_two_concurrent_cli_runs_do_not_corrupt_a_folder(tmp_path):
         finally:
             first.send_signal(signal.SIGCONT)
         output, _ = first.communicate(timeout=300)
-    finally:
-        if first.poll() is None:
-            first.kill()
-            first.communicate()
     assert second.returncode == 1, second.stdout + second.stderr
     assert "another run is writing to" in second.stderr and "(pid " in second.stderr
     assert first.returncode == 0, output
