@@ -8,15 +8,33 @@ from __future__ import annotations
 
 import functools
 import sys
+import warnings
 
 import click
 
-from spm_data.errors import SpmError
+from spm_data.errors import SpmError, SpmWarning
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """The library's warnings (SpmWarning) as one ``warning:`` line on stderr."""
+    if issubclass(category, SpmWarning):
+        click.echo(f"warning: {message}", err=True)
+    else:
+        _python_showwarning(message, category, filename, lineno, file, line)
+
+
+_python_showwarning = warnings.showwarning
+
+ALLOW_PARTIAL = click.option(
+    "--allow-partial", is_flag=True,
+    help="Read a folder a live run is still writing, or whose manifest is missing or disagrees with its "
+         "files: only the complete shards, each gap a warning (docs/reliability.md).")
 
 
 def handle_errors(fn):
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
+        warnings.showwarning = _show_warning
         try:
             return fn(*args, **kwargs)
         except SpmError as exc:
@@ -125,14 +143,16 @@ def render_cmd(classes, all_classes, spec_files, specs_dir, out, workers, render
 @click.option("--rects", default=1, show_default=True, type=click.IntRange(min=1), help="Rectangles per frame.")
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Seed (same seed, same bytes).")
 @click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1), help="Worker processes.")
+@ALLOW_PARTIAL
 @executor_options
 @handle_errors
-def occlude_cmd(in_dir, out_dir, low, high, copies, rects, seed, workers, executor):
+def occlude_cmd(in_dir, out_dir, low, high, copies, rects, seed, workers, allow_partial, executor):
     """Write copies of shards with black rectangles covering [--min, --max] of each object."""
     from spm_data.occlude_jobs import occlude_dataset, occlusion_report
 
     run_with_progress(lambda bar: occlude_dataset(in_dir, out_dir, low=low, high=high, copies=copies, rects=rects,
-                                                  seed=seed, workers=workers, progress=bar, executor=executor),
+                                                  seed=seed, workers=workers, progress=bar, executor=executor,
+                                                  allow_partial=allow_partial),
                       occlusion_report)
 
 
@@ -247,14 +267,15 @@ def export_group():
 @click.argument("folder", type=click.Path())
 @click.option("--out", "out_dir", required=True, type=click.Path(), help="BOP dataset folder to create.")
 @click.option("--split", default="train", show_default=True, help="Split folder name.")
+@ALLOW_PARTIAL
 @handle_errors
-def export_bop_cmd(folder, out_dir, split):
+def export_bop_cmd(folder, out_dir, split, allow_partial):
     """Write a shard folder as a BOP dataset (one scene per object instance)."""
     from spm_data.bop import export_bop
 
     bar = Progress()
     try:
-        counts = export_bop(folder, out_dir, split=split, progress=bar)
+        counts = export_bop(folder, out_dir, split=split, progress=bar, allow_partial=allow_partial)
     finally:
         bar.close()
     click.echo(f"exported {counts['frames']} frames of {counts['objects']} objects in {counts['scenes']} scenes "
@@ -271,16 +292,17 @@ def export_bop_cmd(folder, out_dir, split):
 @click.option("--classes", "renames", default=None, help="Rename classes: old=new[,old=new...].")
 @click.option("--frames-per-shard", default=256, show_default=True, type=click.IntRange(min=1))
 @click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1), help="Worker processes.")
+@ALLOW_PARTIAL
 @executor_options
 @handle_errors
-def merge_cmd(folders, out_dir, sources, renames, frames_per_shard, workers, executor):
+def merge_cmd(folders, out_dir, sources, renames, frames_per_shard, workers, allow_partial, executor):
     """Combine shard folders into one, rebalanced into full shards."""
     from spm_data.merge import merge_folders, parse_renames
 
     keep = [s.strip() for s in sources.split(",") if s.strip()] if sources else None
     run_with_progress(lambda bar: merge_folders(folders, out_dir, sources=keep, renames=parse_renames(renames),
                                                 frames_per_shard=frames_per_shard, workers=workers, progress=bar,
-                                                executor=executor))
+                                                executor=executor, allow_partial=allow_partial))
 
 
 @data_cli.command("validate")
@@ -308,7 +330,8 @@ def info_cmd(path):
 
 @data_cli.command("show")
 @click.argument("shard", type=click.Path())
-@click.option("--out", "out_png", default="sheet.png", show_default=True, type=click.Path(), help="PNG to write.")
+@click.option("--out", "out_png", default="sheet.png", show_default=True, type=click.Path(),
+              help="Image to write: .png, .jpg, .jpeg, .pdf or .svg.")
 @click.option("--frames", default=24, show_default=True, type=click.IntRange(min=1), help="Frames on the sheet.")
 @handle_errors
 def show_cmd(shard, out_png, frames):
@@ -320,13 +343,15 @@ def show_cmd(shard, out_png, frames):
 
 @data_cli.command("hist")
 @click.argument("folder", type=click.Path())
-@click.option("--out", "out_png", default="occlusion-hist.png", show_default=True, type=click.Path(), help="PNG to write.")
+@click.option("--out", "out_png", default="occlusion-hist.png", show_default=True, type=click.Path(),
+              help="Image to write: .png, .jpg, .jpeg, .pdf or .svg.")
+@ALLOW_PARTIAL
 @handle_errors
-def hist_cmd(folder, out_png):
+def hist_cmd(folder, out_png, allow_partial):
     """Histogram of the occluded fractions of a shard folder."""
     from spm_data.sheet import occlusion_histogram
 
-    click.echo(f"wrote {occlusion_histogram(folder, out_png)}")
+    click.echo(f"wrote {occlusion_histogram(folder, out_png, allow_partial=allow_partial)}")
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -339,7 +364,8 @@ def _parse_roi(text):
     try:
         x, y, w, h = (int(v) for v in text.split(","))
     except ValueError:
-        raise click.BadParameter(f"expected x,y,width,height in pixels, got {text!r}") from None
+        raise SpmError(f"--roi expects x,y,width,height in whole pixels, got {text!r}; "
+                       "e.g. --roi 200,120,240,240") from None
     return x, y, w, h
 
 
@@ -356,9 +382,10 @@ def _parse_roi(text):
 @click.option("--gamma", default=8, show_default=True, type=click.IntRange(min=5), help="EM clusters per frame.")
 @click.option("--estimator", "estimators", multiple=True, metavar="MODULE:CLASS",
               help="Also evaluate your estimator (fit(frames, poses), predict(frames)); repeatable. docs/estimators.md")
+@ALLOW_PARTIAL
 @executor_options
 @handle_errors
-def train_cmd(shards, report_dir, protocol, runs, workers, ellipse, gamma, estimators, executor):
+def train_cmd(shards, report_dir, protocol, runs, workers, ellipse, gamma, estimators, allow_partial, executor):
     """Extract features (cached), evaluate SPM and the baselines, write the report and the model."""
     from spm_model.features import FeatureConfig
     from spm_model.train import train
@@ -368,7 +395,7 @@ def train_cmd(shards, report_dir, protocol, runs, workers, ellipse, gamma, estim
         result = train(shards, report_dir, protocol=protocol, runs=runs, workers=workers,
                        features=FeatureConfig(gamma=gamma, ellipse=ellipse), progress=bar, executor=executor,
                        log=lambda m: bar.bar.write(m), command="spm " + " ".join(sys.argv[1:]),
-                       estimators=estimators)
+                       estimators=estimators, allow_partial=allow_partial)
     except KeyboardInterrupt:
         bar.close()
         click.echo("interrupted; features already cached are kept", err=True)
@@ -384,9 +411,10 @@ def train_cmd(shards, report_dir, protocol, runs, workers, ellipse, gamma, estim
 @click.option("--shards", required=True, type=click.Path(), help="Folder of shards to score it on.")
 @click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1), help="Feature-extraction processes.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@ALLOW_PARTIAL
 @executor_options
 @handle_errors
-def evaluate_cmd(model_path, shards, workers, as_json, executor):
+def evaluate_cmd(model_path, shards, workers, as_json, allow_partial, executor):
     """Score a trained model (SPM or reference) on other shards: ±5°, sum < 5° and < 3°, errors."""
     import json
 
@@ -394,7 +422,8 @@ def evaluate_cmd(model_path, shards, workers, as_json, executor):
 
     bar = Progress()
     try:
-        result = evaluate_model(model_path, shards, workers=workers, progress=bar, executor=executor)
+        result = evaluate_model(model_path, shards, workers=workers, progress=bar, executor=executor,
+                                allow_partial=allow_partial)
     finally:
         bar.close()
     if as_json:
@@ -416,12 +445,22 @@ def evaluate_cmd(model_path, shards, workers, as_json, executor):
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @handle_errors
 def predict_cmd(model_path, images, roi, mask_path, as_json):
-    """Print the 6-DoF pose estimate of each image (rx ry rz degrees, t metres)."""
-    from spm_model.train import format_predictions, predict_images
+    """Print the 6-DoF pose estimate of each image (rx ry rz degrees, t metres).
 
-    results = predict_images(model_path, images, roi=_parse_roi(roi) if roi else None, mask_path=mask_path)
-    click.echo(format_predictions(results, as_json))
-    if any("error" in r for r in results):
+    stdout: one line per image that got a pose (--json: every image, failed ones as
+    {"image", "error"}); stderr: one "error: IMAGE: reason" line per image that failed.
+    The other images still get their results; exit status 1 if any image failed."""
+    from spm_model.train import format_predictions, prediction_errors, predict_images
+
+    results = predict_images(model_path, images, roi=None if roi is None else _parse_roi(roi),
+                             mask_path=mask_path)
+    out = format_predictions(results, as_json)
+    if out:
+        click.echo(out)
+    failed = prediction_errors(results)
+    for line in failed:
+        click.echo(f"error: {line}", err=True)
+    if failed:
         sys.exit(1)
 
 

@@ -12,6 +12,7 @@ Out: one scene per object instance, ``camera.json``, ``models/`` (PLY in mm and
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import shutil
@@ -20,8 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from spm_data.errors import SpmError
-from spm_data.importing import FrameRecord, import_records
-from spm_data.shards import list_shards, read_attrs, read_shard
+from spm_data.importing import FrameRecord, import_records, pose_problem
+from spm_data.folders import open_folder
+from spm_data.outputs import top_created
+from spm_data.shards import list_shards, read_attrs, read_shard, verify_shard
 
 DEPTH_SCALE = 0.1  # mm per depth unit in exported depth PNGs (BOP's usual choice)
 
@@ -43,32 +46,83 @@ def _find(folder: Path, stem: str):
     return None
 
 
+def _numbers(entry, key, n, where) -> np.ndarray:
+    """``entry[key]`` as n finite floats; SpmError naming the file, image and object otherwise."""
+    value = entry.get(key) if isinstance(entry, dict) else None
+    if value is None:
+        raise SpmError(f"{where}: no {key!r}; expected {n} numbers, fix the file")
+    try:
+        arr = np.asarray(value, dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        raise SpmError(f"{where}: {key} is not a list of {n} numbers ({str(value)[:60]}); fix the file") from None
+    if arr.size != n:
+        raise SpmError(f"{where}: {key} has {arr.size} values, expected {n}; fix the file")
+    if not np.isfinite(arr).all():
+        raise SpmError(f"{where}: {key} has a non-finite value ([{', '.join(f'{v:g}' for v in arr)}]); "
+                       f"expected {n} finite numbers, fix the file")
+    return arr
+
+
+def _scene_entries(scene: Path):
+    """[(image id, image key, camera entry or None, [(object index, obj_id, R, t m)])] of one scene,
+    every pose and camera checked (SpmError naming the file, image and object) before any is imported."""
+    cams, gts = _load_json(scene / "scene_camera.json"), _load_json(scene / "scene_gt.json")
+    for name, table in (("scene_gt.json", gts), ("scene_camera.json", cams)):
+        if not isinstance(table, dict):
+            raise SpmError(f"{scene / name}: expected an object of image ids, got {type(table).__name__}")
+        bad = [k for k in table if not str(k).isdigit()]
+        if bad:
+            raise SpmError(f"{scene / name}: image id {bad[0]!r} is not a number; fix the file")
+    entries = []
+    for im_key in sorted(gts, key=int):
+        cam = cams.get(im_key)
+        if isinstance(cam, dict) and "cam_K" in cam:
+            where = f"{scene / 'scene_camera.json'}: image {im_key}"
+            K = _numbers(cam, "cam_K", 9, where)
+            if not (K[0] > 0 and K[4] > 0):
+                raise SpmError(f"{where}: cam_K has fx = {K[0]:g}, fy = {K[4]:g}; expected fx, fy > 0, fix the file")
+            if "depth_scale" in cam and not _numbers(cam, "depth_scale", 1, where)[0] > 0:
+                raise SpmError(f"{where}: depth_scale is {cam['depth_scale']}; expected > 0, fix the file")
+        if not isinstance(gts[im_key], list):
+            raise SpmError(f"{scene / 'scene_gt.json'}: image {im_key}: expected a list of objects; fix the file")
+        objects = []
+        for g, gt in enumerate(gts[im_key]):
+            where = f"{scene / 'scene_gt.json'}: image {im_key}, object {g}"
+            obj = _numbers(gt, "obj_id", 1, where)[0]
+            if obj != int(obj):
+                raise SpmError(f"{where}: obj_id is {obj:g}; expected a whole number, fix the file")
+            R = _numbers(gt, "cam_R_m2c", 9, where).reshape(3, 3)
+            t = _numbers(gt, "cam_t_m2c", 3, where) / 1000.0
+            problem = pose_problem(R, t)
+            if problem is not None:
+                raise SpmError(f"{where}: {problem}; fix the file")
+            objects.append((g, int(obj), R, t))
+        entries.append((int(im_key), im_key, cam if isinstance(cam, dict) else None, objects))
+    return entries
+
+
 def bop_records(path, split="train_pbr", crop=False, classes=None):
-    """(records, problems) for every (image, object) of a BOP split."""
+    """(records, problems) for every (image, object) of a BOP split. Every scene's poses
+    and cameras are checked first: SpmError naming the file, image and object."""
     root = Path(path) / split
     scenes = sorted(p for p in root.iterdir() if p.is_dir()) if root.is_dir() else []
     if not scenes:
         raise SpmError(f"{root}: no BOP scenes (folders with scene_gt.json)")
+    checked = [(scene, _scene_entries(scene)) for scene in scenes]
     records, problems = [], []
-    for scene in scenes:
-        cams, gts = _load_json(scene / "scene_camera.json"), _load_json(scene / "scene_gt.json")
-        for im_key in sorted(gts, key=int):
-            im = int(im_key)
+    for scene, entries in checked:
+        for im, im_key, cam, objects in entries:
             rgb = _find(scene / "rgb", f"{im:06d}") or _find(scene / "gray", f"{im:06d}")
             if rgb is None:
                 problems.append((f"{scene.name}/rgb/{im:06d}", "missing image"))
                 continue
-            cam = cams.get(im_key) or {}
-            if "cam_K" not in cam:
+            if cam is None or "cam_K" not in cam:
                 problems.append((str(rgb), "no cam_K in scene_camera.json"))
                 continue
             depth = _find(scene / "depth", f"{im:06d}")
-            for g, gt in enumerate(gts[im_key]):
+            for g, obj, R, t in objects:
                 mask = _find(scene / "mask", f"{im:06d}_{g:06d}")
                 visib = _find(scene / "mask_visib", f"{im:06d}_{g:06d}")
-                obj = int(gt["obj_id"])
-                R = np.asarray(gt["cam_R_m2c"], dtype=np.float64).reshape(3, 3)
-                t = np.asarray(gt["cam_t_m2c"], dtype=np.float64) / 1000.0
                 records.append(FrameRecord(
                     image=str(rgb), class_name=(classes or {}).get(obj, f"bop-obj{obj}"),
                     instance_name=f"bop-obj{obj}", instance_id=obj, R=tuple(R.ravel()), t=tuple(t),
@@ -98,8 +152,10 @@ def _png(path: Path, array: np.ndarray) -> None:
     import cv2
 
     img = cv2.cvtColor(array, cv2.COLOR_RGB2BGR) if array.ndim == 3 else array
-    if not cv2.imwrite(str(path), img):
-        raise SpmError(f"could not write {path}")
+    ok, png = cv2.imencode(".png", img)
+    if not ok:
+        raise SpmError(f"could not encode {path} as PNG")
+    path.write_bytes(png.tobytes())  # an OSError (disk full, read-only) names its errno, unlike cv2.imwrite
 
 
 def _bbox(mask: np.ndarray) -> list[int]:
@@ -109,25 +165,35 @@ def _bbox(mask: np.ndarray) -> list[int]:
     return [int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1)]
 
 
-def export_bop(in_dir, out_dir, *, split="train", progress=None) -> dict:
+def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=False) -> dict:
     """Write the shards of ``in_dir`` as a BOP dataset at ``out_dir``. Returns counts."""
     import trimesh
 
     from spm_data.render_jobs import shard_mesh
 
     out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise SpmError(f"{out_dir} is a file; give --out a new folder to export into")
     if out_dir.exists() and any(out_dir.iterdir()):
         raise SpmError(f"{out_dir} exists and is not empty; export into a new folder")
-    shards = list_shards(in_dir)
-    if not shards:
+    made = top_created(out_dir / "x") or out_dir  # the top folder this export creates, removed on failure
+    if not made.parent.is_dir():
+        raise SpmError(f"cannot create {out_dir}: {made.parent} is a file; give --out a new folder to export into")
+    if not os.access(made.parent, os.W_OK | os.X_OK):
+        raise SpmError(f"cannot create {out_dir}: {made.parent} is read-only; give --out a folder in a writable place")
+    if not list_shards(in_dir):
         raise SpmError(f"no shards (*.h5) in {in_dir}")
+    shards = open_folder(in_dir, allow_partial=allow_partial).shards
+    for path in shards:
+        verify_shard(path)  # every checksum, before anything is written
     tmp = out_dir.with_name(out_dir.name + ".partial")
+    made = tmp if made == out_dir else made
     shutil.rmtree(tmp, ignore_errors=True)
-    (tmp / "models").mkdir(parents=True)
     objects: dict[tuple, int] = {}
     scenes: dict[int, dict] = {}
     models_info, no_model, frames = {}, set(), 0
     try:
+        (tmp / "models").mkdir(parents=True)
         for path in shards:
             attrs = read_attrs(path)
             data = read_shard(path)
@@ -184,8 +250,14 @@ def export_bop(in_dir, out_dir, *, split="train", progress=None) -> dict:
         if out_dir.exists():
             out_dir.rmdir()
         os.replace(tmp, out_dir)
-    except BaseException:
+    except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
+        shutil.rmtree(made, ignore_errors=True)
+        if isinstance(exc, OSError):
+            fix = ("free space there" if exc.errno in (errno.ENOSPC, errno.EDQUOT) else
+                   "give --out a folder in a writable place")
+            raise SpmError(f"could not export to {out_dir}: {exc.strerror or exc}; nothing was written; "
+                           f"{fix}") from None
         raise
     return {"frames": frames, "objects": len(objects), "scenes": len(scenes),
             "without_model": sorted(f"{c}/{n}" for c, n in no_model)}

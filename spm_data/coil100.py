@@ -62,8 +62,20 @@ def read_class_map(path) -> dict[int, str]:
     return mapping
 
 
+def check_assumed_camera(elevation, distance, fov) -> None:
+    """SpmError unless --elevation is in [-90, 90] degrees, --distance > 0 metres, --fov in (0, 180) degrees."""
+    if not -90 <= elevation <= 90:  # NaN fails every comparison
+        raise SpmError(f"--elevation {elevation}: expected a finite angle in [-90, 90] degrees")
+    if not 0 < distance < float("inf"):
+        raise SpmError(f"--distance {distance}: expected a finite camera distance > 0 metres")
+    if not 0 < fov < 180:
+        raise SpmError(f"--fov {fov}: expected a vertical field of view in (0, 180) degrees")
+
+
 def coil100_records(path, *, elevation=0.0, distance=1.0, fov=30.0, classes=None):
-    """(records, problems): one record per view found; problems lists foreign files and missing views."""
+    """(records, problems): one record per view found; problems lists foreign files and missing views.
+    The assumed camera (``elevation``, ``distance``, ``fov``) is checked first: SpmError naming the option."""
+    check_assumed_camera(elevation, distance, fov)
     refs = list_members(path)
     K = tuple(intrinsics_from_fov(fov, 128, 128).ravel())
     found: dict[int, dict[int, str]] = {}

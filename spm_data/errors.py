@@ -23,3 +23,12 @@ class ShardError(SpmError):
 
 class RenderError(SpmError):
     """A renderer is missing, failed to start, or failed on a frame."""
+
+
+class LockError(SpmError):
+    """An output folder is locked by another run (spm_data.locking)."""
+
+
+class SpmWarning(UserWarning):
+    """Something the user should know that does not stop the command (the CLI
+    prints ``warning: <message>`` on one line)."""

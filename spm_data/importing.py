@@ -15,6 +15,7 @@ import json
 import re
 import tarfile
 import zipfile
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -119,49 +120,103 @@ def parse_pnm(data: bytes) -> np.ndarray:
     return np.repeat(raster, 3, axis=2) if channels == 1 else raster
 
 
-def decode_image(data: bytes, name: str = "", mode: str = "RGB") -> np.ndarray:
-    """(H, W, 3) uint8 RGB (mode "RGB") or (H, W) array as stored ("raw", e.g. uint16
-    depth or a mask). Truncated or foreign data raise ImageError."""
-    if not data:
-        raise ImageError(f"{name}: empty file")
-    if data[:2] in (b"P5", b"P6") and mode == "RGB":
-        try:
-            return parse_pnm(data)
-        except ImageError as exc:
-            raise ImageError(f"{name}: {exc}") from None
+def _one_line(text) -> str:
+    return " ".join(str(text).split())
+
+
+def _bomb_reason(exc) -> str:
+    from PIL import Image
+
+    m = re.search(r"\((\d+) pixels\)", str(exc))
+    size = f"{int(m.group(1)):,} pixels" if m else "the image"
+    return (f"{size} is over the decompression-bomb limit of {Image.MAX_IMAGE_PIXELS:,} pixels "
+            "(Pillow's PIL.Image.MAX_IMAGE_PIXELS); downscale the image")
+
+
+@contextmanager
+def _open_image(data: bytes):
+    """Pillow's image of ``data``, decompression bombs (its error and its warning) and
+    foreign or truncated data as ImageError with a reason (no file name)."""
+    import warnings
+
     from PIL import Image, UnidentifiedImageError
 
     try:
-        with Image.open(io.BytesIO(data)) as img:
-            img.load()  # decodes everything: a truncated file raises here
-            if mode == "RGB":
-                if img.mode in ("I;16", "I;16B", "I"):
-                    arr = np.asarray(img, dtype=np.float64)
-                    arr = np.round(arr * 255.0 / max(1.0, arr.max() if arr.max() > 255 else 255.0))
-                    return np.repeat(arr.astype(np.uint8)[..., None], 3, axis=2)
-                return np.asarray(img.convert("RGB"), dtype=np.uint8)
-            return np.asarray(img)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            with Image.open(io.BytesIO(data)) as img:
+                yield img
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
+        raise ImageError(_bomb_reason(exc)) from None
     except UnidentifiedImageError:
-        raise ImageError(f"{name}: not a readable image (unknown format)") from None
-    except (OSError, SyntaxError, ValueError) as exc:
-        raise ImageError(f"{name}: not a readable image ({exc})") from None
+        raise ImageError("not a readable image (unknown format, or a truncated header)") from None
+    except (OSError, SyntaxError, ValueError, EOFError) as exc:
+        raise ImageError(f"not a readable image (truncated or corrupt: {_one_line(exc)})") from None
+
+
+def _tile_rawmode(img) -> str:
+    """The raw mode Pillow will decode the file's pixels from ("RGB;16B": 16-bit colour); "" if unknown."""
+    try:
+        args = img.tile[0].args if hasattr(img.tile[0], "args") else img.tile[0][3]
+        return str(args[0] if isinstance(args, tuple) else args)
+    except (IndexError, TypeError, AttributeError):
+        return ""
+
+
+def from_16_bit(values: np.ndarray) -> np.ndarray:
+    """16-bit samples -> uint8 by the fixed scale round(value / 257) (65535 -> 255, v * 257 -> v):
+    never stretched per image, so an 8-bit image and its 16-bit copy give the same pixels."""
+    return np.round(np.clip(np.asarray(values, dtype=np.float64), 0, 65535) / 257.0).astype(np.uint8)
+
+
+def decode_bytes(data: bytes, mode: str = "RGB") -> np.ndarray:
+    """:func:`decode_image` without the name: ImageError's message is the reason alone."""
+    if not data:
+        raise ImageError("empty file")
+    if data[:2] in (b"P5", b"P6") and mode == "RGB":
+        return parse_pnm(data)
+    with _open_image(data) as img:
+        rawmode = _tile_rawmode(img)
+        img.load()  # decodes everything: a truncated file raises here
+        if mode != "RGB":
+            return np.asarray(img)
+        if img.mode in ("I;16", "I;16B", "I;16L", "I;16N", "I"):  # 16-bit grey (32-bit "I": clipped to 16)
+            return np.repeat(from_16_bit(np.asarray(img))[..., None], 3, axis=2)
+        if img.mode in ("RGB", "RGBA") and ";16" in rawmode:
+            # Pillow keeps 16-bit colour's high byte; OpenCV reads all 16 bits, scaled as grey is.
+            import cv2
+
+            full = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+            if full is not None and full.dtype == np.uint16 and full.ndim == 3 and full.shape[2] in (3, 4) \
+                    and full.shape[:2] == (img.height, img.width):
+                return from_16_bit(full[..., 2::-1])
+        return np.asarray(img.convert("RGB"), dtype=np.uint8)
+
+
+def decode_image(data: bytes, name: str = "", mode: str = "RGB") -> np.ndarray:
+    """(H, W, 3) uint8 RGB (mode "RGB") or (H, W) array as stored ("raw", e.g. uint16
+    depth or a mask). 16-bit images (grey, colour, PNM) become 8 bits by round(value / 257).
+    Empty, truncated or foreign data and images over Pillow's decompression-bomb limit
+    raise ImageError ("NAME: reason")."""
+    try:
+        return decode_bytes(data, mode)
+    except ImageError as exc:
+        raise ImageError(f"{name}: {exc}") from None
 
 
 def image_size(ref: str) -> tuple[int, int]:
     """(width, height) from the header only."""
     data = read_bytes(ref)
-    if data[:2] in (b"P5", b"P6"):
-        img = parse_pnm(data)
-        return img.shape[1], img.shape[0]
-    from PIL import Image, UnidentifiedImageError
-
     try:
-        with Image.open(io.BytesIO(data)) as img:
+        if data[:2] in (b"P5", b"P6"):
+            img = parse_pnm(data)
+            return img.shape[1], img.shape[0]
+        if not data:
+            raise ImageError("empty file")
+        with _open_image(data) as img:
             return img.size
-    except UnidentifiedImageError:
-        raise ImageError(f"{ref}: not a readable image (unknown format)") from None
-    except OSError as exc:
-        raise ImageError(f"{ref}: not a readable image ({exc})") from None
+    except ImageError as exc:
+        raise ImageError(f"{ref}: {exc}") from None
 
 
 def threshold_mask(rgb: np.ndarray, threshold: int) -> np.ndarray:
@@ -282,11 +337,41 @@ def import_shard(job: ImportJob, report=lambda n: None) -> dict:
     return {"entry": manifest_entry(target), "skipped": skipped, "frames": n}
 
 
+def pose_problem(R, t, K=None, *, rotation_tolerance: float = 1e-3) -> str | None:
+    """Why a pose (R (3, 3), t (3,) metres, K (3, 3) or None) cannot be imported, or None:
+    non-finite values, R not a rotation, fx or fy not > 0. Importers call it before writing."""
+    R = np.asarray(R, dtype=np.float64).reshape(3, 3)
+    t = np.asarray(t, dtype=np.float64).reshape(3)
+    fmt = lambda a: "[" + ", ".join(f"{v:g}" for v in np.ravel(a)) + "]"  # noqa: E731
+    if not np.isfinite(R).all():
+        return f"the rotation has a non-finite value (R = {fmt(R)}); expected finite numbers"
+    if not np.allclose(R @ R.T, np.eye(3), atol=rotation_tolerance) or np.linalg.det(R) <= 0:
+        return f"R = {fmt(R)} is not a rotation matrix (orthonormal, determinant +1)"
+    if not np.isfinite(t).all():
+        return f"the translation has a non-finite value (t = {fmt(t)}); expected finite numbers"
+    if K is not None:
+        K = np.asarray(K, dtype=np.float64).reshape(3, 3)
+        if not np.isfinite(K).all():
+            return f"the intrinsics have a non-finite value (K = {fmt(K)}); expected finite fx, fy, cx, cy"
+        if not (K[0, 0] > 0 and K[1, 1] > 0):
+            return f"focal length fx = {K[0, 0]:g}, fy = {K[1, 1]:g}; expected fx, fy > 0 pixels"
+    return None
+
+
+def check_records(records) -> None:
+    """SpmError naming the first record whose pose or intrinsics cannot be imported (see pose_problem)."""
+    for rec in records:
+        problem = pose_problem(rec.R, rec.t, rec.K)
+        if problem is not None:
+            raise SpmError(f"{rec.image}: {problem}; correct its pose or intrinsics (nothing was written)")
+
+
 def import_records(records, out_dir, *, source: str, prefix: str, frames_per_shard=256, threshold=10,
                    size=None, attrs=None, workers=1, progress=None, executor=None) -> RunSummary:
     """Write ``records`` as shards ``PREFIX-NNNNN.h5`` in ``out_dir`` (resuming)."""
     if not records:
         raise SpmError("nothing to import: no frames were found")
+    check_records(records)  # every pose before the first shard: a bad one writes nothing
     attrs_json = json.dumps(attrs or {}, sort_keys=True)
     key_base = json.dumps([SCHEMA_VERSION, source, threshold, size, attrs_json], sort_keys=True)
     jobs = []

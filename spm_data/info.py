@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from spm_data.errors import ShardError
+from spm_data.errors import ShardError, SpmWarning
+from spm_data.folders import open_folder
 from spm_data.shards import MANIFEST, list_shards, read_attrs, read_manifest, read_shard
 
 
@@ -35,10 +37,12 @@ def describe_shard(path) -> str:
 
 def describe_folder(folder) -> str:
     folder = Path(folder)
-    shards = list_shards(folder)
-    if not shards:
+    if not list_shards(folder):
         raise ShardError(f"{folder}: no shards (*.h5) in this folder")
-    lines = [f"folder {folder}: {len(shards)} shards"]
+    with warnings.catch_warnings(record=True) as caught:  # info describes a partial folder, noting its gaps
+        warnings.simplefilter("always", SpmWarning)
+        shards = open_folder(folder, allow_partial=True).shards
+    lines = [f"folder {folder}: {len(shards)} shards"] + [f"  note: {w.message}" for w in caught]
     if (folder / MANIFEST).is_file():
         m = read_manifest(folder)
         lines.append(f"  manifest: {m.get('frames', '?')} frames in {len(m['shards'])} shards")

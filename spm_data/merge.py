@@ -11,9 +11,10 @@ from pathlib import Path
 import numpy as np
 
 from spm_data.errors import ShardError, SpmError
+from spm_data.folders import open_folder
 from spm_data.shard_runs import RunSummary, run_shard_jobs
-from spm_data.shards import (FIELDS, OPTIONAL_FIELDS, SCHEMA_VERSION, file_sha256, list_shards, manifest_entry,
-                             read_attrs, read_shard, write_shard)
+from spm_data.shards import (FIELDS, OPTIONAL_FIELDS, file_sha256, list_shards, manifest_entry,
+                             read_attrs, read_shard, verify_shard, write_shard)
 
 
 @dataclass(frozen=True)
@@ -43,7 +44,8 @@ def parse_renames(spec: str | None) -> dict[str, str]:
     return out
 
 
-def plan_merge(inputs, out_dir, *, sources=None, renames=None, frames_per_shard=256) -> list[MergeJob]:
+def plan_merge(inputs, out_dir, *, sources=None, renames=None, frames_per_shard=256,
+               allow_partial=False) -> list[MergeJob]:
     if not inputs:
         raise SpmError("give at least one folder to merge")
     out_dir = Path(out_dir)
@@ -52,15 +54,11 @@ def plan_merge(inputs, out_dir, *, sources=None, renames=None, frames_per_shard=
         folder = Path(folder)
         if out_dir.exists() and folder.resolve() == out_dir.resolve():
             raise SpmError(f"--out {out_dir} is one of the inputs; merge into a new folder")
-        found = list_shards(folder)
-        if not found:
+        if not list_shards(folder):
             raise ShardError(f"no shards (*.h5) in {folder}")
+        found = list(open_folder(folder, allow_partial=allow_partial).shards)
         shards += found
     info = {p: _shard_info(p) for p in shards}  # attrs, sources, fields and checksum, read once each
-    versions = {i["schema_version"] for i in info.values()}
-    if len(versions) > 1:
-        raise ShardError(f"inputs mix shard schema versions {sorted(versions)}; convert them to "
-                         f"version {SCHEMA_VERSION} first")
     renames = renames or {}
     groups: dict[tuple, list] = {}   # (H, W) -> [(shard, frames)]
     for path in shards:
@@ -94,6 +92,7 @@ def plan_merge(inputs, out_dir, *, sources=None, renames=None, frames_per_shard=
 def _shard_info(path) -> dict:
     import h5py
 
+    verify_shard(path)  # every checksum, before anything is written
     attrs = read_attrs(path)
     with h5py.File(path, "r") as f:
         fields = set(f.keys())
@@ -125,10 +124,13 @@ def merge_shard(job: MergeJob, report=lambda n: None) -> dict:
 
 
 def merge_folders(inputs, out_dir, *, sources=None, renames=None, frames_per_shard=256, workers=1,
-                  progress=None, executor=None) -> RunSummary:
+                  progress=None, executor=None, allow_partial=False) -> RunSummary:
     """Merge shard folders into ``out_dir``; the manifest records every source folder."""
-    jobs = plan_merge(inputs, out_dir, sources=sources, renames=renames, frames_per_shard=frames_per_shard)
-    record = {"sources": [{"folder": str(Path(f)), "shards": len(list_shards(f))} for f in inputs],
+    jobs = plan_merge(inputs, out_dir, sources=sources, renames=renames, frames_per_shard=frames_per_shard,
+                      allow_partial=allow_partial)
+    read = {Path(p) for j in jobs for p, _ in j.frames_from}  # the shards each folder's manifest listed
+    record = {"sources": [{"folder": str(Path(f)), "shards": sum(p.parent == Path(f) for p in read)}
+                          for f in inputs],
               "filters": {"sources": list(sources or []), "classes": renames or {}}}
     return run_shard_jobs(merge_shard, jobs, out_dir, workers=workers, progress=progress, verb="merged",
                           manifest_extra=record, executor=executor)

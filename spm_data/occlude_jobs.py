@@ -17,9 +17,10 @@ import h5py
 import numpy as np
 
 from spm_data.errors import ShardError, SpmError
+from spm_data.folders import open_folder
 from spm_data.occlusion import apply_occlusion, check_range, occlude_mask
 from spm_data.shard_runs import RunSummary, run_shard_jobs
-from spm_data.shards import list_shards, manifest_entry, read_attrs, read_shard, write_shard
+from spm_data.shards import list_shards, manifest_entry, read_attrs, read_shard, verify_shard, write_shard
 
 DERIVED_FIELDS = ("visible_mask", "source_shard", "source_frame")
 
@@ -44,18 +45,19 @@ def occlusion_report(summary: RunSummary) -> str:
                            "they keep the closest coverage found"])
 
 
-def check_inputs(in_dir, out_dir) -> list[Path]:
-    """Every input shard, checked before anything is written."""
+def check_inputs(in_dir, out_dir, allow_partial=False) -> list[Path]:
+    """Every input shard (as the folder's manifest lists them), checked before anything is written."""
     in_dir, out_dir = Path(in_dir), Path(out_dir)
     if not in_dir.is_dir():
         raise ShardError(f"input folder not found: {in_dir}")
     if out_dir.exists() and out_dir.resolve() == in_dir.resolve():
         raise ShardError(f"--out {out_dir} is the input folder; occlusion never modifies its input, "
                          "give another --out")
-    shards = list_shards(in_dir)
-    if not shards:
+    if not list_shards(in_dir):
         raise ShardError(f"no shards (*.h5) in {in_dir}; render some first (spm-data render --out {in_dir})")
+    shards = list(open_folder(in_dir, allow_partial=allow_partial).shards)
     for path in shards:
+        verify_shard(path)  # every checksum, before anything is written
         attrs = read_attrs(path)
         try:
             data = read_shard(path, ["mask", "occlusion_rects"])
@@ -118,10 +120,10 @@ def occlude_shard(job: OccludeJob, report=lambda n: None) -> dict:
 
 
 def occlude_dataset(in_dir, out_dir, *, low=0.0, high=0.6, copies=1, rects=1, seed=0, workers=1,
-                    progress=None, executor=None) -> RunSummary:
+                    progress=None, executor=None, allow_partial=False) -> RunSummary:
     """Occlude every shard of ``in_dir`` into ``out_dir`` (resuming), then write its manifest.
-    Everything is checked before anything is written."""
-    shards = check_inputs(in_dir, out_dir)
+    Everything is checked before anything is written; ``allow_partial``: see folders.open_folder."""
+    shards = check_inputs(in_dir, out_dir, allow_partial)
     jobs = plan_occlusion(shards, out_dir, low, high, copies, rects, seed)
     return run_shard_jobs(occlude_shard, jobs, out_dir, workers=workers, progress=progress, verb="occluded",
                           executor=executor)

@@ -9,6 +9,10 @@ poses.csv columns (header required; see docs/datasets.md):
   fx fy cx cy (optional)       intrinsics in pixels; else --fov
   mask, depth (optional)       a mask image; a uint16 depth image in --depth-unit
   class, instance (optional)   else --class and the image's folder name
+
+Every row is checked before anything is written: required columns, finite numbers,
+a rotation, fx, fy > 0 (SpmError "poses.csv:LINE (IMAGE): ..."). Missing or unreadable
+images are skipped and listed, as everywhere.
 """
 
 from __future__ import annotations
@@ -20,17 +24,30 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from spm_data.errors import SpmError
-from spm_data.importing import FrameRecord, image_size, import_records, ImageError
+from spm_data.importing import FrameRecord, ImageError, image_size, import_records
 
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 MATRIX = [f"r{i}{j}" for i in (1, 2, 3) for j in (1, 2, 3)]
 
 
+QUATERNION = ["qw", "qx", "qy", "qz"]
+EULER = ["rx", "ry", "rz"]
+TRANSLATION = ["tx", "ty", "tz"]
+INTRINSICS = ["fx", "fy", "cx", "cy"]
+
+
 def _float(row, key, where):
+    """A finite number from ``row[key]``; SpmError naming the row and column otherwise."""
+    text = row.get(key)
+    if text is None or not str(text).strip():
+        raise SpmError(f"{where}: column {key!r} is empty; expected a finite number, fix that row")
     try:
-        return float(row[key])
+        value = float(text)
     except (TypeError, ValueError):
-        raise SpmError(f"{where}: column {key!r} is not a number ({row.get(key)!r})") from None
+        raise SpmError(f"{where}: column {key!r} is not a number ({text!r}); fix that row") from None
+    if not np.isfinite(value):
+        raise SpmError(f"{where}: column {key!r} is {str(text).strip()!r}, not a finite number; fix that row")
+    return value
 
 
 def rotation_from_row(row: dict, euler: str, where: str) -> np.ndarray:
@@ -38,61 +55,130 @@ def rotation_from_row(row: dict, euler: str, where: str) -> np.ndarray:
     if all(k in row for k in MATRIX):
         R = np.array([_float(row, k, where) for k in MATRIX]).reshape(3, 3)
         if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0:
-            raise SpmError(f"{where}: r11..r33 is not a rotation matrix")
+            raise SpmError(f"{where}: r11..r33 is not a rotation matrix (orthonormal, determinant +1); fix that row")
         return R
-    if all(k in row for k in ("qw", "qx", "qy", "qz")):
+    if all(k in row for k in QUATERNION):
         q = np.array([_float(row, k, where) for k in ("qx", "qy", "qz", "qw")])
         if not np.isclose(np.linalg.norm(q), 1.0, atol=1e-3):
-            raise SpmError(f"{where}: quaternion is not unit length ({np.linalg.norm(q):.4f})")
+            raise SpmError(f"{where}: quaternion is not unit length ({np.linalg.norm(q):.4f}); fix that row")
         return Rotation.from_quat(q).as_matrix()
-    if all(k in row for k in ("rx", "ry", "rz")):
+    if all(k in row for k in EULER):
+        angles = [_float(row, k, where) for k in EULER]
         try:
-            return Rotation.from_euler(euler, [_float(row, k, where) for k in ("rx", "ry", "rz")],
-                                       degrees=True).as_matrix()
+            return Rotation.from_euler(euler, angles, degrees=True).as_matrix()
         except ValueError as exc:
             raise SpmError(f"--euler {euler!r}: {exc}") from None
     raise SpmError(f"{where}: no rotation: give r11..r33, qw qx qy qz, or rx ry rz columns")
 
 
+def check_columns(poses_csv, fields, fov) -> None:
+    """SpmError for a pose table without the columns every row needs (before any row is read)."""
+    head = f"{poses_csv}:1: the header has"
+    listed = f"(columns: {', '.join(fields)})"
+    if "image" not in fields:
+        raise SpmError(f"{head} no 'image' column {listed}; add one naming each row's image file")
+    sets = (MATRIX, QUATERNION, EULER)
+    if not any(all(k in fields for k in keys) for keys in sets):
+        partial = [keys for keys in sets if any(k in fields for k in keys)]
+        if not partial:
+            raise SpmError(f"{head} no rotation {listed}: give r11..r33, qw qx qy qz, or rx ry rz columns")
+        missing = [k for k in partial[0] if k not in fields]
+        raise SpmError(f"{head} no {', '.join(map(repr, missing))} column {listed}; a rotation needs all of "
+                       f"{' '.join(partial[0])}")
+    missing = [k for k in TRANSLATION if k not in fields]
+    if missing:
+        raise SpmError(f"{head} no {', '.join(map(repr, missing))} column {listed}; the translation needs "
+                       "tx ty tz (in --unit)")
+    given = [k for k in INTRINSICS if k in fields]
+    if given and len(given) < len(INTRINSICS):
+        missing = [k for k in INTRINSICS if k not in fields]
+        raise SpmError(f"{head} no {', '.join(map(repr, missing))} column {listed}; give all of fx fy cx cy, "
+                       "or none of them and --fov")
+    if not given and fov is None:
+        raise SpmError(f"{head} no intrinsics {listed}: add fx fy cx cy columns or pass --fov")
+
+
+def _intrinsics(row, where) -> np.ndarray | None:
+    """K (3, 3) from the row's fx fy cx cy (finite; fx, fy > 0), or None when all four are empty."""
+    if all(not (row.get(k) or "").strip() for k in INTRINSICS):
+        return None
+    fx, fy, cx, cy = (_float(row, k, where) for k in INTRINSICS)
+    for name, value in (("fx", fx), ("fy", fy)):
+        if value <= 0:
+            raise SpmError(f"{where}: column {name!r} is {row[name].strip()!r}; expected a focal length > 0 "
+                           "pixels, fix that row")
+    return np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+
+
+def _where(poses_csv, line, row) -> str:
+    """"poses.csv:LINE (IMAGE)": a row in messages (1-based line in the file, and its image)."""
+    image = (row.get("image") or "").strip()
+    return f"{poses_csv}:{line} ({image})" if image else f"{poses_csv}:{line}"
+
+
+def _read_table(poses_csv, fov):
+    """[(line, row)] of a pose table (line: the row's last 1-based line in the file), its columns checked."""
+    try:
+        with open(poses_csv, newline="", encoding="utf-8-sig") as fh:
+            reader = csv.DictReader(fh)
+            fields = [f.strip() for f in (reader.fieldnames or [])]
+            if not fields:
+                raise SpmError(f"{poses_csv}: empty file; expected a header row (image, rotation, tx ty tz, ...)")
+            reader.fieldnames = fields
+            check_columns(poses_csv, fields, fov)
+            rows = []
+            for row in reader:
+                if None in row or None in row.values():  # more, or fewer, fields than the header
+                    got = len(fields) + len(row.get(None) or []) - sum(v is None for v in row.values())
+                    raise SpmError(f"{_where(poses_csv, reader.line_num, row)}: {got} fields, the header has "
+                                   f"{len(fields)}; fix that row")
+                rows.append((reader.line_num, row))
+    except OSError as exc:
+        raise SpmError(f"cannot read poses table {poses_csv}: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise SpmError(f"{poses_csv}: not UTF-8 text (byte {exc.start}); save the table as a UTF-8 CSV") from None
+    except csv.Error as exc:
+        raise SpmError(f"{poses_csv}: not a readable CSV ({exc}); save the table as a plain CSV") from None
+    if not rows:
+        raise SpmError(f"{poses_csv}: no rows")
+    return rows
+
+
 def folder_records(poses_csv, *, unit="m", euler="XYZ", fov=None, class_name="folder", depth_unit="mm",
                    id_offset=0, base=None):
-    """(records, problems) for one poses CSV; problems lists images that are missing or unreadable."""
+    """(records, problems) for one poses CSV; problems lists images that are missing or unreadable.
+    Every row's pose and intrinsics are checked (finite, a rotation, fx, fy > 0): SpmError
+    naming the file, line and image for the first bad one, before anything is written."""
     poses_csv = Path(poses_csv)
     if unit not in UNITS or depth_unit not in UNITS:
         raise SpmError(f"--unit and --depth-unit take one of {', '.join(UNITS)}; got {unit!r}, {depth_unit!r}")
-    try:
-        with open(poses_csv, newline="") as fh:
-            rows = list(csv.DictReader(fh))
-    except OSError as exc:
-        raise SpmError(f"cannot read poses table {poses_csv}: {exc.strerror}") from None
-    if not rows:
-        raise SpmError(f"{poses_csv}: no rows")
-    if "image" not in rows[0]:
-        raise SpmError(f"{poses_csv}: no 'image' column (columns: {', '.join(rows[0])})")
+    if fov is not None and not 0 < fov < 180:
+        raise SpmError(f"--fov {fov}: expected a vertical field of view in (0, 180) degrees")
+    rows = _read_table(poses_csv, fov)
     base = Path(base) if base is not None else poses_csv.parent
     records, problems, instances = [], [], {}
-    for n, row in enumerate(rows, start=2):
-        where = f"{poses_csv}:{n}"
+    for index, (line, row) in enumerate(rows):
+        where = _where(poses_csv, line, row)
+        if not row["image"].strip():
+            raise SpmError(f"{where}: column 'image' is empty; name the row's image file, fix that row")
         image = base / row["image"]
+        R = rotation_from_row(row, euler, where)
+        t = np.array([_float(row, k, where) for k in TRANSLATION]) * UNITS[unit]
+        K = _intrinsics(row, where)
+        if K is None and fov is None:
+            raise SpmError(f"{where}: no intrinsics: fill fx fy cx cy in that row or pass --fov")
         if not image.is_file():
             problems.append((str(image), "missing image listed in the poses table"))
             continue
-        R = rotation_from_row(row, euler, where)
-        t = np.array([_float(row, k, where) for k in ("tx", "ty", "tz")]) * UNITS[unit]
         try:
             w, h = image_size(str(image))
         except ImageError as exc:
             problems.append((str(image), str(exc)))
             continue
-        if all(row.get(k) not in (None, "") for k in ("fx", "fy", "cx", "cy")):
-            K = np.array([[_float(row, "fx", where), 0, _float(row, "cx", where)],
-                          [0, _float(row, "fy", where), _float(row, "cy", where)], [0, 0, 1.0]])
-        elif fov is not None:
+        if K is None:
             from spm_data.poses import intrinsics_from_fov
 
             K = intrinsics_from_fov(fov, w, h)
-        else:
-            raise SpmError(f"{where}: no intrinsics: add fx fy cx cy columns or pass --fov")
         instance = row.get("instance") or image.parent.name
         instances.setdefault(instance, len(instances) + id_offset)
         mask = row.get("mask") or None
@@ -101,7 +187,7 @@ def folder_records(poses_csv, *, unit="m", euler="XYZ", fov=None, class_name="fo
             image=str(image), class_name=row.get("class") or class_name, instance_name=instance,
             instance_id=instances[instance], R=tuple(R.ravel()), t=tuple(t), K=tuple(K.ravel()),
             mask=str(base / mask) if mask else None, depth=str(base / depth) if depth else None,
-            depth_scale_m=UNITS[depth_unit], path_index=n - 2, distance=float(np.linalg.norm(t))))
+            depth_scale_m=UNITS[depth_unit], path_index=index, distance=float(np.linalg.norm(t))))
     return records, problems
 
 

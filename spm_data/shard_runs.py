@@ -18,8 +18,8 @@ from pathlib import Path
 
 from spm_data.errors import ShardError
 from spm_data.executor import LocalExecutor
-from spm_data.locking import OutputLock
-from spm_data.shards import partial_path, read_attrs, remove_partials, write_manifest
+from spm_data.locking import GUARD_NAME, OutputLock
+from spm_data.shards import MANIFEST, partial_path, read_attrs, remove_partials, verify_shard, write_manifest
 
 
 @dataclass
@@ -29,6 +29,7 @@ class RunSummary:
     planned: int = 0
     done: list = field(default_factory=list)      # shard names written by this run
     skipped: list = field(default_factory=list)   # already complete
+    redone: list = field(default_factory=list)    # (shard name, why): on disk but failed verification
     failed: list = field(default_factory=list)    # (shard name, error)
     results: dict = field(default_factory=dict)   # shard name -> what its job returned
     frames: int = 0
@@ -40,6 +41,7 @@ class RunSummary:
         """What happened, in a few lines for a person; ``details``: extra lines."""
         lines = [f"{self.verb} {len(self.done)} shards ({self.frames} frames) in {self.seconds:.1f} s; "
                  f"{len(self.skipped)} already complete; {len(self.failed)} failed -> {self.out_dir}/", *details]
+        lines += [f"  redone {name}: {why}" for name, why in self.redone]
         lines += [f"  failed {name}: {err}" for name, err in self.failed]
         if self.interrupted:
             lines.append(f"interrupted: {self.complete} of {self.planned} shards are complete in {self.out_dir}/ "
@@ -55,11 +57,15 @@ def prepare_out_dir(out_dir) -> Path:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ShardError(f"cannot create output folder {out}: {exc.strerror}") from None
+    if (out / MANIFEST).is_dir():
+        raise ShardError(f"{out / MANIFEST} is a folder, not a manifest; move it away and run the command again")
     return out
 
 
 def _pending(jobs, summary: RunSummary) -> list:
-    """Jobs whose shard is not already complete; refuses shards from another plan."""
+    """Jobs whose shard is not already complete and intact. A shard that fails
+    verification (corrupt, truncated) is redone; an intact one made from
+    another plan is refused."""
     todo = []
     for job in jobs:
         target = Path(job.out_dir) / job.name
@@ -67,9 +73,12 @@ def _pending(jobs, summary: RunSummary) -> list:
             todo.append(job)
             continue
         try:
+            verify_shard(target)
             key = read_attrs(target).get("plan_key")
-        except ShardError:
-            key = None
+        except ShardError as exc:
+            summary.redone.append((job.name, str(exc).removeprefix(f"{target}: ")))
+            todo.append(job)
+            continue
         if key != job.plan_key:
             raise ShardError(f"{target} was made from another spec, input, seed or options; "
                              f"write into a new --out folder or delete {target.parent}")
@@ -94,9 +103,31 @@ def run_shard_jobs(fn, jobs, out_dir, *, workers=1, in_process=True, progress=No
     """
     if executor is None:
         executor = LocalExecutor(workers=workers, retries=1, recycle_after=recycle_after)
+    created = not Path(out_dir).exists()
     out = prepare_out_dir(out_dir)
     started = time.perf_counter()
     summary = RunSummary(out_dir=out, verb=verb, planned=len(jobs))
+    try:
+        return _run_locked(fn, jobs, out, summary, started, executor, in_process, progress, manifest_extra)
+    except OSError as exc:  # the folder itself: read-only, full, gone (shards' own errors are ShardErrors)
+        raise ShardError(f"cannot write to {out}/: {exc.strerror or exc}") from None
+    finally:
+        if created:
+            remove_if_empty(out)
+
+
+def remove_if_empty(folder: Path) -> None:
+    """Remove a folder this run created when nothing is left in it but the lock's
+    guard file (no shard, no manifest, no other run's lock)."""
+    try:
+        if [p.name for p in folder.iterdir()] in ([], [GUARD_NAME]):
+            (folder / GUARD_NAME).unlink(missing_ok=True)
+            folder.rmdir()
+    except OSError:
+        pass  # someone else is using it: leave it
+
+
+def _run_locked(fn, jobs, out, summary, started, executor, in_process, progress, manifest_extra) -> RunSummary:
     with OutputLock(out):
         remove_partials(out)
         todo = _pending(jobs, summary)
@@ -121,7 +152,9 @@ def run_shard_jobs(fn, jobs, out_dir, *, workers=1, in_process=True, progress=No
             summary.interrupted = True
         finally:
             remove_partials(out)
-            write_manifest(out, known=entries, extra=manifest_extra)
+            # No shard at all (say, every job failed on a broken mesh): no manifest either.
+            if (out / MANIFEST).exists() or any((out / job.name).exists() for job in jobs):
+                write_manifest(out, known=entries, extra=manifest_extra, names=[job.name for job in jobs])
             summary.complete = sum((out / job.name).exists() for job in jobs)
     summary.seconds = time.perf_counter() - started
     return summary

@@ -17,9 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
+from spm_data.checksums import (CHECKSUMS_ATTR, FLETCHER32, checksum_mismatch, dataset_layout,
+                                file_checksums, stored_chunk_ok, with_fletcher32)
 from spm_data.errors import ShardError
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: every dataset checksummed (Fletcher-32), strings fixed-length
 SHARD_SUFFIX = ".h5"
 MANIFEST = "manifest.json"
 PARTIAL_PREFIX = "."
@@ -85,93 +87,228 @@ def check_arrays(arrays: dict) -> tuple[int, int, int]:
 
 
 GZIP_LEVEL = 1
+LABEL_CHUNK = 4096  # frames per chunk of a label field (read whole; verified per chunk)
 
 
 def encode_chunk(frame: np.ndarray) -> bytes:
-    """One frame as HDF5's filters would store it: byte shuffle (multi-byte
-    dtypes only), then deflate level 1 (zlib format). Deterministic."""
+    """One frame as HDF5's filters store it: byte shuffle (multi-byte dtypes
+    only), deflate level 1 (zlib format), then the Fletcher-32 checksum
+    (checksums.py). Deterministic."""
     a = np.ascontiguousarray(frame)
     if a.dtype.itemsize > 1:
         a = a.view(np.uint8).reshape(-1, a.dtype.itemsize).T  # HDF5 shuffle: byte planes
-    return zlib.compress(np.ascontiguousarray(a).tobytes(), GZIP_LEVEL)
+    return with_fletcher32(zlib.compress(np.ascontiguousarray(a).tobytes(), GZIP_LEVEL))
 
 
-def _write_image_field(f, field: str, value: np.ndarray, pool) -> None:
-    """Compress frames on ``pool``'s threads (zlib releases the GIL; h5py's own
-    filter pipeline does not) and store them as the chunks of a standard
-    gzip (+ shuffle) dataset, so any HDF5 reader decodes them."""
-    ds = f.create_dataset(field, shape=value.shape, dtype=value.dtype, chunks=(1,) + value.shape[1:],
-                          compression="gzip", compression_opts=GZIP_LEVEL, shuffle=value.dtype.itemsize > 1,
-                          track_times=False)
-    zero = (0,) * (value.ndim - 1)
-    for i, chunk in enumerate(pool.map(encode_chunk, value)):
-        ds.id.write_direct_chunk((i,) + zero, chunk)
+def _chunked(n: int, shape: tuple, per: int) -> dict:
+    """create_dataset arguments for (n,) + shape in chunks of ``per`` frames; an
+    empty dataset must be resizable to be chunked at all."""
+    args = {"shape": (n,) + tuple(shape), "chunks": (max(1, min(n, per)),) + tuple(shape),
+            "fletcher32": True, "track_times": False}
+    if n == 0:
+        args["maxshape"] = (None,) + tuple(shape)
+    return args
+
+
+def _write_label_field(f, field: str, value) -> None:
+    """A small per-frame field: chunked, checksummed, uncompressed. Strings are
+    fixed-length UTF-8, so their bytes sit in the checksummed chunks (variable-
+    length strings live in HDF5's global heap, which has no checksum)."""
+    import h5py
+
+    if FIELDS.get(field, OPTIONAL_FIELDS.get(field))[0] == "str":
+        encoded = [str(v).encode("utf-8") for v in value]
+        length = max([len(e) for e in encoded] + [1])
+        dtype = h5py.string_dtype("utf-8", length)
+        value = np.asarray(encoded, dtype=f"S{length}").astype(dtype)
+    else:
+        value = np.ascontiguousarray(value)
+        dtype = value.dtype
+    ds = f.create_dataset(field, dtype=dtype, **_chunked(len(value), value.shape[1:], LABEL_CHUNK))
+    if len(value):
+        ds[...] = value
 
 
 def partial_path(path: Path) -> Path:
     return path.with_name(PARTIAL_PREFIX + path.name + PARTIAL_SUFFIX)
 
 
+class ShardWriter:
+    """Stream one shard to disk: image fields a block of frames at a time (a
+    worker holds one block, whatever the shard's length), the small per-frame
+    fields and attributes at the end; atomic (``.NAME.partial``, fsync,
+    ``os.replace``), and every dataset checksummed.
+
+    with ShardWriter(path, frames=n, height=h, width=w, images=("rgb", "depth", "mask")) as w:
+        w.write_images(0, {"rgb": (k, h, w, 3) uint8, "depth": (k, h, w) float32, "mask": (k, h, w) uint8})
+        ...
+        w.finish(labels, attrs)   # labels: every other field, first axis n
+
+    Leaving the block without ``finish`` (an exception, an interrupt) removes the
+    temporary file; nothing is left behind.
+    """
+
+    def __init__(self, path, *, frames: int, height: int, width: int, images=("rgb", "depth", "mask")):
+        self.path, self.frames, self.height, self.width = Path(path), int(frames), int(height), int(width)
+        self.images = tuple(images)
+        self.tmp = partial_path(self.path)
+        self._written = {f: 0 for f in self.images}
+        self._file = self._pool = None
+        self._done = False
+
+    def __enter__(self):
+        import h5py
+
+        try:
+            self._file = h5py.File(self.tmp, "w", track_order=True)
+            for field in self.images:
+                dtype, shape = {**FIELDS, **OPTIONAL_FIELDS}[field]
+                frame_shape = _expected_shape(field, 1, self.height, self.width, 1)[1:]
+                self._file.create_dataset(field, dtype=dtype, compression="gzip", compression_opts=GZIP_LEVEL,
+                                          shuffle=np.dtype(dtype).itemsize > 1,
+                                          **_chunked(self.frames, frame_shape, 1))
+        except BaseException as exc:
+            self._abort()
+            self._raise_os(exc)
+            raise
+        self._pool = ThreadPoolExecutor(max_workers=2)
+        return self
+
+    def write_images(self, start: int, block: dict) -> None:
+        """Frames ``start .. start + k`` of some image fields: {field: (k, ...) array}.
+        Compressed on two threads (zlib releases the GIL; h5py's filters do not)
+        and stored as raw chunks any HDF5 reader decodes and verifies."""
+        try:
+            for field, frames in block.items():
+                ds = self._file[field]
+                if np.shape(frames)[1:] != ds.shape[1:] or np.asarray(frames).dtype != ds.dtype:
+                    raise ShardError(f"shard field {field!r}: expected frames of {ds.shape[1:]} {ds.dtype}, "
+                                     f"got {np.shape(frames)[1:]} {np.asarray(frames).dtype}")
+                zero = (0,) * (ds.ndim - 1)
+                for i, chunk in enumerate(self._pool.map(encode_chunk, frames)):
+                    ds.id.write_direct_chunk((start + i,) + zero, chunk)
+                self._written[field] += len(frames)
+        except OSError as exc:
+            self._raise_os(exc)
+
+    def finish(self, labels: dict, attrs: dict, copy_from=None) -> Path:
+        """Write the other fields and the attributes, then move the shard into place.
+        copy_from: ``(shard path, fields)`` copied verbatim (chunks and checksums
+        as stored) after verifying those chunks; for derived shards."""
+        copied = _copy_placeholders(copy_from)
+        placeholders = {f: np.broadcast_to(np.zeros((), self._file[f].dtype), self._file[f].shape)
+                        for f in self.images}
+        n, h, w = check_arrays({**labels, **copied, **placeholders})
+        short = [f for f in self.images if self._written[f] != self.frames]
+        if short or (n, h, w) != (self.frames, self.height, self.width):
+            raise ShardError(f"{self.path.name}: incomplete shard ({', '.join(short) or 'shape'}); not written")
+        try:
+            if copy_from is not None:
+                _copy_verified(copy_from, self._file)
+            for field, value in labels.items():
+                _write_label_field(self._file, field, value)
+            for key, value in attrs.items():
+                self._file.attrs[key] = value
+            self._file.attrs.update({"schema_version": SCHEMA_VERSION, "frames": n, "height": h, "width": w})
+            self._file.attrs[CHECKSUMS_ATTR] = json.dumps(file_checksums(self._file), sort_keys=True)
+            self._file.close()
+            with open(self.tmp, "rb") as fh:
+                os.fsync(fh.fileno())
+            os.replace(self.tmp, self.path)
+        except OSError as exc:
+            self._raise_os(exc)
+        self._done = True
+        return self.path
+
+    def _raise_os(self, exc):
+        if isinstance(exc, OSError) and not isinstance(exc, ShardError):
+            self._abort()
+            raise ShardError(f"could not write shard {self.path}: {exc.strerror or exc}") from None
+
+    def _abort(self):
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
+        if self._file is not None:
+            try:
+                self._file.close()
+            except Exception:  # noqa: BLE001 - a failed disk; the file is removed next
+                pass
+        self.tmp.unlink(missing_ok=True)
+
+    def __exit__(self, *exc):
+        if self._done:
+            self._pool.shutdown()
+        else:
+            self._abort()
+        return False
+
+
+def _copy_placeholders(copy_from) -> dict:
+    """Shape-and-dtype stand-ins for fields a derived shard copies (for check_arrays)."""
+    if copy_from is None:
+        return {}
+    source, names = copy_from
+    copied = read_shard(source, [f for f in names if f not in IMAGE_FIELDS])  # small; verified
+    with _open(source) as src:
+        for f in names:
+            if f in IMAGE_FIELDS:
+                copied[f] = np.broadcast_to(np.zeros((), src[f].dtype), src[f].shape)
+    return copied
+
+
+def _copy_verified(copy_from, dst) -> None:
+    """Copy fields verbatim, each chunk's checksum checked first: a derived shard
+    never carries data nobody verified."""
+    source, names = copy_from
+    with _open(source) as src:
+        for field in names:
+            verify_stored_chunks(source, src, field)
+            src.copy(src[field], dst, name=field)
+
+
+def verify_stored_chunks(path, f, field: str) -> None:
+    """Check every stored chunk of ``f[field]`` against its Fletcher-32 without
+    decompressing it; a ShardError naming the shard and field on a mismatch."""
+    try:
+        ds = f[field]
+        if FLETCHER32 not in dataset_layout(ds)[3]:
+            raise ShardError(f"{path}: field {field!r} has no checksum; it cannot be verified")
+        for i in range(ds.id.get_num_chunks()):
+            info = ds.id.get_chunk_info(i)
+            if not stored_chunk_ok(ds.id.read_direct_chunk(info.chunk_offset)[1]):
+                raise ShardError(f"{path}: field {field!r} fails its checksum (frames from "
+                                 f"{info.chunk_offset[0]}); the shard is corrupt")
+    except ShardError:
+        raise
+    except (*H5_ERRORS, UnicodeDecodeError) as exc:
+        raise ShardError(f"{path}: field {field!r} is corrupt ({type(exc).__name__}: {exc})") from None
+
+
+def verify_shard(path) -> None:
+    """Check a whole shard (attributes, layout, every chunk) without decoding it."""
+    read_attrs(path)
+    with _open(path) as f:
+        for field in list(f.keys()):
+            verify_stored_chunks(path, f, field)
+
+
 def write_shard(path, arrays: dict, attrs: dict, copy_from=None) -> Path:
-    """Write one shard atomically (temporary name, fsync, ``os.replace``).
+    """Write one whole shard atomically (ShardWriter with a single block).
 
     arrays: every field of FIELDS (and any of OPTIONAL_FIELDS), first axis N
-    frames. attrs: file attributes (str, int, float); ``schema_version`` and
-    ``frames`` are set here. Image fields are chunked one frame per chunk and
-    compressed with gzip level 1 after byte shuffling: deterministic (LZF is not:
-    liblzf leaves its hash table uninitialised, so equal arrays could give
-    different bytes), readable by every HDF5 build, and about as fast.
-
-    copy_from: ``(shard path, fields)``: fields copied verbatim from that shard,
-    compressed chunks and all (HDF5 object copy, no codec work), for derived
-    shards that change only some fields; ``arrays`` then holds the others.
+    frames. attrs: file attributes (str, int, float); ``schema_version``,
+    ``frames``, ``height``, ``width`` and ``checksums`` are set here. Image
+    fields are chunked one frame per chunk, gzip level 1 after byte shuffling
+    (deterministic; LZF is not: liblzf leaves its hash table uninitialised).
+    copy_from: ``(shard path, fields)`` copied verbatim from that shard (HDF5
+    object copy, no codec work) after checking their checksums.
     """
-    import h5py
-
     path = Path(path)
-    copied = {}
-    if copy_from is not None:
-        source, names = copy_from
-        copied = read_shard(source, [f for f in names if f not in IMAGE_FIELDS])  # small; for checking
-        with _open(source) as src:
-            for f in names:
-                if f in IMAGE_FIELDS:
-                    copied[f] = np.broadcast_to(np.zeros((), src[f].dtype), src[f].shape)  # shape/dtype only
-    n, h, w = check_arrays({**arrays, **copied})
-    tmp = partial_path(path)
-    try:
-        with h5py.File(tmp, "w", track_order=True) as f, ThreadPoolExecutor(max_workers=2) as pool:
-            if copy_from is not None:
-                with h5py.File(copy_from[0], "r") as src:
-                    for field in copy_from[1]:
-                        src.copy(src[field], f, name=field)
-            for field, value in arrays.items():
-                dtype = {**FIELDS, **OPTIONAL_FIELDS}[field][0]
-                if dtype == "str":
-                    f.create_dataset(field, data=np.asarray([str(v) for v in value], dtype=object),
-                                     dtype=h5py.string_dtype(), track_times=False)
-                    continue
-                value = np.ascontiguousarray(value)
-                if field in IMAGE_FIELDS and n > 0:
-                    _write_image_field(f, field, value, pool)
-                else:
-                    f.create_dataset(field, data=value, track_times=False)
-            for key, value in attrs.items():
-                f.attrs[key] = value
-            f.attrs["schema_version"] = SCHEMA_VERSION
-            f.attrs["frames"] = n
-            f.attrs["height"] = h
-            f.attrs["width"] = w
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise ShardError(f"could not write shard {path}: {exc.strerror or exc}") from None
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+    n, h, w = check_arrays({**arrays, **_copy_placeholders(copy_from)})
+    images = [f for f in IMAGE_FIELDS if f in arrays]
+    with ShardWriter(path, frames=n, height=h, width=w, images=images) as writer:
+        writer.write_images(0, {f: np.ascontiguousarray(arrays[f]) for f in images})
+        return writer.finish({f: v for f, v in arrays.items() if f not in images}, attrs, copy_from)
 
 
 def _open(path):
@@ -191,26 +328,36 @@ H5_ERRORS = (OSError, KeyError, ValueError, RuntimeError, TypeError, IndexError)
 
 
 def read_attrs(path) -> dict:
-    """A shard's file attributes as plain Python values (checks the schema version)."""
+    """A shard's file attributes as plain Python values, verified against its
+    checksums (with the layout of its fields); checks the schema version."""
     try:
         with _open(path) as f:
             attrs = {k: (v.item() if hasattr(v, "item") else v) for k, v in f.attrs.items()}
+            version = attrs.get("schema_version")
+            mismatch = checksum_mismatch(f) if version is not None and int(version) >= 2 else None
     except H5_ERRORS as exc:
         if isinstance(exc, ShardError):
             raise
         raise ShardError(f"{path}: corrupt shard attributes ({type(exc).__name__}: {exc})") from None
-    version = attrs.get("schema_version")
     if version is None:
         raise ShardError(f"{path}: not an spm shard (no schema_version attribute)")
     if int(version) > SCHEMA_VERSION:
         raise ShardError(f"{path}: schema version {version} is newer than this spm "
                          f"({SCHEMA_VERSION}); upgrade spm to read it")
+    if int(version) < SCHEMA_VERSION:
+        raise ShardError(f"{path}: schema version {version} has no checksums, so it cannot be verified; "
+                         "make it again with this spm (render, import or occlude into a new --out)")
+    if mismatch:
+        raise ShardError(f"{path}: {mismatch}; the shard is corrupt")
+    attrs.pop(CHECKSUMS_ATTR, None)
     return attrs
 
 
 def read_shard(path, fields=None, frames=slice(None)) -> dict:
     """Read ``fields`` (default: all present) of a shard, for ``frames`` (a slice
-    or sorted index array). String fields come back as (n,) object arrays of str."""
+    or sorted index array). String fields come back as (n,) object arrays of str.
+    Verified: the attributes and layout first (read_attrs), then HDF5 checks the
+    Fletcher-32 of every chunk it reads; a mismatch is a ShardError naming the field."""
     read_attrs(path)
     with _open(path) as f:
         try:
@@ -230,7 +377,8 @@ def read_shard(path, fields=None, frames=slice(None)) -> dict:
             except ShardError:
                 raise
             except (*H5_ERRORS, UnicodeDecodeError) as exc:
-                raise ShardError(f"{path}: field {name!r} is corrupt ({type(exc).__name__}: {exc})") from None
+                raise ShardError(f"{path}: field {name!r} fails its checksum or cannot be decoded; "
+                                 "the shard is corrupt") from None
     return out
 
 
@@ -292,8 +440,10 @@ def write_json_atomic(path, payload) -> None:
         os.fsync(fh.fileno())
 
 
-def write_manifest(folder, known: dict | None = None, extra: dict | None = None) -> dict:
-    """(Re)write ``folder/manifest.json`` from the complete shards on disk.
+def write_manifest(folder, known: dict | None = None, extra: dict | None = None, names=None) -> dict:
+    """(Re)write ``folder/manifest.json``: the shards the old manifest listed and,
+    of ``names`` (this run's shards), those complete on disk. Any other ``.h5``
+    in the folder is not adopted (``names=None``: every complete shard on disk).
 
     known: entries already computed this run, by file name (saves re-hashing);
     entries of the old manifest are reused when size still matches.
@@ -301,16 +451,19 @@ def write_manifest(folder, known: dict | None = None, extra: dict | None = None)
     """
     folder = Path(folder)
     old, old_extra = {}, {}
-    if (folder / MANIFEST).is_file():
+    if (folder / MANIFEST).exists():
         try:
             previous = read_manifest(folder)
-            old = {e["file"]: e for e in previous["shards"]}
+            old = {e["file"]: e for e in previous["shards"] if isinstance(e, dict) and "file" in e}
             old_extra = {k: v for k, v in previous.items() if k not in ("schema_version", "shards", "frames", "classes")}
-        except ShardError:
+        except (ShardError, TypeError):
             old = {}
     known = dict(known or {})
+    wanted = None if names is None else set(old) | set(names)
     entries = []
     for path in list_shards(folder):
+        if wanted is not None and path.name not in wanted:
+            continue
         entry = known.get(path.name) or old.get(path.name)
         if entry is None or entry.get("bytes") != path.stat().st_size:
             entry = manifest_entry(path)
@@ -332,8 +485,10 @@ def read_manifest(folder) -> dict:
             payload = json.load(fh)
     except FileNotFoundError:
         raise ShardError(f"{folder}: no {MANIFEST}") from None
+    except IsADirectoryError:
+        raise ShardError(f"{path} is a folder, not a manifest; move it away and run the command again") from None
     except (OSError, ValueError) as exc:
-        raise ShardError(f"{path}: unreadable manifest ({exc})") from None
+        raise ShardError(f"{path}: unreadable manifest ({getattr(exc, 'strerror', None) or exc})") from None
     if not isinstance(payload, dict) or not isinstance(payload.get("shards"), list):
         raise ShardError(f"{path}: manifest has no 'shards' list")
     return payload

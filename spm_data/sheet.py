@@ -2,15 +2,61 @@
 
 from __future__ import annotations
 
+import errno
+import os
+import shutil
 from pathlib import Path
 
 import numpy as np
 
-from spm_data.errors import ShardError
+from spm_data.errors import ShardError, SpmError
 from spm_data.poses import project_points
-from spm_data.shards import read_attrs, read_shard
+from spm_data.outputs import nearest_existing, top_created
+from spm_data.shards import atomic_file, read_attrs, read_shard
 
 AXIS_COLOURS = ((255, 40, 40), (40, 255, 40), (60, 120, 255))  # x red, y green, z blue (RGB)
+IMAGE_TYPES = {".png": "png", ".jpg": "jpeg", ".jpeg": "jpeg", ".pdf": "pdf", ".svg": "svg"}  # extension: format
+
+
+def check_image_path(path, example: str = "sheet.png") -> Path:
+    """``path`` as a Path when it names an image this module writes (an extension of
+    IMAGE_TYPES) in a folder that is, or can be made, writable; else a one-line SpmError.
+    Creates nothing: for checking before any work is done."""
+    path = Path(path)
+    if path.is_dir():
+        raise SpmError(f"{path} is a folder; give an image file name such as {path / example}")
+    if path.suffix.lower() not in IMAGE_TYPES:
+        got = f"unsupported extension {path.suffix!r}" if path.suffix else "no extension"
+        raise SpmError(f"{path}: {got}; give a file name ending in {', '.join(IMAGE_TYPES)}")
+    base = nearest_existing(path.parent)
+    if not base.is_dir():
+        raise SpmError(f"cannot write {path}: {base} is a file, not a folder; give --out a path in a folder")
+    if not os.access(base, os.W_OK | os.X_OK):
+        raise SpmError(f"cannot write {path}: {base} is read-only; give --out a path in a writable folder")
+    return path
+
+
+def save_image(path: Path, write) -> Path:
+    """Write ``path`` atomically: ``write(binary file)`` fills a temporary file beside it, which
+    then replaces ``path``. On any failure nothing is left, nor the folders made for it; an
+    OSError (read-only, disk full) becomes a one-line SpmError."""
+    path = Path(path)
+    made = top_created(path)  # the top folder made for the image, if any
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_file(path) as tmp, open(tmp, "wb") as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+    except BaseException as exc:
+        if made is not None:
+            shutil.rmtree(made, ignore_errors=True)
+        if isinstance(exc, OSError):
+            fix = ("free space there" if exc.errno in (errno.ENOSPC, errno.EDQUOT) else
+                   "give --out a path in a writable folder")
+            raise SpmError(f"could not write {path}: {exc.strerror or exc}; {fix}") from None
+        raise
+    return path
 
 
 def draw_pose(image: np.ndarray, K, R, t, length: float, scale: int = 1) -> np.ndarray:
@@ -29,9 +75,11 @@ def draw_pose(image: np.ndarray, K, R, t, length: float, scale: int = 1) -> np.n
 
 
 def contact_sheet(shard, out_png, frames: int = 24, columns: int = 6, scale: int = 2) -> Path:
-    """Write a PNG grid of ``frames`` evenly spaced frames of ``shard``; returns its path."""
+    """Write an image (PNG, JPEG, PDF or SVG, by ``out_png``'s extension) of a grid of
+    ``frames`` evenly spaced frames of ``shard``; returns its path."""
     import cv2
 
+    out_png = check_image_path(out_png, "sheet.png")
     attrs = read_attrs(shard)
     n = int(attrs["frames"])
     if n == 0:
@@ -61,25 +109,35 @@ def contact_sheet(shard, out_png, frames: int = 24, columns: int = 6, scale: int
     for k, tile in enumerate(tiles):
         r, c = divmod(k, columns)
         sheet[r * (h + 2):r * (h + 2) + h, c * (w + 2):c * (w + 2) + w] = tile
-    out_png = Path(out_png)
-    out_png.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(out_png), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR)):
-        raise ShardError(f"could not write {out_png}")
-    return out_png
+    fmt = IMAGE_TYPES[out_png.suffix.lower()]
+    if fmt in ("png", "jpeg"):
+        ok, encoded = cv2.imencode(".png" if fmt == "png" else ".jpg", cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
+        if not ok:
+            raise SpmError(f"could not encode {out_png} as {fmt.upper()}")
+        return save_image(out_png, lambda fh: fh.write(encoded.tobytes()))
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.image import imsave
+
+    return save_image(out_png, lambda fh: imsave(fh, sheet, format=fmt))
 
 
-def occlusion_histogram(folder, out_png, bins: int = 30) -> Path:
-    """PNG histogram of the per-frame covered fractions of every shard in ``folder``."""
+def occlusion_histogram(folder, out_png, bins: int = 30, allow_partial: bool = False) -> Path:
+    """Histogram (PNG, JPEG, PDF or SVG, by ``out_png``'s extension) of the per-frame covered
+    fractions of every shard in ``folder``."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from spm_data.folders import open_folder
     from spm_data.shards import list_shards
 
-    shards = list_shards(folder)
-    if not shards:
+    out_png = check_image_path(out_png, "occlusion-hist.png")
+    if not list_shards(folder):
         raise ShardError(f"{folder}: no shards (*.h5) in this folder")
+    shards = open_folder(folder, allow_partial=allow_partial).shards
     fractions = np.concatenate([read_shard(p, ["occlusion_fraction"])["occlusion_fraction"] for p in shards])
     fig, ax = plt.subplots(figsize=(6, 3.2), dpi=100)
     ax.hist(fractions, bins=bins, range=(0, 1), color="#4a7ab0", edgecolor="white")
@@ -88,8 +146,7 @@ def occlusion_histogram(folder, out_png, bins: int = 30) -> Path:
     ax.set_title(f"{len(fractions)} frames, {len(shards)} shards: min {fractions.min():.3f}, "
                  f"max {fractions.max():.3f}", fontsize=9)
     fig.tight_layout()
-    out_png = Path(out_png)
-    out_png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png)
-    plt.close(fig)
-    return out_png
+    try:
+        return save_image(out_png, lambda fh: fig.savefig(fh, format=IMAGE_TYPES[out_png.suffix.lower()]))
+    finally:
+        plt.close(fig)

@@ -2,23 +2,30 @@
 
 Each shard's features live in ``<shard folder>/.spm-features/<shard stem>-<config
 key>.npz`` (written to a temporary name and ``os.replace``-d, so a cache file
-that exists is whole). A cache file records the shard's size and modification
+that exists is whole); where that folder cannot be created or written (read-only
+shards), in the per-user cache ``$SPM_CACHE_DIR`` (else ``$XDG_CACHE_HOME/spm/features``,
+default ``~/.cache/spm/features``) under a hash of the shard folder's absolute
+path, with one warning. A cache file records the shard's size and modification
 time; a shard rewritten since is extracted again. Extraction runs shard by
 shard on ``workers`` processes (spm_data.executor), with per-frame progress.
 """
 
 from __future__ import annotations
 
+import hashlib
+import io
 import os
 import socket
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from spm_data.errors import ShardError, SpmError
+from spm_data.errors import ShardError, SpmError, SpmWarning
 from spm_data.executor import LocalExecutor
-from spm_data.shards import PARTIAL_PREFIX, SHARD_SUFFIX, atomic_file, read_attrs, read_shard
+from spm_data.folders import open_tree
+from spm_data.shards import PARTIAL_PREFIX, atomic_file, read_attrs, read_shard
 from spm_model.features import FeatureConfig, frames_features
 
 CACHE_DIR = ".spm-features"
@@ -27,22 +34,62 @@ LABEL_FIELDS = ("pose", "K", "label_measured", "class_name", "instance_name", "i
 READ_BLOCK = 256  # frames read from a shard at a time (bounded memory for big shards)
 
 
-def find_shards(folder) -> list[Path]:
-    """Every complete shard under ``folder`` (recursively; hidden names skipped)."""
-    folder = Path(folder)
-    if folder.is_file() and folder.suffix == SHARD_SUFFIX:
-        return [folder]
-    if not folder.is_dir():
-        raise ShardError(f"no such folder: {folder}")
-    found = [p for p in folder.rglob("*" + SHARD_SUFFIX)
-             if not any(part.startswith(PARTIAL_PREFIX) for part in p.relative_to(folder).parts)]
-    if not found:
-        raise ShardError(f"{folder}: no shards (*.h5) found; make some with `spm-data render` or `spm-data import`")
-    return sorted(found)
+def find_shards(folder, allow_partial: bool = False) -> list[Path]:
+    """Every shard under ``folder``, each folder read by its manifest
+    (spm_data.folders.open_tree; hidden folders skipped)."""
+    return open_tree(folder, allow_partial=allow_partial)
+
+
+def user_cache_root() -> Path:
+    """The per-user feature cache: ``$SPM_CACHE_DIR``, else ``$XDG_CACHE_HOME/spm/features``
+    (default ``~/.cache/spm/features``)."""
+    if os.environ.get("SPM_CACHE_DIR"):
+        return Path(os.environ["SPM_CACHE_DIR"]).expanduser()
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path("~/.cache").expanduser()) / "spm" / "features"
+
+
+def user_cache_folder(shard_folder) -> Path:
+    """The per-user cache of one shard folder: a subfolder named by a hash of its absolute path."""
+    return user_cache_root() / hashlib.sha256(str(Path(shard_folder).resolve()).encode()).hexdigest()[:16]
+
+
+def _unwritable(folder: Path, parents: bool = False) -> str | None:
+    """None when ``folder`` is (now) a folder this process can write in, else why not. Creates it if missing."""
+    try:
+        folder.mkdir(parents=parents, exist_ok=True)
+    except FileExistsError:
+        return "a file is in the way"
+    except OSError as exc:
+        return exc.strerror or str(exc)
+    return None if os.access(folder, os.W_OK | os.X_OK) else "not writable"
+
+
+def _whole(path: Path, shard: Path) -> bool:
+    """Whether ``path`` is a cache file made from ``shard`` as it is now."""
+    try:
+        with np.load(path) as z:
+            return bool(np.array_equal(z["identity"], _identity(shard)))
+    except (OSError, KeyError, ValueError, EOFError):
+        return False
 
 
 def cache_path(shard: Path, config: FeatureConfig) -> Path:
-    return shard.parent / CACHE_DIR / f"{shard.stem}-{config.key()}.npz"
+    """Where ``shard``'s features are (or will be) cached: ``<shard folder>/.spm-features``, or,
+    when that cannot be created or written, the per-user cache (user_cache_folder); a whole
+    cache file already beside a read-only shard is used where it is. SpmError when neither
+    place can be written."""
+    shard = Path(shard)
+    name = f"{shard.stem}-{config.key()}.npz"
+    beside = shard.parent / CACHE_DIR
+    why = _unwritable(beside)
+    if why is None or _whole(beside / name, shard):
+        return beside / name
+    user = user_cache_folder(shard.parent)
+    why_user = _unwritable(user, parents=True)
+    if why_user is None:
+        return user / name
+    raise SpmError(f"cannot cache features: neither {beside} ({why}) nor {user} ({why_user}) is writable; "
+                   "set SPM_CACHE_DIR to a writable folder")
 
 
 def _identity(shard: Path) -> np.ndarray:
@@ -53,11 +100,7 @@ def _identity(shard: Path) -> np.ndarray:
 def cached(shard: Path, config: FeatureConfig) -> Path | None:
     """The shard's cache file when present and made from the shard as it is now."""
     path = cache_path(shard, config)
-    try:
-        with np.load(path) as z:
-            return path if np.array_equal(z["identity"], _identity(shard)) else None
-    except (OSError, KeyError, ValueError, EOFError):
-        return None
+    return path if _whole(path, shard) else None
 
 
 def extract_shard(job, report=lambda n: None) -> str:
@@ -78,12 +121,20 @@ def extract_shard(job, report=lambda n: None) -> str:
         parts[-1]["width"] = np.full(block.stop - block.start, images["rgb"].shape[2], dtype=np.int64)
     features = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
     out = cache_path(shard, config)
-    out.parent.mkdir(exist_ok=True)
     # Host and pid in the temporary name: remove_stale_partials can tell a dead writer's leftovers.
     tmp = out.parent / f"{PARTIAL_PREFIX}{out.name}.{socket.gethostname()}.{os.getpid()}.partial"
-    with atomic_file(out, tmp), open(tmp, "wb") as fh:
-        np.savez(fh, identity=identity, **features,
-                 **{k: (v.astype(str) if v.dtype == object else v) for k, v in labels.items()})
+    # Built in memory, then written in one go: np.savez leaves its zip file open when a write
+    # fails (disk full), and Python then prints that zip file's error on exit.
+    npz = io.BytesIO()
+    np.savez(npz, identity=identity, **features,
+             **{k: (v.astype(str) if v.dtype == object else v) for k, v in labels.items()})
+    try:
+        with atomic_file(out, tmp), open(tmp, "wb") as fh:
+            fh.write(npz.getbuffer())
+    except OSError as exc:
+        fix = "" if out.parent.name == CACHE_DIR else " or set SPM_CACHE_DIR to another folder"
+        raise SpmError(f"could not write the feature cache {out}: {exc.strerror or exc}; "
+                       f"free space there{fix}") from None
     return str(out)
 
 
@@ -116,30 +167,51 @@ class FeatureTable:
 
 def remove_stale_partials(shards: list[Path]) -> list[Path]:
     """Delete cache files half-written by processes of this host that are gone
-    (a killed run); another host's, or a live process's, are left alone."""
-    removed = []
+    (a killed run); another host's, or a live process's, are left alone.
+
+    Also where the cache goes: a shard folder whose ``.spm-features`` cannot be created or
+    written caches in the per-user cache instead, said once in a warning (SpmWarning)."""
+    removed, moved = [], []
     host = socket.gethostname()
-    for folder in {s.parent / CACHE_DIR for s in shards}:
-        for path in folder.glob(PARTIAL_PREFIX + "*.partial") if folder.is_dir() else []:
-            parts = path.name.rsplit(".", 3)  # .NAME.npz . host . pid . partial
-            if len(parts) != 4 or parts[1] != host or not parts[2].isdigit():
-                continue
-            try:
-                os.kill(int(parts[2]), 0)
-            except ProcessLookupError:
-                path.unlink(missing_ok=True)
-                removed.append(path)
-            except PermissionError:
-                pass  # alive, another user's
+    for shard_folder in sorted({Path(s).parent for s in shards}):
+        folders = [shard_folder / CACHE_DIR]
+        why = _unwritable(folders[0])
+        if why is not None:
+            folders.append(user_cache_folder(shard_folder))
+            if _unwritable(folders[1], parents=True) is None:
+                moved.append((folders[0], why, folders[1]))
+        for folder in folders:
+            for path in folder.glob(PARTIAL_PREFIX + "*.partial") if folder.is_dir() else []:
+                parts = path.name.rsplit(".", 3)  # .NAME.npz . host . pid . partial
+                if len(parts) != 4 or parts[1] != host or not parts[2].isdigit():
+                    continue
+                try:
+                    os.kill(int(parts[2]), 0)
+                except ProcessLookupError:
+                    try:
+                        path.unlink(missing_ok=True)
+                        removed.append(path)
+                    except OSError:
+                        pass  # a read-only folder: left as it is
+                except PermissionError:
+                    pass  # alive, another user's
+    if moved:
+        beside, why, user = moved[0]
+        where = (f"{beside} ({why}); caching features in {user}" if len(moved) == 1 else
+                 f"beside the shards of {len(moved)} folders (first: {beside}: {why}); caching features under "
+                 f"{user.parent}")
+        warnings.warn(f"cannot write the feature cache {where} instead (set SPM_CACHE_DIR to choose another "
+                      "folder)", SpmWarning, stacklevel=2)
     return removed
 
 
 def load_features(folder, config: FeatureConfig = FeatureConfig(), *, workers: int = 1,
-                  progress=None, executor=None) -> FeatureTable:
+                  progress=None, executor=None, allow_partial: bool = False) -> FeatureTable:
     """Extract (or reuse) the features of every shard under ``folder``, one job per
     shard on ``executor`` (default: ``workers`` local processes); progress is a
-    callable taking frame deltas, with a settable ``total`` (a tqdm bar)."""
-    shards = find_shards(folder)
+    callable taking frame deltas, with a settable ``total`` (a tqdm bar).
+    allow_partial: read folders still being written (spm_data.folders.open_folder)."""
+    shards = find_shards(folder, allow_partial)
     remove_stale_partials(shards)
     todo = [(str(s), config) for s in shards if cached(s, config) is None]
     if progress is not None:

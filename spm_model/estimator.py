@@ -13,7 +13,10 @@ regressor switches to ``landmarks`` Nystrom centres above that many vectors.
 
 from __future__ import annotations
 
+import io
 import json
+import zipfile
+import zlib
 from dataclasses import asdict
 from pathlib import Path
 
@@ -54,27 +57,59 @@ def save_model_file(path, kind: str, params: dict, arrays: dict, extra: dict | N
     """One ``.npz``: a JSON header (format, kind, parameters) and named arrays; no pickle."""
     path = Path(path)
     header = {"format": MODEL_FORMAT, "kind": kind, "params": params, **(extra or {})}
+    # Built in memory, then written in one go: np.savez leaves its zip file open when a write
+    # fails (disk full), and Python then prints that zip file's error on exit.
+    npz = io.BytesIO()
+    np.savez(npz, header=np.array(json.dumps(header)), **arrays)
     with atomic_file(path) as tmp, open(tmp, "wb") as fh:
-        np.savez(fh, header=np.array(json.dumps(header)), **arrays)
+        fh.write(npz.getbuffer())
     return path
 
 
 def load_model_file(path, kind: str | None = None) -> tuple[dict, dict]:
-    """(header, arrays) of a model file; ModelError for a missing, foreign or newer file."""
+    """(header, arrays) of a model file; ModelError naming the file for a missing, truncated,
+    corrupt, foreign or newer one."""
+    retrain = "retrain it with spm train"
+    foreign = "give the model.npz or reference-model.npz that spm train wrote, or retrain with spm train"
+    magic = b""
     try:
-        with np.load(path) as z:
+        with open(path, "rb") as fh:
+            magic = fh.read(4)
+        z = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        raise ModelError(f"model file not found: {path}; train one with spm train") from None
+    except IsADirectoryError:
+        raise ModelError(f"{path}: is a folder, not a model file; {foreign}") from None
+    except PermissionError as exc:
+        raise ModelError(f"{path}: cannot read the model file ({exc.strerror}); check its permissions") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        if not magic:
+            raise ModelError(f"{path}: damaged spm model file (an empty file); {retrain}") from None
+        if magic.startswith(b"PK"):  # a zip (every .npz is one) that cannot be read
+            raise ModelError(f"{path}: damaged spm model file (truncated or corrupt: {type(exc).__name__}: "
+                             f"{_one_line(exc)}); {retrain}") from None
+        raise ModelError(f"{path}: not an spm model file (not an .npz archive); {foreign}") from None
+    if not isinstance(z, np.lib.npyio.NpzFile):
+        raise ModelError(f"{path}: not an spm model file (a single numpy array, not an .npz archive); {foreign}")
+    with z:
+        if "header" not in z.files:
+            raise ModelError(f"{path}: not an spm model file (an .npz archive without spm's header); {foreign}")
+        try:
             header = json.loads(str(z["header"]))
             arrays = {k: z[k] for k in z.files if k != "header"}
-    except FileNotFoundError:
-        raise ModelError(f"model file not found: {path}") from None
-    except (OSError, KeyError, ValueError, EOFError) as exc:
-        raise ModelError(f"{path}: not an spm model file ({type(exc).__name__}: {exc})") from None
-    if not isinstance(header, dict) or header.get("format", 0) > MODEL_FORMAT or \
-            (kind is not None and header.get("kind") != kind):
-        raise ModelError(f"{path}: model format {header.get('format') if isinstance(header, dict) else '?'} "
-                         f"of kind {header.get('kind') if isinstance(header, dict) else '?'} is not one this spm "
-                         f"reads here ({kind or 'any'}, format {MODEL_FORMAT}); retrain or upgrade spm")
+        except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+            raise ModelError(f"{path}: damaged spm model file (truncated or corrupt: "
+                             f"{type(exc).__name__}: {_one_line(exc)}); {retrain}") from None
+    if not isinstance(header, dict) or not isinstance(header.get("format", 0), int):
+        raise ModelError(f"{path}: damaged spm model file (its header is not spm's); {retrain}")
+    if header.get("format", 0) > MODEL_FORMAT or (kind is not None and header.get("kind") != kind):
+        raise ModelError(f"{path}: model format {header.get('format')} of kind {header.get('kind')} is not one "
+                         f"this spm reads here ({kind or 'any'}, format {MODEL_FORMAT}); retrain or upgrade spm")
     return header, arrays
+
+
+def _one_line(exc) -> str:
+    return " ".join(str(exc).split())
 
 
 class SPMEstimator:

@@ -5,10 +5,13 @@ threshold) and occlusion.png (success against occlusion)."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 
+from spm_data.errors import SpmError
+from spm_data.outputs import nearest_existing
 from spm_data.shards import atomic_file, write_json_atomic
 from spm_model.methods import METHOD_NAMES
 from spm_model.metrics import CURVE_THRESHOLDS
@@ -200,9 +203,11 @@ def _finish(fig, ax, path, xlabel: str, ylabel: str) -> Path:
     ax.legend(fontsize=7)
     fig.tight_layout()
     path = Path(path)
-    with atomic_file(path, path.with_name(f".{path.name}.partial.png")) as tmp:  # savefig wants the suffix
-        fig.savefig(tmp)
-    plt.close(fig)
+    try:
+        with atomic_file(path, path.with_name(f".{path.name}.partial.png")) as tmp:  # savefig wants the suffix
+            fig.savefig(tmp)
+    finally:
+        plt.close(fig)
     return path
 
 
@@ -228,17 +233,41 @@ def plot_occlusion(summary: dict, path) -> Path:
     return _finish(fig, ax, path, "occlusion of the object (%)", "success rate (%), rotation error sum < 5°")
 
 
-def write_report(evaluation: dict, context: dict, out_dir) -> dict:
-    """results.json, results.md, accuracy.png and occlusion.png in ``out_dir``; returns the summary."""
+def check_report_folder(out_dir) -> Path:
+    """``out_dir`` as a Path when it is a folder this process can write in, or can be made as
+    one; else a one-line SpmError. Creates nothing: for checking before any work is done."""
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    base = nearest_existing(out)
+    if not base.is_dir():
+        got = "is a file" if base == out else f"cannot be made: {base} is a file"
+        raise SpmError(f"report folder {out} {got}; give a folder with --report")
+    if not os.access(base, os.W_OK | os.X_OK):
+        raise SpmError(f"report folder {out} cannot be written: {base} is read-only; give a writable folder "
+                       "with --report")
+    return out
+
+
+def write_error(out_dir, exc: OSError) -> SpmError:
+    """The one-line error for an OSError met while writing the report in ``out_dir``."""
+    return SpmError(f"could not write the report in {out_dir}: {exc.strerror or exc}; free space there or give "
+                    "another folder with --report")
+
+
+def write_report(evaluation: dict, context: dict, out_dir) -> dict:
+    """results.json, results.md, accuracy.png and occlusion.png in ``out_dir``; returns the summary.
+    Each file is written whole or not at all; SpmError when one cannot be written."""
+    out = Path(out_dir)
     summary = aggregate(evaluation)
-    plot_accuracy(summary, out / "accuracy.png")
-    plot_occlusion(summary, out / "occlusion.png")
-    with atomic_file(out / "results.md") as tmp:
-        tmp.write_text(markdown(evaluation, summary, context))
-    write_json_atomic(out / "results.json", {"schema": SCHEMA, "schema_version": SCHEMA_VERSION,
-                                             "context": context, "summary": summary, "evaluation": evaluation})
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        plot_accuracy(summary, out / "accuracy.png")
+        plot_occlusion(summary, out / "occlusion.png")
+        with atomic_file(out / "results.md") as tmp:
+            tmp.write_text(markdown(evaluation, summary, context))
+        write_json_atomic(out / "results.json", {"schema": SCHEMA, "schema_version": SCHEMA_VERSION,
+                                                 "context": context, "summary": summary, "evaluation": evaluation})
+    except OSError as exc:
+        raise write_error(out, exc) from None
     return summary
 
 

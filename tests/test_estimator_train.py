@@ -152,11 +152,12 @@ def test_cli_train_predict_evaluate_and_bad_input(model_shards, tmp_path):
 def test_a_class_with_too_few_frames_is_named(model_shards, tmp_path):
     shards = tmp_path / "s"
     shutil.copytree(model_shards, shards)
-    from spm_data.shards import write_shard
+    from spm_data.shards import write_manifest, write_shard
 
     cup = sorted(shards.glob("cup*.h5"))[0]
     arrays = read_shard(cup, frames=slice(0, 4))
     cup.unlink()
     write_shard(cup, arrays, {"renderer": "pyrender", "seed": 1})
+    write_manifest(shards)
     r = CliRunner().invoke(model_cli, ["train", "--shards", str(shards), "--ellipse", "direct", "--runs", "1"])
     assert r.exit_code == 1 and "class 'cup' has" in r.output and "need at least 10" in r.output, r.output

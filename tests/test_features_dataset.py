@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from spm_data.errors import ShardError
-from spm_data.shards import read_shard, write_shard
+from spm_data.shards import read_shard, write_manifest, write_shard
 from spm_model import dataset
 from spm_model.dataset import cache_path, find_shards, load_features
 from spm_model.features import FeatureConfig, FeatureError, image_features, path_neighbours, raw_vector
@@ -60,6 +60,7 @@ def test_features_are_cached_next_to_the_shards_and_refreshed(model_shards, tmp_
     arrays = read_shard(shard)
     arrays["pose"][:, 2] += 1.0
     write_shard(shard, arrays, {"renderer": "pyrender", "seed": 1})
+    write_manifest(shard.parent)   # a rewritten shard, listed again
     refreshed = load_features(folder, config)
     changed = refreshed.shard == str(shard)
     assert np.allclose(refreshed.pose[changed, 2], table.pose[changed, 2] + 1.0)
@@ -74,6 +75,7 @@ def test_no_shards_and_missing_class_are_one_line_errors(tmp_path, model_shards)
     arrays["class_name"] = np.array([""] * len(arrays["pose"]), dtype=object)
     (tmp_path / "nameless").mkdir()
     write_shard(tmp_path / "nameless" / "x.h5", arrays, {"renderer": "pyrender", "seed": 1})
+    write_manifest(tmp_path / "nameless")
     with pytest.raises(Exception, match="without a class_name"):
         load_features(tmp_path / "nameless")
 

@@ -126,5 +126,5 @@ def test_corrupt_chunk_is_a_shard_error(tmp_path):
     path = write_shard(tmp_path / "a.h5", make_arrays(n=2, h=40, w=40), {"seed": 0, "renderer": "x"})
     with h5py.File(path, "a") as f:
         f["depth"].id.write_direct_chunk((1, 0, 0), b"not zlib at all")
-    with pytest.raises(ShardError, match="field 'depth' is corrupt"):
+    with pytest.raises(ShardError, match="field 'depth' fails its checksum"):
         read_shard(path, ["depth"])

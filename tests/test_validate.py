@@ -8,7 +8,7 @@ from click.testing import CliRunner
 
 from cli import data_cli
 from spm_data.render_jobs import load_run_specs, render_dataset
-from spm_data.shards import SCHEMA_VERSION
+from spm_data.shards import SCHEMA_VERSION, read_attrs, read_shard, write_manifest, write_shard
 from spm_data.validate import validate_folder
 
 
@@ -87,17 +87,12 @@ def test_manifest_disagreeing_with_files_is_caught(good, tmp_path):
 
 def test_bad_values_inside_a_shard_are_caught(good, tmp_path):
     d = copy(good, tmp_path)
-    with h5py.File(d / "cup-00000.h5", "a") as f:
-        R = f["R"][:]
-        R[2] *= 2.0
-        f["R"][...] = R
-        t = f["t"][:]
-        t[3, 0] = np.nan
-        f["t"][...] = t
-        m = f["mask"][:]
-        m[5] = 0
-        del f["mask"]
-        f.create_dataset("mask", data=m, chunks=(1,) + m.shape[1:], compression="gzip")
+    arrays = read_shard(d / "cup-00000.h5")   # written again with bad values: intact, but wrong
+    arrays["R"][2] *= 2.0
+    arrays["t"][3, 0] = np.nan
+    arrays["mask"][5] = 0
+    write_shard(d / "cup-00000.h5", arrays, read_attrs(d / "cup-00000.h5"))
+    write_manifest(d)
     found = " | ".join(messages(d))
     assert "R is not a rotation in frames [2]" in found
     assert "non-finite t in frames [3]" in found
