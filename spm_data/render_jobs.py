@@ -2,7 +2,7 @@
 
 The unit of work is one shard: ``frames_per_shard`` consecutive frames of a
 class's frame list (every instance's camera path, instance after instance).
-A shard that exists is complete (shards.write_shard is atomic) and carries
+A shard that exists is complete (shards.ShardWriter is atomic) and carries
 the ``plan_key`` it was made for, so a re-run skips it, and a re-run with a
 different spec or options refuses to mix its frames in.
 """
@@ -27,23 +27,61 @@ from spm_data.paths import camera_path
 from spm_data.poses import pose_to_label
 from spm_data.render import make_renderer, spec_intrinsics
 from spm_data.shard_runs import RunSummary, run_shard_jobs
-from spm_data.shards import SCHEMA_VERSION, manifest_entry, write_shard
+from spm_data.shards import SCHEMA_VERSION, ShardWriter, manifest_entry
 from spm_data.specs import RenderSpec, all_spec_paths, find_spec, load_spec
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class ShardJob:
+    """One shard's frames: either given (``instances``, ``path_indices``) or
+    ``frame_range = (first, stop, n_path)``, frames ``first .. stop - 1`` of the
+    class's frame list (frame ``g`` is instance ``g // n_path`` at path index
+    ``g % n_path``), turned into arrays only when asked, so a plan of many
+    shards holds no per-frame arrays."""
+
     spec: RenderSpec
     name: str
     shard_index: int
-    instances: np.ndarray = field(repr=False)     # (n,) int64 instance ids
-    path_indices: np.ndarray = field(repr=False)  # (n,) int64 indices into the camera path
     plan_key: str = ""
     out_dir: str = ""
+    frame_range: tuple = field(default=(), repr=False)  # (frames_from, frames_to, n_path), or ()
+    _given: tuple = field(default=(), repr=False)       # (instances, path_indices), or ()
+
+    def __init__(self, spec, name, shard_index, instances=None, path_indices=None, plan_key="", out_dir="",
+                 frame_range=()):
+        given = ()
+        if instances is not None or path_indices is not None:
+            given = (np.asarray(instances, dtype=np.int64), np.asarray(path_indices, dtype=np.int64))
+            if given[0].shape != given[1].shape or given[0].ndim != 1 or frame_range:
+                raise ValueError("ShardJob: give instances and path_indices of one length, or frame_range")
+        for key, value in (("spec", spec), ("name", name), ("shard_index", shard_index), ("plan_key", plan_key),
+                           ("out_dir", out_dir), ("frame_range", tuple(int(v) for v in frame_range)),
+                           ("_given", given)):
+            object.__setattr__(self, key, value)
 
     @property
     def frames(self) -> int:
-        return int(len(self.instances))
+        if self._given:
+            return int(len(self._given[0]))
+        return self.frame_range[1] - self.frame_range[0] if self.frame_range else 0
+
+    def _arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._given:
+            return self._given
+        if not self.frame_range:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        first, stop, n_path = self.frame_range
+        return np.divmod(np.arange(first, stop, dtype=np.int64), n_path)
+
+    @property
+    def instances(self) -> np.ndarray:
+        """(n,) int64 instance ids."""
+        return self._arrays()[0]
+
+    @property
+    def path_indices(self) -> np.ndarray:
+        """(n,) int64 indices into the camera path."""
+        return self._arrays()[1]
 
 
 # --------------------------------------------------------------------------- instances
@@ -107,26 +145,50 @@ def load_run_specs(classes=(), all_classes=False, spec_files=(), specs_dir=None,
     return [effective_spec(load_spec(p), renderer=renderer, seed=seed) for p in unique]
 
 
+MAX_PLAN_FRAMES = 2 ** 40  # a frame list longer than this is a mistake in the spec, not a plan
+
+
+def limit_picks(total: int, limit: int) -> np.ndarray:
+    """The ``limit`` frame numbers (sorted, int64) of a ``total``-frame list that
+    ``--limit`` renders: ``np.unique(np.round(np.linspace(0, total - 1, limit)))``
+    computed without an array of ``total`` (the same float64 steps as linspace:
+    ``k * ((total - 1) / (limit - 1))``, the last exactly ``total - 1``)."""
+    if limit >= total:
+        return np.arange(total, dtype=np.int64)
+    y = np.arange(limit, dtype=np.float64)
+    if limit > 1:
+        y *= np.float64(total - 1) / (limit - 1)
+        y[-1] = total - 1
+    return np.unique(np.round(y).astype(np.int64))
+
+
 def plan_shards(spec: RenderSpec, out_dir, limit: int | None = None) -> list[ShardJob]:
     """Split the class's frames into shard jobs. ``limit``: at most that many
-    frames, evenly spread over all instances and views (a quick look)."""
-    n_path = len(camera_path(spec.camera))
+    frames, evenly spread over all instances and views (a quick look).
+
+    Memory is bounded by the jobs, not the frame list: without a limit a job is
+    a range of frame numbers, with one only the picked frames are computed."""
+    n_path = camera_path(spec.camera).size
     n_inst = instance_count(spec)
-    instances = np.repeat(np.arange(n_inst, dtype=np.int64), n_path)
-    path_idx = np.tile(np.arange(n_path, dtype=np.int64), n_inst)
-    if limit is not None:
-        if limit < 1:
-            raise SpecError(f"--limit must be >= 1, got {limit}")
-        if limit < len(instances):
-            pick = np.unique(np.round(np.linspace(0, len(instances) - 1, limit)).astype(np.int64))
-            instances, path_idx = instances[pick], path_idx[pick]
+    total = n_path * n_inst
+    if total > MAX_PLAN_FRAMES:
+        raise SpecError(f"{spec.class_name}: {n_inst:,} instances x {n_path:,} camera views = {total:,} frames, "
+                        f"more than 2**40 ({MAX_PLAN_FRAMES:,}); use coarser camera steps or fewer instances")
+    if limit is not None and limit < 1:
+        raise SpecError(f"--limit must be >= 1, got {limit}")
     key = hashlib.sha256(json.dumps({"spec": spec.fingerprint(), "limit": limit,
                                      "schema": SCHEMA_VERSION}).encode()).hexdigest()
     per = spec.render.frames_per_shard
-    return [ShardJob(spec=spec, name=f"{spec.class_name}-{i:05d}.h5", shard_index=i,
-                     instances=instances[s:s + per], path_indices=path_idx[s:s + per],
-                     plan_key=key, out_dir=str(out_dir))
-            for i, s in enumerate(range(0, len(instances), per))]
+    common = {"spec": spec, "plan_key": key, "out_dir": str(out_dir)}
+    if limit is None or limit >= total:
+        return [ShardJob(name=f"{spec.class_name}-{i:05d}.h5", shard_index=i,
+                         frame_range=(s, min(s + per, total), n_path), **common)
+                for i, s in enumerate(range(0, total, per))]
+    pick = limit_picks(total, limit)
+    instances, path_idx = np.divmod(pick, n_path)
+    return [ShardJob(name=f"{spec.class_name}-{i:05d}.h5", shard_index=i,
+                     instances=instances[s:s + per], path_indices=path_idx[s:s + per], **common)
+            for i, s in enumerate(range(0, len(pick), per))]
 
 
 # --------------------------------------------------------------------------- one shard
@@ -141,48 +203,71 @@ def frame_rng(spec: RenderSpec, instance: int, path_index: int) -> np.random.Gen
     return np.random.default_rng([spec.seed, zlib.crc32(spec.class_name.encode()), instance, path_index, 1])
 
 
+BLOCK_BYTES = 64 << 20  # raw image bytes a worker holds while writing a shard (at least one frame)
+
+
+def block_frames(height: int, width: int) -> int:
+    """Frames per block of a shard being written: as many as fit BLOCK_BYTES of
+    rgb + depth + mask (8 bytes a pixel), at least one. A function of the image
+    size only, so a spec's shards are the same bytes on every machine; a shard
+    that fits one block is byte for byte what ``shards.write_shard`` writes."""
+    return max(1, BLOCK_BYTES // (height * width * 8))
+
+
 def render_shard(job: ShardJob, report=lambda n: None) -> dict:
-    """Render ``job`` and write its shard atomically; returns its manifest entry."""
+    """Render ``job`` and write its shard atomically, streaming the images a block
+    of frames at a time (block_frames), so a worker's memory stays about one
+    block whatever the shard's length; returns its manifest entry."""
     spec = job.spec
     renderer = _renderer_for(spec)
     path = camera_path(spec.camera)
-    R, t = path.poses(job.path_indices)
+    instances, path_indices = job.instances, job.path_indices
+    points = path.at(path_indices)
+    R, t = points.poses()
     n, h, w = job.frames, spec.image.height, spec.image.width
-    arrays = {"rgb": np.zeros((n, h, w, 3), np.uint8), "depth": np.zeros((n, h, w), np.float32),
-              "mask": np.zeros((n, h, w), np.uint8)}
-    current = None
-    for i, (inst, pidx) in enumerate(zip(job.instances, job.path_indices)):
-        if inst != current:
-            mesh = load_instance(spec, int(inst))
-            renderer.set_mesh(mesh)
-            current = inst
-        out = renderer.render(R[i], t[i])
-        if spec.background.kind == "black":
-            arrays["rgb"][i] = out["rgb"]
-        else:
-            background = background_image(spec, frame_rng(spec, int(inst), int(pidx)))
-            arrays["rgb"][i] = composite(out["rgb"], out["alpha"], background)
-        arrays["depth"][i] = out["depth"]
-        arrays["mask"][i] = out["mask"]
-        report(1)
-    names = {int(i): load_instance(spec, int(i)).name for i in np.unique(job.instances)}
-    arrays.update({
-        "K": np.broadcast_to(spec_intrinsics(spec), (n, 3, 3)).copy(), "R": R, "t": t,
-        "pose": pose_to_label(R, t).reshape(n, 6),
-        "azimuth": path.azimuth[job.path_indices], "elevation": path.elevation[job.path_indices],
-        "roll": path.roll[job.path_indices], "distance": path.distance[job.path_indices],
-        "look_at": np.broadcast_to(path.look_at, (n, 3)).copy(),
-        "path_index": job.path_indices.astype(np.int64), "instance_id": job.instances.astype(np.int64),
-        "instance_name": [names[int(i)] for i in job.instances], "class_name": [spec.class_name] * n,
-        "source": ["synthetic"] * n, "label_measured": np.ones((n, 6), bool),
-        "occlusion_fraction": np.zeros(n, np.float32), "occlusion_rects": np.zeros((n, 1, 4), np.int32),
-    })
-    attrs = {"spec": spec.text, "spec_fingerprint": spec.fingerprint(), "plan_key": job.plan_key,
-             "seed": spec.seed, "class_name": spec.class_name, "shard_index": job.shard_index,
-             "renderer": renderer.name, "renderer_version": renderer.version(),
-             "renderer_settings": json.dumps(renderer.settings(), sort_keys=True),
-             "spm_version": __version__, "source": "synthetic", "object_size": spec.mesh.size}
-    target = write_shard(Path(job.out_dir) / job.name, arrays, attrs)
+    per = max(1, min(n, block_frames(h, w)))
+    block = {"rgb": np.zeros((per, h, w, 3), np.uint8), "depth": np.zeros((per, h, w), np.float32),
+             "mask": np.zeros((per, h, w), np.uint8)}
+    with ShardWriter(Path(job.out_dir) / job.name, frames=n, height=h, width=w, images=tuple(block)) as writer:
+        current = None
+        for start in range(0, n, per):
+            k = min(per, n - start)
+            for j in range(k):
+                i = start + j
+                inst, pidx = instances[i], path_indices[i]
+                if inst != current:
+                    mesh = load_instance(spec, int(inst))
+                    renderer.set_mesh(mesh)
+                    current = inst
+                out = renderer.render(R[i], t[i])
+                if spec.background.kind == "black":
+                    block["rgb"][j] = out["rgb"]
+                else:
+                    background = background_image(spec, frame_rng(spec, int(inst), int(pidx)))
+                    block["rgb"][j] = composite(out["rgb"], out["alpha"], background)
+                block["depth"][j] = out["depth"]
+                block["mask"][j] = out["mask"]
+                del out
+                report(1)
+            writer.write_images(start, {f: a[:k] for f, a in block.items()})
+        del block
+        names = {int(i): load_instance(spec, int(i)).name for i in np.unique(instances)}
+        labels = {
+            "K": np.broadcast_to(spec_intrinsics(spec), (n, 3, 3)).copy(), "R": R, "t": t,
+            "pose": pose_to_label(R, t).reshape(n, 6),
+            "azimuth": points.azimuth, "elevation": points.elevation, "roll": points.roll,
+            "distance": points.distance, "look_at": np.broadcast_to(path.look_at, (n, 3)).copy(),
+            "path_index": path_indices.astype(np.int64), "instance_id": instances.astype(np.int64),
+            "instance_name": [names[int(i)] for i in instances], "class_name": [spec.class_name] * n,
+            "source": ["synthetic"] * n, "label_measured": np.ones((n, 6), bool),
+            "occlusion_fraction": np.zeros(n, np.float32), "occlusion_rects": np.zeros((n, 1, 4), np.int32),
+        }
+        attrs = {"spec": spec.text, "spec_fingerprint": spec.fingerprint(), "plan_key": job.plan_key,
+                 "seed": spec.seed, "class_name": spec.class_name, "shard_index": job.shard_index,
+                 "renderer": renderer.name, "renderer_version": renderer.version(),
+                 "renderer_settings": json.dumps(renderer.settings(), sort_keys=True),
+                 "spm_version": __version__, "source": "synthetic", "object_size": spec.mesh.size}
+        target = writer.finish(labels, attrs)
     return {"entry": manifest_entry(target)}
 
 

@@ -139,3 +139,129 @@ def test_a_spec_whose_meshes_are_missing_writes_nothing(tmp_path):
     with pytest.raises(SpecError, match="matches no file"):
         render_dataset(load_run_specs(spec_files=[spec_file]), tmp_path / "out")
     assert not (tmp_path / "out").exists()
+
+
+# --------------------------------------------------------------------------- bounded memory
+
+FINE_SPEC = """class = "cup"
+[mesh]
+instances = 4
+[camera]
+azimuth = [0, 359.99, 0.01]
+elevation = [0, 60, 0.01]
+[render]
+renderer = "pyrender"
+"""
+
+
+@pytest.mark.parametrize("total, limit", [(2, 1), (10, 1), (36, 10), (36, 35), (37, 2), (1000, 7), (936 * 4, 100),
+                                          (10**9 + 7, 3), (864_144_000, 4), (864_144_000, 1000), (2**40, 999),
+                                          (123_457, 123_456)])
+def test_limit_picks_are_the_old_linspace_picks(total, limit):
+    from spm_data.render_jobs import limit_picks
+
+    if total <= 10**7:
+        old = np.unique(np.round(np.linspace(0, total - 1, limit)).astype(np.int64))
+    else:  # the same computation as linspace's, only on the picked positions
+        old = np.round(np.arange(limit, dtype=np.float64) * (np.float64(total - 1) / max(limit - 1, 1)))
+        old[-1] = total - 1 if limit > 1 else 0
+        old = np.unique(old.astype(np.int64))
+    picks = limit_picks(total, limit)
+    assert picks.dtype == np.int64 and picks.tobytes() == old.tobytes()
+    assert picks[0] == 0 and (limit == 1 or picks[-1] == total - 1)
+
+
+def test_plans_are_the_old_plans(small_specs_dir):
+    import pickle
+
+    spec = load_run_specs(["cup"], specs_dir=small_specs_dir)[0]
+    n_path, n_inst = 18, 2
+    instances = np.repeat(np.arange(n_inst, dtype=np.int64), n_path)
+    path_idx = np.tile(np.arange(n_path, dtype=np.int64), n_inst)
+    for limit in (None, 1, 5, 10, 35, 36, 100):
+        keep = np.arange(len(instances))
+        if limit is not None and limit < len(instances):
+            keep = np.unique(np.round(np.linspace(0, len(instances) - 1, limit)).astype(np.int64))
+        jobs = plan_shards(spec, "out", limit)
+        assert sum(j.frames for j in jobs) == len(keep)
+        np.testing.assert_array_equal(np.concatenate([j.instances for j in jobs]), instances[keep])
+        np.testing.assert_array_equal(np.concatenate([j.path_indices for j in jobs]), path_idx[keep])
+        again = pickle.loads(pickle.dumps(jobs[-1]))  # jobs travel to worker processes
+        np.testing.assert_array_equal(again.path_indices, jobs[-1].path_indices)
+        assert again.frames == jobs[-1].frames and again.plan_key == jobs[-1].plan_key
+    assert plan_shards(spec, "out")[1].frame_range == (8, 16, 18)  # a range, no per-frame arrays
+
+
+def test_a_limit_on_a_fine_grid_plans_without_the_full_frame_list(tmp_path):
+    import tracemalloc
+
+    from spm_data.paths import camera_path
+
+    (tmp_path / "cup.toml").write_text(FINE_SPEC)
+    tracemalloc.start()
+    try:
+        spec = load_run_specs(spec_files=[tmp_path / "cup.toml"])[0]
+        jobs = plan_shards(spec, tmp_path / "out", limit=4)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 50 * 2**20  # the old plan held ~14 GB of index arrays for 864 million frames
+    n_path = 36000 * 6001
+    assert len(camera_path(spec.camera)) == n_path
+    total = 4 * n_path
+    (job,) = jobs
+    picks = np.round(np.arange(4) * ((total - 1) / 3)).astype(np.int64)
+    picks[-1] = total - 1
+    np.testing.assert_array_equal(job.instances, picks // n_path)
+    np.testing.assert_array_equal(job.path_indices, picks % n_path)
+
+
+def test_an_absurd_plan_is_refused_in_one_line(tmp_path):
+    (tmp_path / "cup.toml").write_text(FINE_SPEC.replace("0.01]", "0.0001]"))
+    spec = load_run_specs(spec_files=[tmp_path / "cup.toml"])[0]
+    with pytest.raises(SpecError, match=r"^cup: 4 instances x 2,159,944,199,901 camera views = 8,639,776,799,604 "
+                                        r"frames, more than 2\*\*40 \(1,099,511,627,776\); use coarser camera "
+                                        r"steps or fewer instances$"):
+        plan_shards(spec, tmp_path / "out", limit=4)
+
+
+def test_a_streamed_shard_is_what_write_shard_writes(small_specs_dir, tmp_path, monkeypatch):
+    from spm_data import render_jobs
+    from spm_data.shards import write_shard
+
+    def rewrite(path, to):
+        """``path``'s fields and attributes written again by write_shard in one piece."""
+        attrs = {k: v for k, v in read_attrs(path).items() if k not in ("schema_version", "frames", "height", "width")}
+        return write_shard(to, read_shard(path), attrs)
+
+    specs = load_run_specs(["cup"], specs_dir=small_specs_dir)
+    assert render_jobs.block_frames(64, 64) >= 8  # one block per shard of this spec
+    render_dataset(specs, tmp_path / "one", limit=12)
+    for name in ("cup-00000.h5", "cup-00001.h5"):
+        shard = tmp_path / "one" / name
+        assert file_sha256(rewrite(shard, tmp_path / f"again-{name}")) == file_sha256(shard)
+    monkeypatch.setattr(render_jobs, "BLOCK_BYTES", 3 * 64 * 64 * 8)  # blocks of 3 frames: 8 = 3 + 3 + 2
+    assert render_jobs.block_frames(64, 64) == 3
+    render_dataset(specs, tmp_path / "three", limit=12)
+    for name in ("cup-00000.h5", "cup-00001.h5"):
+        streamed, whole = read_shard(tmp_path / "three" / name), read_shard(tmp_path / "one" / name)
+        again = read_shard(rewrite(tmp_path / "three" / name, tmp_path / f"whole-{name}"))
+        assert streamed.keys() == whole.keys() == again.keys()
+        for key in whole:
+            assert streamed[key].dtype == whole[key].dtype, key
+            np.testing.assert_array_equal(streamed[key], whole[key], err_msg=key)
+            np.testing.assert_array_equal(again[key], whole[key], err_msg=key)
+        assert read_attrs(tmp_path / "three" / name) == read_attrs(tmp_path / "one" / name)
+
+
+def test_pyrender_refuses_an_image_larger_than_its_opengl(small_specs_dir, monkeypatch):
+    from spm_data.errors import RenderError
+    from spm_data.render import make_renderer, pyrender_backend
+
+    spec = load_run_specs(["cup"], specs_dir=small_specs_dir)[0]
+    offscreen = pyrender_backend._offscreen(pyrender_backend._import_pyrender(), 64, 64)
+    assert pyrender_backend.max_image_side(offscreen) >= 64  # 16384 on Mesa llvmpipe
+    monkeypatch.setattr(pyrender_backend, "_MAX_SIDE", [48])
+    with pytest.raises(RenderError, match=r"^pyrender: image 64x64 is larger than this OpenGL renders \(48 pixels "
+                                          r"a side at most\); use a smaller image or the blender renderer$"):
+        make_renderer(spec)

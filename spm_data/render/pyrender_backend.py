@@ -65,6 +65,26 @@ def _offscreen(pr, width: int, height: int):
     return _OFFSCREEN[key]
 
 
+_MAX_SIDE: list = []
+
+
+def max_image_side(offscreen) -> int | None:
+    """The largest image side this process's OpenGL can render into (the smaller of
+    GL_MAX_RENDERBUFFER_SIZE and GL_MAX_VIEWPORT_DIMS; 16384 on Mesa's llvmpipe),
+    or None when the driver does not say."""
+    if not _MAX_SIDE:
+        try:
+            from OpenGL import GL
+
+            offscreen._platform.make_current()
+            sides = [int(GL.glGetIntegerv(GL.GL_MAX_RENDERBUFFER_SIZE)),
+                     *(int(v) for v in GL.glGetIntegerv(GL.GL_MAX_VIEWPORT_DIMS))]
+            _MAX_SIDE.append(min(sides) if min(sides) > 0 else None)
+        except Exception:  # noqa: BLE001 - no answer is no limit; a real failure shows at render
+            _MAX_SIDE.append(None)
+    return _MAX_SIDE[0]
+
+
 class Renderer:
     """pyrender offscreen renderer for one spec (image size, intrinsics, lights)."""
 
@@ -80,6 +100,10 @@ class Renderer:
         except Exception as exc:  # EGL / driver failures surface as many types
             raise RenderError(f"pyrender could not open an offscreen EGL context ({type(exc).__name__}: {exc}); "
                               "install Mesa's EGL (apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri)") from None
+        side = max_image_side(self._renderer)
+        if side is not None and max(self.width, self.height) > side:
+            raise RenderError(f"pyrender: image {self.width}x{self.height} is larger than this OpenGL renders "
+                              f"({side} pixels a side at most); use a smaller image or the blender renderer")
         self._scene = None
 
     def version(self) -> str:
