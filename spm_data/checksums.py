@@ -69,7 +69,8 @@ def dataset_layout(ds) -> list:
 def file_checksums(f) -> dict:
     """{"attrs": {name: crc}, "layout": {dataset: crc}} of an open h5py file."""
     attrs = {k: item_crc(v) for k, v in f.attrs.items() if k != CHECKSUMS_ATTR}
-    layout = {name: item_crc(dataset_layout(ds)) for name, ds in f.items()}
+    # A damaged link gives None for its object: no layout, so it fails its checksum.
+    layout = {name: item_crc(dataset_layout(ds) if ds is not None else None) for name, ds in f.items()}
     return {"attrs": attrs, "layout": layout}
 
 
@@ -91,6 +92,6 @@ def checksum_mismatch(f) -> str | None:
                 if name not in stored[kind]:
                     return f"{label} {name!r} was added after writing"
                 return f"{label} {name!r} fails its checksum" + (" (dtype, shape or filters)" if kind == "layout" else "")
-    if any(FLETCHER32 not in dataset_layout(ds)[3] for ds in f.values()):
+    if any(ds is not None and FLETCHER32 not in dataset_layout(ds)[3] for ds in f.values()):
         return "a field without a Fletcher-32 checksum"
     return None
