@@ -24,7 +24,7 @@ from spm_data.errors import SpmError
 from spm_data.importing import FrameRecord, import_records, pose_problem
 from spm_data.folders import open_folder
 from spm_data.outputs import top_created
-from spm_data.shards import list_shards, read_attrs, read_shard, verify_shard
+from spm_data.shards import read_attrs, read_shard, verify_shard
 
 DEPTH_SCALE = 0.1  # mm per depth unit in exported depth PNGs (BOP's usual choice)
 
@@ -181,8 +181,6 @@ def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=F
         raise SpmError(f"cannot create {out_dir}: {made.parent} is a file; give --out a new folder to export into")
     if not os.access(made.parent, os.W_OK | os.X_OK):
         raise SpmError(f"cannot create {out_dir}: {made.parent} is read-only; give --out a folder in a writable place")
-    if not list_shards(in_dir):
-        raise SpmError(f"no shards (*.h5) in {in_dir}")
     shards = open_folder(in_dir, allow_partial=allow_partial).shards
     for path in shards:
         verify_shard(path)  # every checksum, before anything is written

@@ -54,17 +54,16 @@ def open_folder(folder, *, allow_partial: bool = False) -> ShardFolder:
             raise ShardError(message)
         _warn(message.split(";")[0] + "; reading the shards complete so far (--allow-partial)")
     on_disk = list_shards(folder)
-    if not (folder / MANIFEST).exists():
-        if not on_disk:
-            raise ShardError(f"{folder}: no shards (*.h5) and no {MANIFEST}; make some with `spm-data render` "
-                             "or `spm-data import`")
+    manifest = read_manifest(folder) if (folder / MANIFEST).exists() else None
+    if not on_disk and not (manifest and manifest["shards"]):
+        raise ShardError(f"no shards (*.h5) in {folder}; make some with `spm-data render` or `spm-data import`")
+    if manifest is None:
         if not allow_partial:
             raise ShardError(f"{folder}: no {MANIFEST}, so no finished run made these {len(on_disk)} shards "
                              "(a run writes it last, also when interrupted); run that command again to "
                              "finish it, or pass --allow-partial")
         _warn(f"{folder}: no {MANIFEST}; reading the {len(on_disk)} complete shards on disk (--allow-partial)")
         return ShardFolder(folder, tuple(on_disk))
-    manifest = read_manifest(folder)
     shards, problems = _listed_shards(folder, manifest)
     if problems and not allow_partial:
         raise ShardError(problems[0] + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else "")

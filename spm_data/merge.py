@@ -10,11 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
-from spm_data.errors import ShardError, SpmError
+from spm_data.errors import SpmError
 from spm_data.folders import open_folder
 from spm_data.shard_runs import RunSummary, run_shard_jobs
-from spm_data.shards import (FIELDS, OPTIONAL_FIELDS, file_sha256, list_shards, manifest_entry,
-                             read_attrs, read_shard, verify_shard, write_shard)
+from spm_data.shards import (FIELDS, OPTIONAL_FIELDS, file_sha256, manifest_entry, read_shard, verify_shard,
+                             write_shard)
 
 
 @dataclass(frozen=True)
@@ -54,10 +54,7 @@ def plan_merge(inputs, out_dir, *, sources=None, renames=None, frames_per_shard=
         folder = Path(folder)
         if out_dir.exists() and folder.resolve() == out_dir.resolve():
             raise SpmError(f"--out {out_dir} is one of the inputs; merge into a new folder")
-        if not list_shards(folder):
-            raise ShardError(f"no shards (*.h5) in {folder}")
-        found = list(open_folder(folder, allow_partial=allow_partial).shards)
-        shards += found
+        shards += open_folder(folder, allow_partial=allow_partial).shards
     info = {p: _shard_info(p) for p in shards}  # attrs, sources, fields and checksum, read once each
     renames = renames or {}
     groups: dict[tuple, list] = {}   # (H, W) -> [(shard, frames)]
@@ -92,8 +89,7 @@ def plan_merge(inputs, out_dir, *, sources=None, renames=None, frames_per_shard=
 def _shard_info(path) -> dict:
     import h5py
 
-    verify_shard(path)  # every checksum, before anything is written
-    attrs = read_attrs(path)
+    attrs = verify_shard(path)  # every checksum, before anything is written
     with h5py.File(path, "r") as f:
         fields = set(f.keys())
     return {"schema_version": int(attrs["schema_version"]), "frames": int(attrs["frames"]),

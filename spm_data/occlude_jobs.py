@@ -20,7 +20,7 @@ from spm_data.errors import ShardError, SpmError
 from spm_data.folders import open_folder
 from spm_data.occlusion import apply_occlusion, check_range, occlude_mask
 from spm_data.shard_runs import RunSummary, run_shard_jobs
-from spm_data.shards import list_shards, manifest_entry, read_attrs, read_shard, verify_shard, write_shard
+from spm_data.shards import manifest_entry, read_attrs, read_shard, verify_shard, write_shard
 
 DERIVED_FIELDS = ("visible_mask", "source_shard", "source_frame")
 
@@ -53,12 +53,9 @@ def check_inputs(in_dir, out_dir, allow_partial=False) -> list[Path]:
     if out_dir.exists() and out_dir.resolve() == in_dir.resolve():
         raise ShardError(f"--out {out_dir} is the input folder; occlusion never modifies its input, "
                          "give another --out")
-    if not list_shards(in_dir):
-        raise ShardError(f"no shards (*.h5) in {in_dir}; render some first (spm-data render --out {in_dir})")
     shards = list(open_folder(in_dir, allow_partial=allow_partial).shards)
     for path in shards:
-        verify_shard(path)  # every checksum, before anything is written
-        attrs = read_attrs(path)
+        attrs = verify_shard(path)  # every checksum, before anything is written
         try:
             data = read_shard(path, ["mask", "occlusion_rects"])
         except ShardError as exc:

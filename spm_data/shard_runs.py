@@ -19,7 +19,7 @@ from pathlib import Path
 from spm_data.errors import ShardError
 from spm_data.executor import LocalExecutor
 from spm_data.locking import GUARD_NAME, OutputLock
-from spm_data.shards import MANIFEST, partial_path, read_attrs, remove_partials, verify_shard, write_manifest
+from spm_data.shards import MANIFEST, partial_path, remove_partials, verify_shard, write_manifest
 
 
 @dataclass
@@ -73,8 +73,7 @@ def _pending(jobs, summary: RunSummary) -> list:
             todo.append(job)
             continue
         try:
-            verify_shard(target)
-            key = read_attrs(target).get("plan_key")
+            key = verify_shard(target).get("plan_key")
         except ShardError as exc:
             summary.redone.append((job.name, str(exc).removeprefix(f"{target}: ")))
             todo.append(job)

@@ -97,7 +97,7 @@ def encode_chunk(frame: np.ndarray) -> bytes:
     a = np.ascontiguousarray(frame)
     if a.dtype.itemsize > 1:
         a = a.view(np.uint8).reshape(-1, a.dtype.itemsize).T  # HDF5 shuffle: byte planes
-    return with_fletcher32(zlib.compress(np.ascontiguousarray(a).tobytes(), GZIP_LEVEL))
+    return with_fletcher32(zlib.compress(np.ascontiguousarray(a), GZIP_LEVEL))  # zlib reads the buffer: no copy
 
 
 def _chunked(n: int, shape: tuple, per: int) -> dict:
@@ -178,24 +178,30 @@ class ShardWriter:
         """Frames ``start .. start + k`` of some image fields: {field: (k, ...) array}.
         Compressed on two threads (zlib releases the GIL; h5py's filters do not)
         and stored as raw chunks any HDF5 reader decodes and verifies."""
+        for field, frames in block.items():
+            ds = self._file[field]
+            if np.shape(frames)[1:] != ds.shape[1:] or np.asarray(frames).dtype != ds.dtype:
+                raise ShardError(f"shard field {field!r}: expected frames of {ds.shape[1:]} {ds.dtype}, "
+                                 f"got {np.shape(frames)[1:]} {np.asarray(frames).dtype}")
+        # Every (field, frame) on the pool at once, so a one-frame block keeps both threads busy;
+        # chunks come back, and are stored, in field-major order.
+        where = [(field, start + i) for field, frames in block.items() for i in range(len(frames))]
+        chunks = self._pool.map(encode_chunk, (frame for frames in block.values() for frame in frames))
         try:
-            for field, frames in block.items():
+            for (field, index), chunk in zip(where, chunks):
                 ds = self._file[field]
-                if np.shape(frames)[1:] != ds.shape[1:] or np.asarray(frames).dtype != ds.dtype:
-                    raise ShardError(f"shard field {field!r}: expected frames of {ds.shape[1:]} {ds.dtype}, "
-                                     f"got {np.shape(frames)[1:]} {np.asarray(frames).dtype}")
-                zero = (0,) * (ds.ndim - 1)
-                for i, chunk in enumerate(self._pool.map(encode_chunk, frames)):
-                    ds.id.write_direct_chunk((start + i,) + zero, chunk)
+                ds.id.write_direct_chunk((index,) + (0,) * (ds.ndim - 1), chunk)
+            for field, frames in block.items():
                 self._written[field] += len(frames)
         except OSError as exc:
             self._raise_os(exc)
 
-    def finish(self, labels: dict, attrs: dict, copy_from=None) -> Path:
+    def finish(self, labels: dict, attrs: dict, copy_from=None, copied=None) -> Path:
         """Write the other fields and the attributes, then move the shard into place.
         copy_from: ``(shard path, fields)`` copied verbatim (chunks and checksums
-        as stored) after verifying those chunks; for derived shards."""
-        copied = _copy_placeholders(copy_from)
+        as stored) after verifying those chunks; for derived shards. copied: their
+        stand-ins (_copy_placeholders), when the caller has them already."""
+        copied = _copy_placeholders(copy_from) if copied is None else copied
         placeholders = {f: np.broadcast_to(np.zeros((), self._file[f].dtype), self._file[f].shape)
                         for f in self.images}
         n, h, w = check_arrays({**labels, **copied, **placeholders})
@@ -284,12 +290,14 @@ def verify_stored_chunks(path, f, field: str) -> None:
         raise ShardError(f"{path}: field {field!r} is corrupt ({type(exc).__name__}: {exc})") from None
 
 
-def verify_shard(path) -> None:
-    """Check a whole shard (attributes, layout, every chunk) without decoding it."""
-    read_attrs(path)
+def verify_shard(path) -> dict:
+    """Check a whole shard (attributes, layout, every chunk) without decoding it;
+    returns its attributes (read_attrs)."""
     with _open(path) as f:
+        attrs = _verified_attrs(path, f)
         for field in list(f.keys()):
             verify_stored_chunks(path, f, field)
+    return attrs
 
 
 def write_shard(path, arrays: dict, attrs: dict, copy_from=None) -> Path:
@@ -304,11 +312,12 @@ def write_shard(path, arrays: dict, attrs: dict, copy_from=None) -> Path:
     object copy, no codec work) after checking their checksums.
     """
     path = Path(path)
-    n, h, w = check_arrays({**arrays, **_copy_placeholders(copy_from)})
+    copied = _copy_placeholders(copy_from)
+    n, h, w = check_arrays({**arrays, **copied})
     images = [f for f in IMAGE_FIELDS if f in arrays]
     with ShardWriter(path, frames=n, height=h, width=w, images=images) as writer:
         writer.write_images(0, {f: np.ascontiguousarray(arrays[f]) for f in images})
-        return writer.finish({f: v for f, v in arrays.items() if f not in images}, attrs, copy_from)
+        return writer.finish({f: v for f, v in arrays.items() if f not in images}, attrs, copy_from, copied)
 
 
 def _open(path):
@@ -330,11 +339,16 @@ H5_ERRORS = (OSError, KeyError, ValueError, RuntimeError, TypeError, IndexError)
 def read_attrs(path) -> dict:
     """A shard's file attributes as plain Python values, verified against its
     checksums (with the layout of its fields); checks the schema version."""
+    with _open(path) as f:
+        return _verified_attrs(path, f)
+
+
+def _verified_attrs(path, f) -> dict:
+    """read_attrs on an open file."""
     try:
-        with _open(path) as f:
-            attrs = {k: (v.item() if hasattr(v, "item") else v) for k, v in f.attrs.items()}
-            version = attrs.get("schema_version")
-            mismatch = checksum_mismatch(f) if version is not None and int(version) >= 2 else None
+        attrs = {k: (v.item() if hasattr(v, "item") else v) for k, v in f.attrs.items()}
+        version = attrs.get("schema_version")
+        mismatch = checksum_mismatch(f) if version is not None and int(version) >= 2 else None
     except H5_ERRORS as exc:
         if isinstance(exc, ShardError):
             raise
@@ -358,8 +372,8 @@ def read_shard(path, fields=None, frames=slice(None)) -> dict:
     or sorted index array). String fields come back as (n,) object arrays of str.
     Verified: the attributes and layout first (read_attrs), then HDF5 checks the
     Fletcher-32 of every chunk it reads; a mismatch is a ShardError naming the field."""
-    read_attrs(path)
     with _open(path) as f:
+        _verified_attrs(path, f)
         try:
             names = list(f.keys()) if fields is None else list(fields)
         except H5_ERRORS as exc:

@@ -132,11 +132,8 @@ def occlusion_histogram(folder, out_png, bins: int = 30, allow_partial: bool = F
     import matplotlib.pyplot as plt
 
     from spm_data.folders import open_folder
-    from spm_data.shards import list_shards
 
     out_png = check_image_path(out_png, "occlusion-hist.png")
-    if not list_shards(folder):
-        raise ShardError(f"{folder}: no shards (*.h5) in this folder")
     shards = open_folder(folder, allow_partial=allow_partial).shards
     fractions = np.concatenate([read_shard(p, ["occlusion_fraction"])["occlusion_fraction"] for p in shards])
     fig, ax = plt.subplots(figsize=(6, 3.2), dpi=100)
