@@ -32,7 +32,7 @@ sys.path.insert(0, str(ROOT))
 SPEC = """class = "cup"
 seed = 1
 [mesh]
-instances = 1
+instances = {instances}
 [camera]
 azimuth = [0, {az_stop}, {az_step}]
 elevation = [0, {el_stop}, {el_step}]
@@ -47,8 +47,9 @@ frames_per_shard = {per}
 
 
 def peak_mb() -> float:
-    fields = dict(line.split(":", 1) for line in Path("/proc/self/status").read_text().splitlines() if ":" in line)
-    return float(fields["VmHWM"].split()[0]) / 1024
+    from blender_memory import memory_mb  # this folder is on sys.path when run as a script
+
+    return memory_mb()[1]
 
 
 def child(mode: str, size: int, frames: int) -> dict:
@@ -64,7 +65,7 @@ def child(mode: str, size: int, frames: int) -> dict:
             return {"peak_mb": peak_mb(), "seconds": time.perf_counter() - started}
         if mode == "plan":
             (specs / "cup.toml").write_text(SPEC.format(az_stop=359.99, az_step=0.01, el_stop=60, el_step=0.01,
-                                                        size=128, per=256).replace("instances = 1", "instances = 4"))
+                                                        size=128, per=256, instances=4))
             import tracemalloc
 
             tracemalloc.start()
@@ -74,7 +75,7 @@ def child(mode: str, size: int, frames: int) -> dict:
             assert sum(j.frames for j in jobs) == 4
             return {"peak_mb": peak_mb(), "seconds": time.perf_counter() - started, "traced_mb": traced}
         (specs / "cup.toml").write_text(SPEC.format(az_stop=5 * (frames - 1), az_step=5, el_stop=30, el_step=30,
-                                                    size=size, per=frames))
+                                                    size=size, per=frames, instances=1))
         spec = load_run_specs(["cup"], specs_dir=specs)[0]
         if mode == "buffered":
             render_jobs.BLOCK_BYTES = 1 << 62  # the whole shard in one block: the old behaviour

@@ -12,7 +12,6 @@ Out: one scene per object instance, ``camera.json``, ``models/`` (PLY in mm and
 
 from __future__ import annotations
 
-import errno
 import json
 import os
 import shutil
@@ -23,8 +22,8 @@ import numpy as np
 from spm_data.errors import SpmError
 from spm_data.importing import FrameRecord, import_records, pose_problem
 from spm_data.folders import open_folder
-from spm_data.outputs import top_created
-from spm_data.shards import read_attrs, read_shard, verify_shard
+from spm_data.outputs import space_fix, top_created, unwritable
+from spm_data.shards import read_attrs, read_shard
 
 DEPTH_SCALE = 0.1  # mm per depth unit in exported depth PNGs (BOP's usual choice)
 
@@ -176,17 +175,17 @@ def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=F
         raise SpmError(f"{out_dir} is a file; give --out a new folder to export into")
     if out_dir.exists() and any(out_dir.iterdir()):
         raise SpmError(f"{out_dir} exists and is not empty; export into a new folder")
-    made = top_created(out_dir / "x") or out_dir  # the top folder this export creates, removed on failure
-    if not made.parent.is_dir():
-        raise SpmError(f"cannot create {out_dir}: {made.parent} is a file; give --out a new folder to export into")
-    if not os.access(made.parent, os.W_OK | os.X_OK):
-        raise SpmError(f"cannot create {out_dir}: {made.parent} is read-only; give --out a folder in a writable place")
+    problem = unwritable(out_dir.parent)
+    if problem and problem[1] == "file":
+        raise SpmError(f"cannot create {out_dir}: {problem[0]} is a file; give --out a new folder to export into")
+    if problem:
+        raise SpmError(f"cannot create {out_dir}: {problem[0]} is read-only; give --out a folder in a writable place")
+    # Every shard read below is verified as it is read; the export is built in OUT.partial, so a
+    # corrupt shard (or a full disk) leaves nothing behind.
     shards = open_folder(in_dir, allow_partial=allow_partial).shards
-    for path in shards:
-        verify_shard(path)  # every checksum, before anything is written
     tmp = out_dir.with_name(out_dir.name + ".partial")
-    made = tmp if made == out_dir else made
     shutil.rmtree(tmp, ignore_errors=True)
+    made = top_created(tmp / "models")  # what this export creates: removed on failure
     objects: dict[tuple, int] = {}
     scenes: dict[int, dict] = {}
     models_info, no_model, frames = {}, set(), 0
@@ -249,11 +248,9 @@ def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=F
             out_dir.rmdir()
         os.replace(tmp, out_dir)
     except BaseException as exc:
-        shutil.rmtree(tmp, ignore_errors=True)
         shutil.rmtree(made, ignore_errors=True)
         if isinstance(exc, OSError):
-            fix = ("free space there" if exc.errno in (errno.ENOSPC, errno.EDQUOT) else
-                   "give --out a folder in a writable place")
+            fix = space_fix(exc, "give --out a folder in a writable place")
             raise SpmError(f"could not export to {out_dir}: {exc.strerror or exc}; nothing was written; "
                            f"{fix}") from None
         raise

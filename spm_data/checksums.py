@@ -2,7 +2,7 @@
 
 Every dataset of a shard is chunked with HDF5's Fletcher-32 filter: HDF5 checks
 each chunk as it is read, whatever the reader (h5py, the C library, h5dump).
-Compressed frames are written as raw chunks (shards.write_image_block), so their
+Compressed frames are written as raw chunks (shards.ShardWriter.write_images), so their
 checksum is computed here, exactly as HDF5's filter computes it. The file's
 attributes and the layout of its datasets (dtype, shape, chunks, filters) are
 covered by one CRC-32 per item, stored as the ``checksums`` attribute.

@@ -5,6 +5,12 @@ exits with status 1. Anything else escaping is a bug.
 """
 
 
+def one_line(text) -> str:
+    """``text`` (or an exception's message) with every run of whitespace one space:
+    messages from other libraries may span lines, ours are one."""
+    return " ".join(str(text).split())
+
+
 class SpmError(Exception):
     """Base class of every error the toolkit raises on purpose."""
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from spm_data import __version__
-from spm_data.errors import SpmError
+from spm_data.errors import SpmError, one_line
 from spm_data.poses import pose_to_label
 from spm_data.shard_runs import RunSummary, run_shard_jobs
 from spm_data.shards import SCHEMA_VERSION, manifest_entry, write_shard
@@ -120,10 +120,6 @@ def parse_pnm(data: bytes) -> np.ndarray:
     return np.repeat(raster, 3, axis=2) if channels == 1 else raster
 
 
-def _one_line(text) -> str:
-    return " ".join(str(text).split())
-
-
 def _bomb_reason(exc) -> str:
     from PIL import Image
 
@@ -151,7 +147,7 @@ def _open_image(data: bytes):
     except UnidentifiedImageError:
         raise ImageError("not a readable image (unknown format, or a truncated header)") from None
     except (OSError, SyntaxError, ValueError, EOFError) as exc:
-        raise ImageError(f"not a readable image (truncated or corrupt: {_one_line(exc)})") from None
+        raise ImageError(f"not a readable image (truncated or corrupt: {one_line(exc)})") from None
 
 
 def _tile_rawmode(img) -> str:

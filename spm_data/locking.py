@@ -96,7 +96,8 @@ def _proc_stat(pid: int) -> tuple[str, int] | None:
         return None
 
 
-def _alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` of this host is running (a zombie is not)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -133,7 +134,7 @@ def _is_stale(rec: _Record, mtime: float) -> bool:
         return False
     if rec.boot and _boot_id() and rec.boot != _boot_id():
         return True   # taken before this machine last booted
-    if not _alive(pid):
+    if not pid_alive(pid):
         return True
     stat = _proc_stat(pid)
     if stat is None:

@@ -54,6 +54,8 @@ class ShardJob:
             given = (np.asarray(instances, dtype=np.int64), np.asarray(path_indices, dtype=np.int64))
             if given[0].shape != given[1].shape or given[0].ndim != 1 or frame_range:
                 raise ValueError("ShardJob: give instances and path_indices of one length, or frame_range")
+        elif not frame_range:
+            raise ValueError("ShardJob: give instances and path_indices, or frame_range")
         for key, value in (("spec", spec), ("name", name), ("shard_index", shard_index), ("plan_key", plan_key),
                            ("out_dir", out_dir), ("frame_range", tuple(int(v) for v in frame_range)),
                            ("_given", given)):
@@ -61,27 +63,24 @@ class ShardJob:
 
     @property
     def frames(self) -> int:
-        if self._given:
-            return int(len(self._given[0]))
-        return self.frame_range[1] - self.frame_range[0] if self.frame_range else 0
+        return int(len(self._given[0])) if self._given else self.frame_range[1] - self.frame_range[0]
 
-    def _arrays(self) -> tuple[np.ndarray, np.ndarray]:
+    def frame_ids(self) -> tuple[np.ndarray, np.ndarray]:
+        """(instances, path_indices): (n,) int64 each, the instance ids and camera path indices."""
         if self._given:
             return self._given
-        if not self.frame_range:
-            return np.zeros(0, np.int64), np.zeros(0, np.int64)
         first, stop, n_path = self.frame_range
         return np.divmod(np.arange(first, stop, dtype=np.int64), n_path)
 
     @property
     def instances(self) -> np.ndarray:
         """(n,) int64 instance ids."""
-        return self._arrays()[0]
+        return self.frame_ids()[0]
 
     @property
     def path_indices(self) -> np.ndarray:
         """(n,) int64 indices into the camera path."""
-        return self._arrays()[1]
+        return self.frame_ids()[1]
 
 
 # --------------------------------------------------------------------------- instances
@@ -150,16 +149,10 @@ MAX_PLAN_FRAMES = 2 ** 40  # a frame list longer than this is a mistake in the s
 
 def limit_picks(total: int, limit: int) -> np.ndarray:
     """The ``limit`` frame numbers (sorted, int64) of a ``total``-frame list that
-    ``--limit`` renders: ``np.unique(np.round(np.linspace(0, total - 1, limit)))``
-    computed without an array of ``total`` (the same float64 steps as linspace:
-    ``k * ((total - 1) / (limit - 1))``, the last exactly ``total - 1``)."""
+    ``--limit`` renders, evenly spread (linspace builds ``limit`` values, never ``total``)."""
     if limit >= total:
         return np.arange(total, dtype=np.int64)
-    y = np.arange(limit, dtype=np.float64)
-    if limit > 1:
-        y *= np.float64(total - 1) / (limit - 1)
-        y[-1] = total - 1
-    return np.unique(np.round(y).astype(np.int64))
+    return np.unique(np.round(np.linspace(0, total - 1, limit)).astype(np.int64))
 
 
 def plan_shards(spec: RenderSpec, out_dir, limit: int | None = None) -> list[ShardJob]:
@@ -221,7 +214,7 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
     spec = job.spec
     renderer = _renderer_for(spec)
     path = camera_path(spec.camera)
-    instances, path_indices = job.instances, job.path_indices
+    instances, path_indices = job.frame_ids()
     points = path.at(path_indices)
     R, t = points.poses()
     n, h, w = job.frames, spec.image.height, spec.image.width
@@ -229,7 +222,7 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
     block = {"rgb": np.zeros((per, h, w, 3), np.uint8), "depth": np.zeros((per, h, w), np.float32),
              "mask": np.zeros((per, h, w), np.uint8)}
     with ShardWriter(Path(job.out_dir) / job.name, frames=n, height=h, width=w, images=tuple(block)) as writer:
-        current = None
+        current, names = None, {}
         for start in range(0, n, per):
             k = min(per, n - start)
             for j in range(k):
@@ -238,7 +231,7 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
                 if inst != current:
                     mesh = load_instance(spec, int(inst))
                     renderer.set_mesh(mesh)
-                    current = inst
+                    current, names[int(inst)] = inst, mesh.name
                 out = renderer.render(R[i], t[i])
                 if spec.background.kind == "black":
                     block["rgb"][j] = out["rgb"]
@@ -251,7 +244,6 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
                 report(1)
             writer.write_images(start, {f: a[:k] for f, a in block.items()})
         del block
-        names = {int(i): load_instance(spec, int(i)).name for i in np.unique(instances)}
         labels = {
             "K": np.broadcast_to(spec_intrinsics(spec), (n, 3, 3)).copy(), "R": R, "t": t,
             "pose": pose_to_label(R, t).reshape(n, 6),

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import io
 import json
 import os
 import zlib
@@ -148,7 +149,7 @@ class ShardWriter:
     temporary file; nothing is left behind.
     """
 
-    def __init__(self, path, *, frames: int, height: int, width: int, images=("rgb", "depth", "mask")):
+    def __init__(self, path, *, frames: int, height: int, width: int, images):
         self.path, self.frames, self.height, self.width = Path(path), int(frames), int(height), int(width)
         self.images = tuple(images)
         self.tmp = partial_path(self.path)
@@ -162,14 +163,15 @@ class ShardWriter:
         try:
             self._file = h5py.File(self.tmp, "w", track_order=True)
             for field in self.images:
-                dtype, shape = {**FIELDS, **OPTIONAL_FIELDS}[field]
+                dtype = {**FIELDS, **OPTIONAL_FIELDS}[field][0]
                 frame_shape = _expected_shape(field, 1, self.height, self.width, 1)[1:]
                 self._file.create_dataset(field, dtype=dtype, compression="gzip", compression_opts=GZIP_LEVEL,
                                           shuffle=np.dtype(dtype).itemsize > 1,
                                           **_chunked(self.frames, frame_shape, 1))
-        except BaseException as exc:
+        except BaseException as exc:  # no __exit__ after a failed __enter__: clean up here
             self._abort()
-            self._raise_os(exc)
+            if isinstance(exc, OSError):
+                raise self._os_error(exc) from None
             raise
         self._pool = ThreadPoolExecutor(max_workers=2)
         return self
@@ -194,7 +196,7 @@ class ShardWriter:
             for field, frames in block.items():
                 self._written[field] += len(frames)
         except OSError as exc:
-            self._raise_os(exc)
+            raise self._os_error(exc) from None
 
     def finish(self, labels: dict, attrs: dict, copy_from=None, copied=None) -> Path:
         """Write the other fields and the attributes, then move the shard into place.
@@ -222,14 +224,13 @@ class ShardWriter:
                 os.fsync(fh.fileno())
             os.replace(self.tmp, self.path)
         except OSError as exc:
-            self._raise_os(exc)
+            raise self._os_error(exc) from None
         self._done = True
         return self.path
 
-    def _raise_os(self, exc):
-        if isinstance(exc, OSError) and not isinstance(exc, ShardError):
-            self._abort()
-            raise ShardError(f"could not write shard {self.path}: {exc.strerror or exc}") from None
+    def _os_error(self, exc: OSError) -> ShardError:
+        """The one-line error for a failed write (read-only, disk full); __exit__ removes the file."""
+        return ShardError(f"could not write shard {self.path}: {exc.strerror or exc}")
 
     def _abort(self):
         if self._pool is not None:
@@ -444,6 +445,17 @@ def atomic_file(path, tmp=None):
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def write_npz_atomic(path, tmp=None, **arrays) -> Path:
+    """``np.savez`` to ``path`` atomically (atomic_file). Built in memory, then written in
+    one go: np.savez leaves its zip file open when a write fails (disk full), and Python
+    then prints that zip file's error on exit, after our one-line message."""
+    npz = io.BytesIO()
+    np.savez(npz, **arrays)
+    with atomic_file(path, tmp) as partial, open(partial, "wb") as fh:
+        fh.write(npz.getbuffer())
+    return Path(path)
 
 
 def write_json_atomic(path, payload) -> None:

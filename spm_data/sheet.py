@@ -2,16 +2,14 @@
 
 from __future__ import annotations
 
-import errno
 import os
-import shutil
 from pathlib import Path
 
 import numpy as np
 
 from spm_data.errors import ShardError, SpmError
 from spm_data.poses import project_points
-from spm_data.outputs import nearest_existing, top_created
+from spm_data.outputs import removing_created, space_fix, unwritable
 from spm_data.shards import atomic_file, read_attrs, read_shard
 
 AXIS_COLOURS = ((255, 40, 40), (40, 255, 40), (60, 120, 255))  # x red, y green, z blue (RGB)
@@ -28,11 +26,11 @@ def check_image_path(path, example: str = "sheet.png") -> Path:
     if path.suffix.lower() not in IMAGE_TYPES:
         got = f"unsupported extension {path.suffix!r}" if path.suffix else "no extension"
         raise SpmError(f"{path}: {got}; give a file name ending in {', '.join(IMAGE_TYPES)}")
-    base = nearest_existing(path.parent)
-    if not base.is_dir():
-        raise SpmError(f"cannot write {path}: {base} is a file, not a folder; give --out a path in a folder")
-    if not os.access(base, os.W_OK | os.X_OK):
-        raise SpmError(f"cannot write {path}: {base} is read-only; give --out a path in a writable folder")
+    problem = unwritable(path.parent)
+    if problem and problem[1] == "file":
+        raise SpmError(f"cannot write {path}: {problem[0]} is a file, not a folder; give --out a path in a folder")
+    if problem:
+        raise SpmError(f"cannot write {path}: {problem[0]} is read-only; give --out a path in a writable folder")
     return path
 
 
@@ -41,21 +39,16 @@ def save_image(path: Path, write) -> Path:
     then replaces ``path``. On any failure nothing is left, nor the folders made for it; an
     OSError (read-only, disk full) becomes a one-line SpmError."""
     path = Path(path)
-    made = top_created(path)  # the top folder made for the image, if any
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_file(path) as tmp, open(tmp, "wb") as fh:
-            write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-    except BaseException as exc:
-        if made is not None:
-            shutil.rmtree(made, ignore_errors=True)
-        if isinstance(exc, OSError):
-            fix = ("free space there" if exc.errno in (errno.ENOSPC, errno.EDQUOT) else
-                   "give --out a path in a writable folder")
-            raise SpmError(f"could not write {path}: {exc.strerror or exc}; {fix}") from None
-        raise
+        with removing_created(path):
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with atomic_file(path) as tmp, open(tmp, "wb") as fh:
+                write(fh)
+                fh.flush()
+                os.fsync(fh.fileno())
+    except OSError as exc:
+        fix = space_fix(exc, "give --out a path in a writable folder")
+        raise SpmError(f"could not write {path}: {exc.strerror or exc}; {fix}") from None
     return path
 
 

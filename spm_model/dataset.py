@@ -13,7 +13,6 @@ shard on ``workers`` processes (spm_data.executor), with per-frame progress.
 from __future__ import annotations
 
 import hashlib
-import io
 import os
 import socket
 import warnings
@@ -25,7 +24,8 @@ import numpy as np
 from spm_data.errors import ShardError, SpmError, SpmWarning
 from spm_data.executor import LocalExecutor
 from spm_data.folders import open_tree
-from spm_data.shards import PARTIAL_PREFIX, atomic_file, read_attrs, read_shard
+from spm_data.locking import pid_alive
+from spm_data.shards import PARTIAL_PREFIX, read_attrs, read_shard, write_npz_atomic
 from spm_model.features import FeatureConfig, frames_features
 
 CACHE_DIR = ".spm-features"
@@ -123,14 +123,9 @@ def extract_shard(job, report=lambda n: None) -> str:
     out = cache_path(shard, config)
     # Host and pid in the temporary name: remove_stale_partials can tell a dead writer's leftovers.
     tmp = out.parent / f"{PARTIAL_PREFIX}{out.name}.{socket.gethostname()}.{os.getpid()}.partial"
-    # Built in memory, then written in one go: np.savez leaves its zip file open when a write
-    # fails (disk full), and Python then prints that zip file's error on exit.
-    npz = io.BytesIO()
-    np.savez(npz, identity=identity, **features,
-             **{k: (v.astype(str) if v.dtype == object else v) for k, v in labels.items()})
     try:
-        with atomic_file(out, tmp), open(tmp, "wb") as fh:
-            fh.write(npz.getbuffer())
+        write_npz_atomic(out, tmp, identity=identity, **features,
+                         **{k: (v.astype(str) if v.dtype == object else v) for k, v in labels.items()})
     except OSError as exc:
         fix = "" if out.parent.name == CACHE_DIR else " or set SPM_CACHE_DIR to another folder"
         raise SpmError(f"could not write the feature cache {out}: {exc.strerror or exc}; "
@@ -185,16 +180,13 @@ def remove_stale_partials(shards: list[Path]) -> list[Path]:
                 parts = path.name.rsplit(".", 3)  # .NAME.npz . host . pid . partial
                 if len(parts) != 4 or parts[1] != host or not parts[2].isdigit():
                     continue
+                if pid_alive(int(parts[2])):
+                    continue
                 try:
-                    os.kill(int(parts[2]), 0)
-                except ProcessLookupError:
-                    try:
-                        path.unlink(missing_ok=True)
-                        removed.append(path)
-                    except OSError:
-                        pass  # a read-only folder: left as it is
-                except PermissionError:
-                    pass  # alive, another user's
+                    path.unlink(missing_ok=True)
+                    removed.append(path)
+                except OSError:
+                    pass  # a read-only folder: left as it is
     if moved:
         beside, why, user = moved[0]
         where = (f"{beside} ({why}); caching features in {user}" if len(moved) == 1 else

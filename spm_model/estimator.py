@@ -13,7 +13,6 @@ regressor switches to ``landmarks`` Nystrom centres above that many vectors.
 
 from __future__ import annotations
 
-import io
 import json
 import zipfile
 import zlib
@@ -22,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from spm_data.errors import SpmError
-from spm_data.shards import atomic_file
+from spm_data.errors import SpmError, one_line
+from spm_data.shards import write_npz_atomic
 from spm_model.features import FeatureConfig, image_features
 from spm_model.regressor import RBFPoseRegressor
 from spm_model.sparse import SparseError, SparseProjection, fit_projection
@@ -57,13 +56,7 @@ def save_model_file(path, kind: str, params: dict, arrays: dict, extra: dict | N
     """One ``.npz``: a JSON header (format, kind, parameters) and named arrays; no pickle."""
     path = Path(path)
     header = {"format": MODEL_FORMAT, "kind": kind, "params": params, **(extra or {})}
-    # Built in memory, then written in one go: np.savez leaves its zip file open when a write
-    # fails (disk full), and Python then prints that zip file's error on exit.
-    npz = io.BytesIO()
-    np.savez(npz, header=np.array(json.dumps(header)), **arrays)
-    with atomic_file(path) as tmp, open(tmp, "wb") as fh:
-        fh.write(npz.getbuffer())
-    return path
+    return write_npz_atomic(path, header=np.array(json.dumps(header)), **arrays)
 
 
 def load_model_file(path, kind: str | None = None) -> tuple[dict, dict]:
@@ -87,7 +80,7 @@ def load_model_file(path, kind: str | None = None) -> tuple[dict, dict]:
             raise ModelError(f"{path}: damaged spm model file (an empty file); {retrain}") from None
         if magic.startswith(b"PK"):  # a zip (every .npz is one) that cannot be read
             raise ModelError(f"{path}: damaged spm model file (truncated or corrupt: {type(exc).__name__}: "
-                             f"{_one_line(exc)}); {retrain}") from None
+                             f"{one_line(exc)}); {retrain}") from None
         raise ModelError(f"{path}: not an spm model file (not an .npz archive); {foreign}") from None
     if not isinstance(z, np.lib.npyio.NpzFile):
         raise ModelError(f"{path}: not an spm model file (a single numpy array, not an .npz archive); {foreign}")
@@ -99,17 +92,13 @@ def load_model_file(path, kind: str | None = None) -> tuple[dict, dict]:
             arrays = {k: z[k] for k in z.files if k != "header"}
         except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
             raise ModelError(f"{path}: damaged spm model file (truncated or corrupt: "
-                             f"{type(exc).__name__}: {_one_line(exc)}); {retrain}") from None
+                             f"{type(exc).__name__}: {one_line(exc)}); {retrain}") from None
     if not isinstance(header, dict) or not isinstance(header.get("format", 0), int):
         raise ModelError(f"{path}: damaged spm model file (its header is not spm's); {retrain}")
     if header.get("format", 0) > MODEL_FORMAT or (kind is not None and header.get("kind") != kind):
         raise ModelError(f"{path}: model format {header.get('format')} of kind {header.get('kind')} is not one "
                          f"this spm reads here ({kind or 'any'}, format {MODEL_FORMAT}); retrain or upgrade spm")
     return header, arrays
-
-
-def _one_line(exc) -> str:
-    return " ".join(str(exc).split())
 
 
 class SPMEstimator:

@@ -5,13 +5,12 @@ threshold) and occlusion.png (success against occlusion)."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
 from spm_data.errors import SpmError
-from spm_data.outputs import nearest_existing
+from spm_data.outputs import unwritable
 from spm_data.shards import atomic_file, write_json_atomic
 from spm_model.methods import METHOD_NAMES
 from spm_model.metrics import CURVE_THRESHOLDS
@@ -237,12 +236,12 @@ def check_report_folder(out_dir) -> Path:
     """``out_dir`` as a Path when it is a folder this process can write in, or can be made as
     one; else a one-line SpmError. Creates nothing: for checking before any work is done."""
     out = Path(out_dir)
-    base = nearest_existing(out)
-    if not base.is_dir():
-        got = "is a file" if base == out else f"cannot be made: {base} is a file"
+    problem = unwritable(out)
+    if problem and problem[1] == "file":
+        got = "is a file" if problem[0] == out else f"cannot be made: {problem[0]} is a file"
         raise SpmError(f"report folder {out} {got}; give a folder with --report")
-    if not os.access(base, os.W_OK | os.X_OK):
-        raise SpmError(f"report folder {out} cannot be written: {base} is read-only; give a writable folder "
+    if problem:
+        raise SpmError(f"report folder {out} cannot be written: {problem[0]} is read-only; give a writable folder "
                        "with --report")
     return out
 

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import json
-import shutil
 from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
-from spm_data.errors import SpmError
+from spm_data.errors import SpmError, one_line
+from spm_data.outputs import removing_created
 from spm_data.importing import ImageError, decode_bytes
 from spm_model.dataset import FeatureTable, load_features
 from spm_model.estimator import ModelError, SPMEstimator, load_model_file
@@ -79,21 +79,14 @@ def train(shards, report_dir=None, *, protocol: str = "loco", runs: int = 3, wor
                "model_params": {k: v for k, v in model_params.items() if k != "features"},
                "features": asdict(features), "estimators": {name: f"{cls.__module__}:{cls.__qualname__}"
                                                             for name, cls in plugins.items()}}
-    made = out  # the top folder this run creates: removed again if writing fails
-    while not made.parent.exists() and made.parent != made:
-        made = made.parent
-    made = None if made.exists() else made
     try:
-        out.mkdir(parents=True, exist_ok=True)
-        model_path = model.save(out / "model.npz")
-        reference_path = reference.save(out / "reference-model.npz")
-        summary = write_report(evaluation, context, out)
-    except BaseException as exc:
-        if made is not None:
-            shutil.rmtree(made, ignore_errors=True)
-        if isinstance(exc, OSError):
-            raise write_error(out, exc) from None
-        raise
+        with removing_created(out / "model.npz"):  # a report folder this run made goes again on failure
+            out.mkdir(parents=True, exist_ok=True)
+            model_path = model.save(out / "model.npz")
+            reference_path = reference.save(out / "reference-model.npz")
+            summary = write_report(evaluation, context, out)
+    except OSError as exc:
+        raise write_error(out, exc) from None
     return {"report": out, "model": model_path, "reference_model": reference_path, "summary": summary,
             "evaluation": evaluation, "text": summary_text(summary)}
 
@@ -151,8 +144,7 @@ def load_model(path):
                    f"{type(exc).__name__}: {exc}" if isinstance(exc, IndexError) else str(exc))
     else:
         return model
-    problem = " ".join(problem.split())
-    raise ModelError(f"{path}: damaged spm model file ({problem}); retrain it with spm train")
+    raise ModelError(f"{path}: damaged spm model file ({one_line(problem)}); retrain it with spm train")
 
 
 def evaluate_model(model_path, shards, *, workers: int = 1, progress=None, executor=None,
@@ -257,7 +249,7 @@ def predict_images(model_path, images, *, roi=None, mask_path=None) -> list[dict
                             **({"keypoints": int(out["keypoints"]), "eccentricity": float(out["eccentricity"])}
                                if "keypoints" in out else {})})
         except (ImageError, FeatureError, ModelError) as exc:
-            results.append({"image": str(image), "error": " ".join(str(exc).split())})
+            results.append({"image": str(image), "error": one_line(exc)})
     return results
 
 
