@@ -16,7 +16,7 @@ import zipfile
 from pathlib import Path
 
 from spm_data.errors import SpmError
-from spm_data.importing import FrameRecord, import_records
+from spm_data.importing import FrameRecord, check_fov_option, import_records
 from spm_data.poses import camera_pose, intrinsics_from_fov
 
 NAME = re.compile(r"(?:^|/)obj(\d+)__(\d+)\.(png|ppm)$", re.IGNORECASE)
@@ -68,8 +68,7 @@ def check_assumed_camera(elevation, distance, fov) -> None:
         raise SpmError(f"--elevation {elevation}: expected a finite angle in [-90, 90] degrees")
     if not 0 < distance < float("inf"):
         raise SpmError(f"--distance {distance}: expected a finite camera distance > 0 metres")
-    if not 0 < fov < 180:
-        raise SpmError(f"--fov {fov}: expected a vertical field of view in (0, 180) degrees")
+    check_fov_option(fov)
 
 
 def coil100_records(path, *, elevation=0.0, distance=1.0, fov=30.0, classes=None):

@@ -23,7 +23,7 @@ import numpy as np
 
 from spm_data import __version__
 from spm_data.errors import SpmError, one_line
-from spm_data.poses import pose_to_label
+from spm_data.poses import is_rotation, pose_to_label
 from spm_data.shard_runs import RunSummary, run_shard_jobs
 from spm_data.shards import SCHEMA_VERSION, manifest_entry, write_shard
 
@@ -333,7 +333,13 @@ def import_shard(job: ImportJob, report=lambda n: None) -> dict:
     return {"entry": manifest_entry(target), "skipped": skipped, "frames": n}
 
 
-def pose_problem(R, t, K=None, *, rotation_tolerance: float = 1e-3) -> str | None:
+def check_fov_option(fov) -> None:
+    """SpmError unless ``--fov`` is a vertical field of view in (0, 180) degrees (NaN is not)."""
+    if not 0 < fov < 180:
+        raise SpmError(f"--fov {fov}: expected a vertical field of view in (0, 180) degrees")
+
+
+def pose_problem(R, t, K=None) -> str | None:
     """Why a pose (R (3, 3), t (3,) metres, K (3, 3) or None) cannot be imported, or None:
     non-finite values, R not a rotation, fx or fy not > 0. Importers call it before writing."""
     R = np.asarray(R, dtype=np.float64).reshape(3, 3)
@@ -341,7 +347,7 @@ def pose_problem(R, t, K=None, *, rotation_tolerance: float = 1e-3) -> str | Non
     fmt = lambda a: "[" + ", ".join(f"{v:g}" for v in np.ravel(a)) + "]"  # noqa: E731
     if not np.isfinite(R).all():
         return f"the rotation has a non-finite value (R = {fmt(R)}); expected finite numbers"
-    if not np.allclose(R @ R.T, np.eye(3), atol=rotation_tolerance) or np.linalg.det(R) <= 0:
+    if not is_rotation(R):
         return f"R = {fmt(R)} is not a rotation matrix (orthonormal, determinant +1)"
     if not np.isfinite(t).all():
         return f"the translation has a non-finite value (t = {fmt(t)}); expected finite numbers"

@@ -24,7 +24,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from spm_data.errors import SpmError
-from spm_data.importing import FrameRecord, ImageError, image_size, import_records
+from spm_data.importing import FrameRecord, ImageError, check_fov_option, image_size, import_records
+from spm_data.poses import is_rotation
 
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 MATRIX = [f"r{i}{j}" for i in (1, 2, 3) for j in (1, 2, 3)]
@@ -54,7 +55,7 @@ def rotation_from_row(row: dict, euler: str, where: str) -> np.ndarray:
     """(3, 3) rotation from a CSV row: matrix, quaternion (w first) or Euler degrees."""
     if all(k in row for k in MATRIX):
         R = np.array([_float(row, k, where) for k in MATRIX]).reshape(3, 3)
-        if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0:
+        if not is_rotation(R, atol=1e-4):
             raise SpmError(f"{where}: r11..r33 is not a rotation matrix (orthonormal, determinant +1); fix that row")
         return R
     if all(k in row for k in QUATERNION):
@@ -152,8 +153,8 @@ def folder_records(poses_csv, *, unit="m", euler="XYZ", fov=None, class_name="fo
     poses_csv = Path(poses_csv)
     if unit not in UNITS or depth_unit not in UNITS:
         raise SpmError(f"--unit and --depth-unit take one of {', '.join(UNITS)}; got {unit!r}, {depth_unit!r}")
-    if fov is not None and not 0 < fov < 180:
-        raise SpmError(f"--fov {fov}: expected a vertical field of view in (0, 180) degrees")
+    if fov is not None:
+        check_fov_option(fov)
     rows = _read_table(poses_csv, fov)
     base = Path(base) if base is not None else poses_csv.parent
     records, problems, instances = [], [], {}

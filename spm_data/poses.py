@@ -142,6 +142,12 @@ def label_to_view(label):
     return {k: float(v[0]) for k, v in view.items()} if single else view
 
 
+def is_rotation(R, atol: float = 1e-3) -> bool:
+    """Whether ``R`` (3, 3) is a rotation: orthonormal within ``atol``, determinant +1."""
+    R = np.asarray(R, dtype=np.float64).reshape(3, 3)
+    return bool(np.allclose(R @ R.T, np.eye(3), atol=atol) and np.linalg.det(R) > 0)
+
+
 def intrinsics_from_fov(fov_y_deg, width, height):
     """Pinhole ``K`` (3, 3) float64 with square pixels and a centred principal point.
 

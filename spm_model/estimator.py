@@ -59,6 +59,16 @@ def save_model_file(path, kind: str, params: dict, arrays: dict, extra: dict | N
     return write_npz_atomic(path, header=np.array(json.dumps(header)), **arrays)
 
 
+def _need(ok: bool, what: str) -> None:
+    """A loaded model's consistency check: ValueError(what) unless ``ok``."""
+    if not ok:
+        raise ValueError(what)
+
+
+def _need_finite(*arrays) -> None:
+    _need(all(np.isfinite(np.asarray(a, dtype=np.float64)).all() for a in arrays), "arrays hold NaN or inf")
+
+
 def load_model_file(path, kind: str | None = None) -> tuple[dict, dict]:
     """(header, arrays) of a model file; ModelError naming the file for a missing, truncated,
     corrupt, foreign or newer one."""
@@ -166,7 +176,11 @@ class SPMEstimator:
 
     @classmethod
     def load(cls, path) -> "SPMEstimator":
-        header, arrays = load_model_file(path, "spm")
+        return cls.from_model_file(*load_model_file(path, "spm"))
+
+    @classmethod
+    def from_model_file(cls, header: dict, arrays: dict) -> "SPMEstimator":
+        """The model a file's (header, arrays) describe (load_model_file)."""
         model = cls(**header["params"], features=FeatureConfig(**header["features"]))
         model.projection_ = SparseProjection(W=arrays["W"])
         reg = model._regressor()
@@ -174,3 +188,16 @@ class SPMEstimator:
                                                               arrays["dual_coef"], arrays["mean"])
         model.regressor_ = reg
         return model
+
+    def check_loaded(self) -> None:
+        """ValueError when a loaded model's arrays do not fit together (a damaged or hand-made file)."""
+        W, reg = np.asarray(self.projection_.W), self.regressor_
+        _need(W.ndim == 2 and W.shape[0] == self.features.dims,
+              f"projection W is {W.shape}, expected ({self.features.dims}, d)")
+        _need(reg.X_fit_.ndim == 2 and reg.X_fit_.shape[1] == W.shape[1] and len(reg.X_fit_) > 0,
+              f"centres are {reg.X_fit_.shape}, expected (m, {W.shape[1]})")
+        _need(reg.dual_coef_.shape == (len(reg.X_fit_), 9), f"dual_coef is {reg.dual_coef_.shape}, "
+              f"expected ({len(reg.X_fit_)}, 9)")
+        _need(np.shape(reg.mean_) == (9,), f"mean is {np.shape(reg.mean_)}, expected (9,)")
+        _need(isinstance(reg.gamma_, (int, float)) and reg.gamma_ > 0, f"gamma_ is {reg.gamma_!r}")
+        _need_finite(W, reg.X_fit_, reg.dual_coef_, reg.mean_)

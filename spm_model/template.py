@@ -198,12 +198,31 @@ class TemplatePose:
     def load(cls, path) -> "TemplatePose":
         from spm_model.estimator import load_model_file
 
-        header, arrays = load_model_file(path, "template")
+        return cls.from_model_file(*load_model_file(path, "template"))
+
+    @classmethod
+    def from_model_file(cls, header: dict, arrays: dict) -> "TemplatePose":
+        """The model a file's (header, arrays) describe (load_model_file)."""
         model = cls(**header["params"])
         for k, v in arrays.items():
             setattr(model, k + "_", v)
         model._check_fitted()
         return model
+
+    def check_loaded(self) -> None:
+        """ValueError when a loaded model's arrays do not fit together (a damaged or hand-made file)."""
+        from spm_model.estimator import _need, _need_finite
+
+        n, k = len(self.poses_), self.basis_.shape[-1]
+        _need(self.mean_.shape == (HOG_SIZE,) and self.basis_.shape == (HOG_SIZE, k) and n > 0,
+              f"mean {self.mean_.shape} and basis {self.basis_.shape}, expected ({HOG_SIZE},), ({HOG_SIZE}, k)")
+        _need(self.codes_.shape == (n, k) and self.poses_.shape == (n, 6)
+              and self.geometry_.shape == (n, len(GEOMETRY)) and self.distance_.shape == (n,),
+              f"templates of different lengths (codes {self.codes_.shape}, poses {self.poses_.shape}, "
+              f"geometry {self.geometry_.shape}, distance {self.distance_.shape})")
+        _need(np.shape(self.focal_per_height_) == () and float(self.focal_per_height_) > 0,
+              f"focal_per_height is {self.focal_per_height_!r}")
+        _need_finite(self.mean_, self.basis_, self.codes_, self.poses_, self.geometry_, self.distance_)
 
     def predict(self, frames) -> np.ndarray:
         desc = describe_frames(frames)

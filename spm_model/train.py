@@ -91,50 +91,17 @@ def train(shards, report_dir=None, *, protocol: str = "loco", runs: int = 3, wor
             "evaluation": evaluation, "text": summary_text(summary)}
 
 
-def _check_loaded(model) -> None:
-    """ValueError when a loaded model's arrays do not fit together (a damaged or hand-made file)."""
-    from spm_model.template import GEOMETRY, HOG_SIZE
-
-    def need(ok, what):
-        if not ok:
-            raise ValueError(what)
-
-    if isinstance(model, SPMEstimator):
-        W, reg = np.asarray(model.projection_.W), model.regressor_
-        need(W.ndim == 2 and W.shape[0] == model.features.dims,
-             f"projection W is {W.shape}, expected ({model.features.dims}, d)")
-        need(reg.X_fit_.ndim == 2 and reg.X_fit_.shape[1] == W.shape[1] and len(reg.X_fit_) > 0,
-             f"centres are {reg.X_fit_.shape}, expected (m, {W.shape[1]})")
-        need(reg.dual_coef_.shape == (len(reg.X_fit_), 9), f"dual_coef is {reg.dual_coef_.shape}, "
-             f"expected ({len(reg.X_fit_)}, 9)")
-        need(np.shape(reg.mean_) == (9,), f"mean is {np.shape(reg.mean_)}, expected (9,)")
-        need(isinstance(reg.gamma_, (int, float)) and reg.gamma_ > 0, f"gamma_ is {reg.gamma_!r}")
-        arrays = (W, reg.X_fit_, reg.dual_coef_, reg.mean_)
-    else:
-        n, k = len(model.poses_), model.basis_.shape[-1]
-        need(model.mean_.shape == (HOG_SIZE,) and model.basis_.shape == (HOG_SIZE, k) and n > 0,
-             f"mean {model.mean_.shape} and basis {model.basis_.shape}, expected ({HOG_SIZE},), ({HOG_SIZE}, k)")
-        need(model.codes_.shape == (n, k) and model.poses_.shape == (n, 6)
-             and model.geometry_.shape == (n, len(GEOMETRY)) and model.distance_.shape == (n,),
-             f"templates of different lengths (codes {model.codes_.shape}, poses {model.poses_.shape}, "
-             f"geometry {model.geometry_.shape}, distance {model.distance_.shape})")
-        need(np.shape(model.focal_per_height_) == () and float(model.focal_per_height_) > 0,
-             f"focal_per_height is {model.focal_per_height_!r}")
-        arrays = (model.mean_, model.basis_, model.codes_, model.poses_, model.geometry_, model.distance_)
-    need(all(np.isfinite(np.asarray(a, dtype=np.float64)).all() for a in arrays), "arrays hold NaN or inf")
-
-
 def load_model(path):
     """A model file from ``spm train``: an SPMEstimator (model.npz) or a TemplatePose (reference-model.npz).
     ModelError naming the file for a missing, truncated, corrupt or foreign one."""
-    header, _ = load_model_file(path)
+    header, arrays = load_model_file(path)  # read once
     kinds = {"spm": SPMEstimator, "template": TemplatePose}
     if header.get("kind") not in kinds:
         raise ModelError(f"{path}: not an spm model file (kind {header.get('kind')!r}, expected one of "
                          f"{sorted(kinds)}); give the model.npz or reference-model.npz that spm train wrote")
     try:
-        model = kinds[header["kind"]].load(path)
-        _check_loaded(model)
+        model = kinds[header["kind"]].from_model_file(header, arrays)
+        model.check_loaded()
     except ModelError as exc:
         if str(exc).startswith(str(path)):
             raise
