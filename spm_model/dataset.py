@@ -205,7 +205,8 @@ def load_features(folder, config: FeatureConfig = FeatureConfig(), *, workers: i
     allow_partial: read folders still being written (spm_data.folders.open_folder)."""
     shards = find_shards(folder, allow_partial)
     remove_stale_partials(shards)
-    todo = [(str(s), config) for s in shards if cached(s, config) is None]
+    paths = {s: cached(s, config) for s in shards}   # where each shard's features are, once decided
+    todo = [(str(s), config) for s, p in paths.items() if p is None]
     if progress is not None:
         progress.total = sum(int(read_attrs(path)["frames"]) for path, _ in todo)
     executor = executor or LocalExecutor(workers=workers, retries=1)
@@ -214,9 +215,10 @@ def load_features(folder, config: FeatureConfig = FeatureConfig(), *, workers: i
     if failed:
         raise SpmError(f"feature extraction failed for {len(failed)} shard(s); first: "
                        f"{Path(failed[0].job[0]).name}: {failed[0].error}")
+    paths.update({Path(o.job[0]): Path(o.result) for o in outcomes})
     tables = []
     for shard in shards:
-        with np.load(cache_path(shard, config)) as z:
+        with np.load(paths[shard]) as z:
             arrays = {k: z[k] for k in z.files if k != "identity"}
         n = len(arrays["pose"])
         arrays["instance"] = np.char.add(np.char.add(arrays.pop("source"), ":"),
