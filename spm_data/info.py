@@ -9,7 +9,7 @@ import numpy as np
 
 from spm_data.errors import ShardError, SpmWarning
 from spm_data.folders import open_folder
-from spm_data.shards import MANIFEST, read_attrs, read_manifest, read_shard
+from spm_data.shards import MANIFEST, h5_is_string, read_attrs, read_manifest, read_shard
 
 
 def describe_shard(path) -> str:
@@ -21,7 +21,7 @@ def describe_shard(path) -> str:
              f"({attrs.get('renderer_version', '')}), seed {attrs.get('seed')}"]
     with h5py.File(path, "r") as f:
         for name, ds in f.items():
-            lines.append(f"  {name:<20} {str(ds.shape):<22} {ds.dtype}")
+            lines.append(f"  {name:<20} {str(ds.shape):<22} {'str' if h5_is_string(ds) else ds.dtype}")
     meta = read_shard(path, ["class_name", "instance_name", "source", "azimuth", "elevation", "distance",
                              "occlusion_fraction"])
     if len(meta["class_name"]):

@@ -213,8 +213,9 @@ def load_features(folder, config: FeatureConfig = FeatureConfig(), *, workers: i
     outcomes = executor.run(extract_shard, todo, on_progress=progress)
     failed = [o for o in outcomes if o.error]
     if failed:
-        raise SpmError(f"feature extraction failed for {len(failed)} shard(s); first: "
-                       f"{Path(failed[0].job[0]).name}: {failed[0].error}")
+        first, error = Path(failed[0].job[0]), str(failed[0].error)
+        where = "" if error.startswith(str(first)) else f"{first.name}: "  # shard errors name their shard
+        raise SpmError(f"feature extraction failed for {len(failed)} shard(s); first: {where}{error}")
     paths.update({Path(o.job[0]): Path(o.result) for o in outcomes})
     tables = []
     for shard in shards:
