@@ -99,6 +99,23 @@ def _rays(K: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return r / np.linalg.norm(r, axis=1, keepdims=True)
 
 
+def _principal_axes(centred: np.ndarray, k: int) -> np.ndarray:
+    """(d, k') orthonormal principal axes of ``centred`` (n, d) rows, largest variance first,
+    k' = min(k, d, n). With fewer rows than dimensions the n x n Gram matrix is decomposed
+    instead of the d x d scatter matrix (d = 3528: seconds, and minutes on a loaded machine,
+    where a threaded eigensolver stalls), and each axis is ``centred.T @ u`` normalised;
+    axes the rows do not span (zero variance) are left out."""
+    n, d = centred.shape
+    if n >= d:
+        _, vectors = np.linalg.eigh(centred.T @ centred)
+        return vectors[:, ::-1][:, :min(k, d)].copy()
+    values, u = np.linalg.eigh(centred @ centred.T)
+    values, u = values[::-1], u[:, ::-1]
+    keep = values > values[0] * 1e-10 if values[0] > 0 else np.zeros(n, bool)
+    axes = centred.T @ u[:, keep][:, :k]
+    return axes / np.linalg.norm(axes, axis=0)
+
+
 class TemplatePose:
     """fit(frames, poses (n, 6)) -> self; predict(frames) -> (n, 6), NaN for an empty mask."""
 
@@ -117,9 +134,7 @@ class TemplatePose:
         hog = _unit(desc[ok, :HOG_SIZE])
         self.mean_ = hog.mean(axis=0)
         centred = hog - self.mean_
-        k = min(self.components, centred.shape[1], len(centred))
-        _, vectors = np.linalg.eigh(centred.T @ centred)
-        self.basis_ = vectors[:, ::-1][:, :k].copy()
+        self.basis_ = _principal_axes(centred, self.components)
         self.codes_ = centred @ self.basis_
         self.poses_ = poses[ok]
         self.geometry_ = desc[ok, HOG_SIZE:].astype(np.float64)

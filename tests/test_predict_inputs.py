@@ -251,7 +251,7 @@ def damaged_models(models, root):
     arrays["poses"] = arrays["poses"][:3]
     np.savez(root / "cut.npz", **arrays)
     out.append((root / "cut.npz", f"{root / 'cut.npz'}: damaged spm model file (templates of different lengths "
-                                  f"(codes (12, 12), poses (3, 6), geometry (12, 7), distance (12,))); {RETRAIN}"))
+                                  f"(codes (12, 11), poses (3, 6), geometry (12, 7), distance (12,))); {RETRAIN}"))
     out.append((root / "none.npz", f"model file not found: {root / 'none.npz'}; train one with spm train"))
     return out
 
