@@ -15,7 +15,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from spm_data.paths import camera_path  # noqa: E402
 from spm_data.render import make_renderer  # noqa: E402
-from spm_data.render_jobs import load_instance  # noqa: E402
+from spm_data.instances import load_instance  # noqa: E402
 from spm_data.specs import find_spec, load_spec  # noqa: E402
 
 

@@ -14,7 +14,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from spm_data.paths import camera_path  # noqa: E402
 from spm_data.render import make_renderer  # noqa: E402
-from spm_data.render_jobs import instance_count, load_instance  # noqa: E402
+from spm_data.instances import instance_count, load_instance  # noqa: E402
 from spm_data.specs import all_spec_paths, load_spec  # noqa: E402
 
 

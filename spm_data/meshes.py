@@ -9,18 +9,21 @@ image, so any renderer can draw it and SIFT finds keypoints on the renders.
 from __future__ import annotations
 
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
 from spm_data.errors import MeshError
+from spm_data.poses import GLTF_TO_OBJECT
+from spm_data.symmetries import NO_SYMMETRY, Symmetries, rotation
 from spm_data.textures import procedural_texture
 
 CLASSES = ("box", "car", "motorcycle", "ball", "animal4", "cup")
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
 _SMOOTH_ANGLE_DEG = 35.0  # corners whose faces bend less than this share a normal
+GLTF_SUFFIXES = (".glb", ".gltf")
 
 
 @dataclass(frozen=True, eq=False)
@@ -29,7 +32,9 @@ class TexturedMesh:
 
     vertices (V, 3) float64 metres, object frame; faces (F, 3) int64;
     normals (V, 3) float64 unit; uv (V, 2) float64 in [0, 1] with v = 0 at the
-    image's bottom row (OpenGL / Blender / trimesh); texture (H, W, 3) uint8.
+    image's bottom row (OpenGL / Blender / trimesh); texture (H, W, 3) uint8;
+    symmetries: the shape's own (exact for built-in classes, declared in the
+    spec for mesh files).
     """
 
     name: str
@@ -38,6 +43,7 @@ class TexturedMesh:
     normals: np.ndarray
     uv: np.ndarray
     texture: np.ndarray
+    symmetries: Symmetries = NO_SYMMETRY
 
     def to_trimesh(self) -> trimesh.Trimesh:
         from PIL import Image
@@ -85,19 +91,29 @@ def _wheel(radius, width, centre, torus=False):
 
 
 # --------------------------------------------------------------------------- the six classes
+# Each generator returns (parts, Symmetries). A symmetry is stated about the parts' bounding-box
+# centre, which normalise() moves to the origin; the bounding box of a symmetric shape is
+# symmetric too, so its centre lies on every symmetry axis.
+
+_HALF_TURN_X, _HALF_TURN_Y, _HALF_TURN_Z = (rotation(a, 180.0) for a in np.eye(3))
 
 def _make_box(rng):
     ex = np.array([rng.uniform(0.6, 1.4), rng.uniform(0.5, 1.2), rng.uniform(0.35, 1.0)])
     parts = [_box(ex, [0, 0, ex[2] / 2])]
-    if rng.random() < 0.6:  # a lid overhanging the body
+    lid, handle = rng.random() < 0.6, None
+    if lid:  # a lid overhanging the body
         lid_h = ex[2] * rng.uniform(0.12, 0.25)
         parts.append(_box([ex[0] * 1.06, ex[1] * 1.06, lid_h], [0, 0, ex[2] + lid_h / 2 - 0.01]))
-    if rng.random() < 0.5:  # a carrying handle on top
+    handle = rng.random() < 0.5
+    if handle:  # a carrying handle on top, in the x-z plane
         top = ex[2] * 1.25
         half = ex[0] * 0.25
         parts += [_rod([-half, 0, ex[2]], [-half, 0, top], 0.03), _rod([half, 0, ex[2]], [half, 0, top], 0.03),
                   _rod([-half, 0, top], [half, 0, top], 0.03)]
-    return parts
+    # Every part is centred on the z axis and mirrored in x and y: a half turn about z maps the
+    # box onto itself; a bare box (no lid, no handle) also turns over about x and y.
+    turns = (_HALF_TURN_Z,) if lid or handle else (_HALF_TURN_X, _HALF_TURN_Y, _HALF_TURN_Z)
+    return parts, Symmetries(discrete=turns)
 
 
 def _make_car(rng):
@@ -119,7 +135,7 @@ def _make_car(rng):
         parts += [_rod([-0.45, -0.12, z0 + body_h], [-0.45, -0.12, top], 0.012),
                   _rod([-0.45, 0.12, z0 + body_h], [-0.45, 0.12, top], 0.012),
                   _box([0.1, width * 0.95, 0.02], [-0.46, 0, top])]
-    return parts
+    return parts, NO_SYMMETRY  # an off-centre part (cab, handle, head, fork) breaks every turn
 
 
 def _make_motorcycle(rng):
@@ -138,7 +154,7 @@ def _make_motorcycle(rng):
              _box([rng.uniform(0.3, 0.45), 0.2, 0.07], [-base * 0.35, 0, seat_z])]  # seat
     if rng.random() < 0.5:  # exhaust
         parts.append(_rod([-0.05, 0.1, r * 0.8], [-base * 1.1, 0.1, r * 1.1], 0.025))
-    return parts
+    return parts, NO_SYMMETRY  # an off-centre part (cab, handle, head, fork) breaks every turn
 
 
 def _make_ball(rng):
@@ -147,7 +163,8 @@ def _make_ball(rng):
     if rng.random() < 0.5:  # a raised seam round the equator
         parts.append(trimesh.creation.torus(major_radius=1.0, minor_radius=0.03,
                                             major_sections=64, minor_sections=8))
-    return parts
+    # A spheroid about z, with or without its equator seam: every turn about z, and turned over.
+    return parts, Symmetries(discrete=(_HALF_TURN_X,), continuous=(np.array([0.0, 0.0, 1.0]),))
 
 
 def _make_animal4(rng):
@@ -168,7 +185,7 @@ def _make_animal4(rng):
             ear = trimesh.creation.cone(radius=0.035, height=0.1)
             ear.apply_translation(head + [0.02, y, 0.07])
             parts.append(ear)
-    return parts
+    return parts, NO_SYMMETRY  # an off-centre part (cab, handle, head, fork) breaks every turn
 
 
 def _make_cup(rng):
@@ -189,7 +206,7 @@ def _make_cup(rng):
     parts.append(handle)
     if rng.random() < 0.4:  # saucer
         parts.append(trimesh.creation.cylinder(radius=r_top * 1.5, height=0.03, sections=48))
-    return parts
+    return parts, NO_SYMMETRY  # an off-centre part (cab, handle, head, fork) breaks every turn
 
 
 _GENERATORS = {"box": _make_box, "car": _make_car, "motorcycle": _make_motorcycle,
@@ -279,17 +296,20 @@ def procedural_mesh(class_name: str, instance: int, seed: int = 0, size: float =
     if class_name not in _GENERATORS:
         raise MeshError(f"unknown procedural class {class_name!r}; expected one of {', '.join(CLASSES)}")
     rng = instance_rng(seed, class_name, instance)
-    mesh = trimesh.util.concatenate(_GENERATORS[class_name](rng))
-    return to_textured(mesh, f"{class_name}-{instance:03d}", size, rng)
+    parts, symmetries = _GENERATORS[class_name](rng)
+    mesh = to_textured(trimesh.util.concatenate(parts), f"{class_name}-{instance:03d}", size, rng)
+    return replace(mesh, symmetries=symmetries)
 
 
 def load_mesh_file(path, size: float = 0.25, seed: int = 0, instance: int = 0,
-                   texture: str = "auto") -> TexturedMesh:
+                   texture: str = "auto", symmetries: Symmetries = NO_SYMMETRY) -> TexturedMesh:
     """Load a user mesh (.obj .ply .stl .glb .gltf .off) through trimesh.
 
-    Multi-part files are concatenated; non-watertight meshes are fine. texture:
-    ``"auto"`` keeps the file's image texture when it has one, ``"procedural"``
-    always paints a seeded procedural texture.
+    Multi-part files are concatenated; non-watertight meshes are fine. glTF
+    files (+y up, front +z) are turned into the object frame (+z up, front +x)
+    by poses.GLTF_TO_OBJECT. texture: ``"auto"`` keeps the file's own image
+    texture when it has one, ``"procedural"`` always paints a seeded procedural
+    one. symmetries: the shape's, as the spec declares them (declared_symmetries).
     """
     path = Path(path)
     if texture not in ("auto", "procedural"):
@@ -311,5 +331,10 @@ def load_mesh_file(path, size: float = 0.25, seed: int = 0, instance: int = 0,
     if not np.all(np.isfinite(loaded.vertices)):
         raise MeshError(f"{path}: mesh has non-finite vertex coordinates")
     loaded.remove_unreferenced_vertices()
+    if path.suffix.lower() in GLTF_SUFFIXES:
+        turn = np.eye(4)
+        turn[:3, :3] = GLTF_TO_OBJECT
+        loaded.apply_transform(turn)
     rng = instance_rng(seed, path.stem, instance)
-    return to_textured(loaded, path.stem, size, rng, keep_texture=(texture == "auto"))
+    mesh = to_textured(loaded, path.stem, size, rng, keep_texture=(texture == "auto"))
+    return replace(mesh, symmetries=symmetries)

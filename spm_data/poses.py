@@ -36,7 +36,16 @@ only at ``|sin(roll) cos(elevation)| = 1``, far from any default path.
 Pixels
 ------
 ``K`` follows OpenCV: the centre of pixel ``(col, row)`` is at ``u = col``,
-``v = row``; a centred camera has ``cx = (W - 1) / 2``.
+``v = row``; a centred camera has ``cx = (W - 1) / 2``. BOP, pyrender's
+``IntrinsicsCamera`` and Blender count from the pixel's corner instead (the
+centre of pixel ``(col, row)`` at ``u = col + 0.5``; a centred camera has
+``cx = W / 2``): :func:`K_to_corner_origin` and :func:`K_from_corner_origin`
+convert, at the boundary (the renderers, BOP export and import), and nowhere else.
+
+glTF
+----
+glTF files are ``+y`` up with the front towards ``+z``; :data:`GLTF_TO_OBJECT`
+turns them into the object frame (``+z`` up, front ``+x``) as they are loaded.
 """
 
 from __future__ import annotations
@@ -48,6 +57,10 @@ from spm_data.errors import SpmError
 
 EULER_ORDER = "XYZ"  # scipy: upper case = intrinsic rotations
 CV_TO_GL = np.diag([1.0, -1.0, -1.0])
+# glTF (x, y, z) -> object frame (z_gltf, x_gltf, y_gltf): +y up becomes +z up and the
+# glTF front (+z) becomes ours (+x); a rotation (det +1), so no mesh is mirrored.
+GLTF_TO_OBJECT = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+PIXEL_CORNER_SHIFT = 0.5  # pixels from OpenCV's principal point to a corner-origin one
 
 
 def camera_poses(azimuth, elevation, roll, distance, look_at=(0.0, 0.0, 0.0)):
@@ -157,6 +170,21 @@ def intrinsics_from_fov(fov_y_deg, width, height):
         raise SpmError(f"field of view must be in (0, 180) degrees, got {fov_y_deg}")
     f = (height / 2.0) / np.tan(np.radians(fov_y_deg) / 2.0)
     return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+
+
+def K_to_corner_origin(K) -> np.ndarray:
+    """OpenCV ``K`` (3, 3) -> the same camera with pixel-corner origin (BOP, pyrender,
+    Blender): ``cx + 0.5``, ``cy + 0.5``; a (3, 3) float64 copy."""
+    out = np.array(K, dtype=np.float64).reshape(3, 3)
+    out[:2, 2] += PIXEL_CORNER_SHIFT
+    return out
+
+
+def K_from_corner_origin(K) -> np.ndarray:
+    """Inverse of :func:`K_to_corner_origin`: ``cx - 0.5``, ``cy - 0.5``; (3, 3) float64."""
+    out = np.array(K, dtype=np.float64).reshape(3, 3)
+    out[:2, 2] -= PIXEL_CORNER_SHIFT
+    return out
 
 
 def project_points(points, K, R, t):

@@ -9,7 +9,6 @@ different spec or options refuses to mix its frames in.
 
 from __future__ import annotations
 
-import glob
 import hashlib
 import json
 import zlib
@@ -22,7 +21,7 @@ import numpy as np
 from spm_data import __version__
 from spm_data.backgrounds import background_image, composite
 from spm_data.errors import SpecError
-from spm_data.meshes import load_mesh_file, procedural_mesh
+from spm_data.instances import instance_count, load_instance, mesh_attrs, mesh_record
 from spm_data.paths import camera_path
 from spm_data.poses import pose_to_label
 from spm_data.render import make_renderer, spec_intrinsics
@@ -81,45 +80,6 @@ class ShardJob:
     def path_indices(self) -> np.ndarray:
         """(n,) int64 indices into the camera path."""
         return self.frame_ids()[1]
-
-
-# --------------------------------------------------------------------------- instances
-
-def mesh_files(spec: RenderSpec) -> list[Path]:
-    """The spec's mesh files (globs relative to the spec file), sorted, de-duplicated."""
-    found: list[Path] = []
-    for pattern in spec.mesh.files:
-        full = pattern if Path(pattern).is_absolute() else str(Path(spec.base_dir) / pattern)
-        matches = sorted(Path(p) for p in glob.glob(full, recursive=True))
-        if not matches:
-            raise SpecError(f"mesh.files: {pattern!r} matches no file (relative to {spec.base_dir})")
-        found += [m for m in matches if m not in found]
-    return found
-
-
-def instance_count(spec: RenderSpec) -> int:
-    return spec.mesh.instances if spec.mesh.source == "procedural" else len(mesh_files(spec))
-
-
-@lru_cache(maxsize=8)
-def load_instance(spec: RenderSpec, instance: int):
-    """The TexturedMesh of ``instance`` (cached per process: frames arrive grouped by instance)."""
-    m = spec.mesh
-    if m.source == "procedural":
-        return procedural_mesh(m.generator or spec.class_name, instance, seed=spec.seed, size=m.size)
-    return load_mesh_file(mesh_files(spec)[instance], size=m.size, seed=spec.seed, instance=instance,
-                          texture=m.texture)
-
-
-def shard_mesh(attrs: dict, instance_id: int):
-    """The TexturedMesh a synthetic shard's frame was rendered from (rebuilt from the
-    spec and seed in the shard's attributes), or None for other sources."""
-    if attrs.get("source") != "synthetic" or not attrs.get("spec"):
-        return None
-    from spm_data.specs import parse_spec
-
-    spec = parse_spec(attrs["spec"]).replace(seed=int(attrs.get("seed", 0)))
-    return load_instance(spec, instance_id)
 
 
 # --------------------------------------------------------------------------- planning
@@ -222,7 +182,7 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
     block = {"rgb": np.zeros((per, h, w, 3), np.uint8), "depth": np.zeros((per, h, w), np.float32),
              "mask": np.zeros((per, h, w), np.uint8)}
     with ShardWriter(Path(job.out_dir) / job.name, frames=n, height=h, width=w, images=tuple(block)) as writer:
-        current, names = None, {}
+        current, names, records = None, {}, {}
         for start in range(0, n, per):
             k = min(per, n - start)
             for j in range(k):
@@ -232,6 +192,7 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
                     mesh = load_instance(spec, int(inst))
                     renderer.set_mesh(mesh)
                     current, names[int(inst)] = inst, mesh.name
+                    records[int(inst)] = mesh_record(spec, int(inst))
                 out = renderer.render(R[i], t[i])
                 if spec.background.kind == "black":
                     block["rgb"][j] = out["rgb"]
@@ -258,7 +219,8 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
                  "seed": spec.seed, "class_name": spec.class_name, "shard_index": job.shard_index,
                  "renderer": renderer.name, "renderer_version": renderer.version(),
                  "renderer_settings": json.dumps(renderer.settings(), sort_keys=True),
-                 "spm_version": __version__, "source": "synthetic", "object_size": spec.mesh.size}
+                 "spm_version": __version__, "source": "synthetic", "object_size": spec.mesh.size,
+                 **mesh_attrs(spec, records)}
         target = writer.finish(labels, attrs)
     return {"entry": manifest_entry(target)}
 

@@ -373,28 +373,8 @@ def read_shard(path, fields=None, frames=slice(None)) -> dict:
     or sorted index array). String fields come back as (n,) object arrays of str.
     Verified: the attributes and layout first (read_attrs), then HDF5 checks the
     Fletcher-32 of every chunk it reads; a mismatch is a ShardError naming the field."""
-    with _open(path) as f:
-        _verified_attrs(path, f)
-        try:
-            names = list(f.keys()) if fields is None else list(fields)
-        except H5_ERRORS as exc:
-            raise ShardError(f"{path}: corrupt shard index ({type(exc).__name__}: {exc})") from None
-        out = {}
-        for name in names:
-            try:
-                if name not in f:
-                    raise ShardError(f"{path}: shard has no field {name!r}")
-                ds = f[name]
-                if h5_is_string(ds):
-                    out[name] = np.asarray(ds.asstr()[frames], dtype=object)
-                else:
-                    out[name] = ds[frames]
-            except ShardError:
-                raise
-            except (*H5_ERRORS, UnicodeDecodeError) as exc:
-                raise ShardError(f"{path}: field {name!r} fails its checksum or cannot be decoded; "
-                                 "the shard is corrupt") from None
-    return out
+    with ShardReader(path) as reader:
+        return reader.read(fields, frames)
 
 
 def h5_is_string(ds) -> bool:
@@ -527,3 +507,64 @@ def remove_partials(folder) -> list[Path]:
     for p in stale:
         p.unlink(missing_ok=True)
     return stale
+
+
+class ShardReader:
+    """One shard held open for many small reads (a training loop reading a frame
+    at a time; spm_data.loaders). Opening verifies the attributes and layout once
+    (read_attrs); each ``read`` is then checked by HDF5's Fletcher-32 on every
+    chunk it touches, with read_shard's errors (read_shard is this, opened once).
+    An h5py handle is not safe across fork: open one per process.
+
+    with ShardReader(path) as r:
+        r.attrs["frames"], r.fields()
+        r.read(["rgb", "K"], frames=5)   # {"rgb": (H, W, 3) uint8, "K": (3, 3) float64}
+    """
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.pid = os.getpid()
+        self._file = _open(self.path)
+        try:
+            self.attrs = _verified_attrs(self.path, self._file)
+        except BaseException:
+            self._file.close()
+            raise
+
+    def fields(self) -> list[str]:
+        """The names of the fields this shard has, in file order."""
+        try:
+            return list(self._file.keys())
+        except H5_ERRORS as exc:
+            raise ShardError(f"{self.path}: corrupt shard index ({type(exc).__name__}: {exc})") from None
+
+    def read(self, fields=None, frames=slice(None)) -> dict:
+        """``fields`` (default: all) for ``frames``: a slice or sorted index array
+        (first axis kept; strings as object arrays of str) or one int (that frame:
+        an array without the frame axis, a numpy scalar, or a str)."""
+        return {name: self._read_field(name, frames) for name in (self.fields() if fields is None else fields)}
+
+    def _read_field(self, name: str, frames):
+        try:
+            if name not in self._file:
+                raise ShardError(f"{self.path}: shard has no field {name!r}")
+            ds = self._file[name]
+            if h5_is_string(ds):
+                value = ds.asstr()[frames]
+                return value if isinstance(value, str) else np.asarray(value, dtype=object)
+            return ds[frames]
+        except ShardError:
+            raise
+        except (*H5_ERRORS, UnicodeDecodeError) as exc:
+            raise ShardError(f"{self.path}: field {name!r} fails its checksum or cannot be decoded; "
+                             "the shard is corrupt") from None
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False

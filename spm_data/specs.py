@@ -13,8 +13,9 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from spm_data.errors import SpecError
+from spm_data.errors import MeshError, SpecError
 from spm_data.meshes import CLASSES
+from spm_data.symmetries import parse_symmetry
 from spm_data.paths import AngleRange, CameraGrid, camera_path
 
 RENDERERS = ("pyrender", "blender")
@@ -30,6 +31,7 @@ class MeshSpec:
     files: tuple[str, ...] = ()     # globs relative to the spec file, for source = "files"
     size: float = 0.25              # longest bounding-box side, metres
     texture: str = "auto"           # "auto" (keep a file's own image texture) | "procedural"
+    symmetries: tuple[str, ...] = ()  # for files: "z" (every turn about z), "x/180" (n-fold turns)
 
 
 @dataclass(frozen=True)
@@ -89,6 +91,7 @@ class RenderSpec:
         """sha256 of everything that changes the rendered arrays."""
         payload = dataclasses.asdict(self)
         payload.pop("text"), payload.pop("base_dir")
+        payload["mesh"].pop("symmetries")  # metadata for the BOP export: the pixels do not change
         return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()
 
 
@@ -195,6 +198,13 @@ def _validate(spec: RenderSpec) -> RenderSpec:
         _check(m.instances >= 1, f"mesh.instances: expected an integer >= 1, got {m.instances}")
     else:
         _check(len(m.files) > 0, "mesh.files: give at least one path or glob when mesh.source = \"files\"")
+    _check(m.source == "files" or not m.symmetries,
+           "mesh.symmetries: built-in classes know their own symmetries; declare them only for mesh files")
+    for i, entry in enumerate(m.symmetries):
+        try:
+            parse_symmetry(entry)
+        except MeshError as exc:
+            raise SpecError(f"mesh.symmetries[{i}]: {exc}") from None
     _check(m.size > 0, f"mesh.size: expected metres > 0, got {m.size}")
     _check(m.texture in ("auto", "procedural"), f"mesh.texture: expected 'auto' or 'procedural', got {m.texture!r}")
     im = spec.image

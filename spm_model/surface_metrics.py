@@ -169,9 +169,11 @@ def summarise_surface(errors: dict) -> dict | None:
 
 
 def _mesh_key(attrs: dict, instance_id: int):
+    from spm_data.instances import MESH_ATTRS
+
     if attrs.get("source") != "synthetic" or not attrs.get("spec"):
         return None
-    return (str(attrs["spec"]), int(attrs.get("seed", 0)), int(instance_id))
+    return tuple((k, attrs[k]) for k in MESH_ATTRS if k in attrs), int(instance_id)
 
 
 _MODELS: dict = {}
@@ -180,9 +182,9 @@ _MODELS: dict = {}
 def _model(key) -> ObjectModel:
     """The ObjectModel of a rendered instance, rebuilt from its spec (cached per process)."""
     if key not in _MODELS:
-        from spm_data.render_jobs import shard_mesh
+        from spm_data.instances import shard_mesh
 
-        mesh = shard_mesh({"source": "synthetic", "spec": key[0], "seed": key[1]}, key[2])
+        mesh = shard_mesh(dict(key[0]), key[1])
         _MODELS[key] = object_model(mesh.to_trimesh())
     return _MODELS[key]
 

@@ -38,10 +38,10 @@ def copy(clean, tmp_path):
     return shutil.copytree(clean, tmp_path / "in")
 
 
-def flip_stored_byte(path, field):
-    """Flip one bit in the middle of the first stored chunk of ``field`` (file size unchanged)."""
+def flip_stored_byte(path, field, chunk=0):
+    """Flip one bit in the middle of a stored chunk of ``field`` (file size unchanged)."""
     with h5py.File(path, "r") as f:
-        info = f[field].id.get_chunk_info(0)
+        info = f[field].id.get_chunk_info(chunk)
     at = info.byte_offset + info.size // 2
     with open(path, "r+b") as fh:
         fh.seek(at)

@@ -98,3 +98,87 @@ def test_bad_mesh_files_give_clear_errors(tmp_path, name, content, message):
 def test_missing_mesh_file(tmp_path):
     with pytest.raises(MeshError, match="not found"):
         load_mesh_file(tmp_path / "nope.obj")
+
+
+# --------------------------------------------------------------------------- symmetries and glTF axes
+
+def _surface_gap(mesh, R, seed=0) -> float:
+    """Largest distance (as a fraction of the longest side) from the mesh's surface,
+    rotated by R (3, 3), back to the unrotated surface: 0 for a symmetry."""
+    from scipy.spatial import cKDTree
+
+    tm = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    dense, _ = trimesh.sample.sample_surface(tm, 300_000, seed=seed)
+    probe, _ = trimesh.sample.sample_surface(tm, 3_000, seed=seed + 1)
+    return float(cKDTree(dense).query(probe @ np.asarray(R).T)[0].max() / mesh.extents.max())
+
+
+def _box_with(lid_or_handle: bool):
+    for i in range(20):
+        mesh = procedural_mesh("box", i)
+        if (len(mesh.symmetries.discrete) == 1) == lid_or_handle:
+            return mesh
+    raise AssertionError("no such box in 20 instances")
+
+
+@pytest.mark.parametrize("lid_or_handle", [True, False])
+def test_box_symmetries_map_the_surface_onto_itself(lid_or_handle):
+    from spm_data.symmetries import rotation
+
+    box = _box_with(lid_or_handle)
+    turns = box.symmetries.discrete
+    assert len(turns) == (1 if lid_or_handle else 3) and not box.symmetries.continuous
+    for R in turns:
+        assert _surface_gap(box, R) < 0.01
+    # A quarter turn (its sides differ) and, with a lid or handle, turning it over are not.
+    assert _surface_gap(box, rotation([0, 0, 1], 90)) > 0.05
+    if lid_or_handle:
+        assert _surface_gap(box, rotation([1, 0, 0], 180)) > 0.05
+
+
+def test_ball_is_symmetric_about_z_at_every_angle_and_turned_over():
+    from spm_data.symmetries import rotation
+
+    ball = min((procedural_mesh("ball", i) for i in range(8)), key=lambda m: m.extents[2] / m.extents[0])
+    assert ball.extents[2] < 0.92 * ball.extents[0]   # the flattest of 8: clearly a spheroid
+    (axis,), (flip,) = ball.symmetries.continuous, ball.symmetries.discrete
+    np.testing.assert_array_equal(axis, [0, 0, 1])
+    for degrees in (17.0, 90.0, 233.0):
+        assert _surface_gap(ball, rotation(axis, degrees)) < 0.01
+    assert _surface_gap(ball, flip) < 0.01
+    assert _surface_gap(ball, rotation([1, 0, 0], 90)) > 0.03   # a spheroid, not a sphere
+
+
+def test_asymmetric_classes_declare_no_symmetry():
+    from spm_data.symmetries import rotation
+
+    for cls in ("car", "motorcycle", "animal4", "cup"):
+        mesh = procedural_mesh(cls, 0)
+        assert mesh.symmetries.discrete == () and mesh.symmetries.continuous == ()
+        assert _surface_gap(mesh, rotation([0, 0, 1], 180)) > 0.05
+
+
+def test_gltf_meshes_are_turned_to_z_up_and_front_x(tmp_path):
+    # A glTF box: 0.4 tall along glTF's up (+y), 0.2 deep along its front (+z), 0.1 wide (x).
+    trimesh.creation.box(extents=(0.1, 0.4, 0.2)).export(tmp_path / "tall.glb")
+    trimesh.creation.box(extents=(0.1, 0.4, 0.2)).export(tmp_path / "tall.obj")
+    gltf = load_mesh_file(tmp_path / "tall.glb", size=0.4)
+    np.testing.assert_allclose(gltf.extents, [0.2, 0.1, 0.4], atol=1e-9)   # front x, width y, up z
+    other = load_mesh_file(tmp_path / "tall.obj", size=0.4)
+    np.testing.assert_allclose(other.extents, [0.1, 0.4, 0.2], atol=1e-9)  # other formats as they are
+
+
+def test_gltf_box_stands_upright_at_elevation_zero(tmp_path):
+    from spm_data.poses import camera_pose
+    from spm_data.render import make_renderer
+    from spm_data.specs import parse_spec
+
+    trimesh.creation.box(extents=(0.1, 0.4, 0.1)).export(tmp_path / "tall.glb")
+    spec = parse_spec('class = "t"\n[mesh]\nsource = "files"\nfiles = ["tall.glb"]\n'
+                      '[image]\nwidth = 64\nheight = 64\n[render]\nrenderer = "pyrender"\n', base_dir=str(tmp_path))
+    renderer = make_renderer(spec)
+    renderer.set_mesh(load_mesh_file(tmp_path / "tall.glb", size=0.25))
+    mask = renderer.render(*camera_pose(30.0, 0.0, 0.0, 0.8))["mask"] > 0
+    rows, cols = np.nonzero(mask)
+    height, width = np.ptp(rows) + 1, np.ptp(cols) + 1
+    assert height > 2.5 * width   # standing, not lying on its side

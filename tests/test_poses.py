@@ -113,3 +113,21 @@ def test_label_to_view_inverts_camera_poses_roll_included():
         assert np.allclose(view[key], want, atol=1e-9), key
     one = label_to_view(pose_to_label(*camera_pose(30, 20, 0, 0.7)))
     assert np.isclose(one["azimuth"], 30) and np.isclose(one["elevation"], 20) and np.isclose(one["distance"], 0.7)
+
+
+def test_k_corner_origin_round_trip_is_exact():
+    from spm_data.poses import K_from_corner_origin, K_to_corner_origin, intrinsics_from_fov
+
+    K = intrinsics_from_fov(35.0, 128, 96)
+    bop = K_to_corner_origin(K)
+    assert (bop[0, 2], bop[1, 2]) == (64.0, 48.0)   # centred: W / 2, H / 2 from the corner
+    assert (K_from_corner_origin(bop) == K).all() and (K[0, 2], K[1, 2]) == (63.5, 47.5)
+    assert bop[0, 0] == K[0, 0] and K_to_corner_origin(K) is not K
+
+
+def test_gltf_to_object_is_a_rotation_taking_up_and_front():
+    from spm_data.poses import GLTF_TO_OBJECT, is_rotation
+
+    assert is_rotation(GLTF_TO_OBJECT)
+    np.testing.assert_array_equal(GLTF_TO_OBJECT @ [0, 1, 0], [0, 0, 1])   # glTF up -> +z
+    np.testing.assert_array_equal(GLTF_TO_OBJECT @ [0, 0, 1], [1, 0, 0])   # glTF front -> +x

@@ -27,6 +27,9 @@ def test_fingerprint_changes_with_what_changes_pixels():
     c = parse_spec('# a comment\nclass = "cup"\nseed = 1')
     assert a.fingerprint() != b.fingerprint()
     assert a.fingerprint() == c.fingerprint()
+    # Declared symmetries go to the BOP export only: the pixels, so the fingerprint, stay.
+    files = 'class = "u"\n[mesh]\nsource = "files"\nfiles = ["a.ply"]\n'
+    assert parse_spec(files).fingerprint() == parse_spec(files + 'symmetries = ["z"]\n').fingerprint()
 
 
 @pytest.mark.parametrize("text, message", [
@@ -47,6 +50,11 @@ def test_fingerprint_changes_with_what_changes_pixels():
     ('seed = 1', "class: missing"),
     ('class = "cup"\n[mesh', "not valid TOML"),
     ('class = "cup"\nmesh = 3', "mesh: expected a table"),
+    ('class = "cup"\n[mesh]\nsymmetries = ["z"]', "mesh.symmetries: built-in classes know their own"),
+    ('class = "u"\n[mesh]\nsource = "files"\nfiles = ["a.ply"]\nsymmetries = ["q/90"]',
+     "mesh.symmetries[0]: symmetry 'q/90': expected an axis x, y or z"),
+    ('class = "u"\n[mesh]\nsource = "files"\nfiles = ["a.ply"]\nsymmetries = ["z", "z/7"]',
+     "mesh.symmetries[1]: symmetry 'z/7': the turn must divide 360 degrees"),
 ])
 def test_bad_specs_name_the_key(text, message):
     with pytest.raises(SpecError) as err:

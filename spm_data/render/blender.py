@@ -21,7 +21,7 @@ import warnings
 import numpy as np
 
 from spm_data.errors import RenderError
-from spm_data.poses import cv_to_gl_camera_to_world
+from spm_data.poses import K_to_corner_origin, cv_to_gl_camera_to_world
 from spm_data.render import light_rotations, spec_intrinsics
 
 NO_HIT_DEPTH = 1e9  # Blender writes 1e10 where no surface was hit
@@ -152,8 +152,9 @@ class Renderer:
         cam.sensor_width = 36.0
         cam.lens = K[0, 0] * cam.sensor_width / W
         # Blender's principal point sits at the image centre plus shift (in units of the larger side).
-        cam.shift_x = (W / 2.0 - (K[0, 2] + 0.5)) / max(W, H)
-        cam.shift_y = ((K[1, 2] + 0.5) - H / 2.0) / max(W, H)
+        cx, cy = K_to_corner_origin(K)[:2, 2]
+        cam.shift_x = (W / 2.0 - cx) / max(W, H)
+        cam.shift_y = (cy - H / 2.0) / max(W, H)
         cam.clip_start, cam.clip_end = 0.01, 100.0
         self._camera = bpy.data.objects.new("spm-camera", cam)
         sc.collection.objects.link(self._camera)

@@ -10,7 +10,7 @@ import os
 import numpy as np
 
 from spm_data.errors import RenderError
-from spm_data.poses import cv_to_gl_camera_to_world
+from spm_data.poses import K_to_corner_origin, cv_to_gl_camera_to_world
 from spm_data.render import light_rotations, mask_from_depth, spec_intrinsics
 
 # EGL needs no display; it must be chosen before OpenGL is first imported.
@@ -125,9 +125,8 @@ class Renderer:
         a = self.lighting.ambient
         scene = _ordered_scene_class(pr)(bg_color=[0.0, 0.0, 0.0, 0.0], ambient_light=[a, a, a])
         scene.add(pr.Mesh(primitives=[primitive]))
-        K = self.K
-        # pyrender's principal point counts from the pixel edge, OpenCV's from the first pixel centre.
-        camera = pr.IntrinsicsCamera(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2] + 0.5, cy=K[1, 2] + 0.5,
+        K = K_to_corner_origin(self.K)  # pyrender counts the principal point from the pixel corner
+        camera = pr.IntrinsicsCamera(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2],
                                      znear=0.01, zfar=100.0)
         self._camera_node = scene.add(camera, pose=np.eye(4))
         self._light_nodes = [scene.add(pr.DirectionalLight(color=np.ones(3), intensity=self.lighting.strength),
