@@ -6,7 +6,7 @@ BIN    := $(VENV)/bin
 DEMO   ?= out/demo
 export PYOPENGL_PLATFORM ?= egl
 
-.PHONY: demo test install bench clean
+.PHONY: demo test test-fast install bench clean
 
 $(VENV)/.installed: pyproject.toml constraints.txt scripts/install-system-deps.sh
 	bash scripts/install-system-deps.sh
@@ -29,6 +29,10 @@ demo: install
 
 test: install
 	$(BIN)/python -m pytest -q
+
+# The edit loop: everything but the tests marked slow (Blender, killed or raced processes, Ray).
+test-fast: install
+	$(BIN)/python -m pytest -q -m "not slow"
 
 bench: install
 	$(BIN)/python benchmarks/render_throughput.py

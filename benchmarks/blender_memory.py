@@ -13,10 +13,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from spm_data.paths import camera_path  # noqa: E402
+from spm_data.core.paths import camera_path  # noqa: E402
 from spm_data.render import make_renderer  # noqa: E402
-from spm_data.instances import load_instance  # noqa: E402
-from spm_data.specs import find_spec, load_spec  # noqa: E402
+from spm_data.core.instances import load_instance  # noqa: E402
+from spm_data.core.specs import find_spec, load_spec  # noqa: E402
 
 
 def memory_mb() -> tuple[float, float]:

@@ -23,9 +23,10 @@ from pathlib import Path
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from spm_data.executor import make_executor, probe_job  # noqa: E402
-from spm_data.paths import AngleRange  # noqa: E402
-from spm_data.render_jobs import load_run_specs, plan_shards, render_dataset, render_shard  # noqa: E402
+from spm_data.jobs import make_executor  # noqa: E402
+from spm_data.jobs.outcome import probe_job  # noqa: E402
+from spm_data.core.paths import AngleRange  # noqa: E402
+from spm_data.commands.render_jobs import load_run_specs, plan_shards, render_dataset, render_shard  # noqa: E402
 
 
 def spec_for(renderer: str, frames: int, per_shard: int):
@@ -73,7 +74,7 @@ def fps(renderer: str, executor: str, workers: int, frames: int, per_shard: int,
     out = tmp / f"{renderer}-{executor}-{workers}"
     spec = spec_for(renderer, frames, per_shard)
     started = time.perf_counter()
-    summary = render_dataset([spec], out, limit=frames, workers=workers,
+    summary = render_dataset([spec], out, limit=frames,
                              executor=make_executor(executor, workers=workers))
     assert not summary.failed, summary.failed
     return summary.frames / (time.perf_counter() - started)

@@ -15,10 +15,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from spm_data.occlude_jobs import occlude_dataset  # noqa: E402
-from spm_data.occlusion import apply_occlusion, occlude_mask  # noqa: E402
-from spm_data.render_jobs import load_run_specs, render_dataset  # noqa: E402
-from spm_data.shards import list_shards, read_shard, verify_shard  # noqa: E402
+from spm_data.commands.occlude_jobs import occlude_dataset  # noqa: E402
+from spm_data.core.occlusion import apply_occlusion, occlude_mask  # noqa: E402
+from spm_data.commands.render_jobs import load_run_specs, render_dataset  # noqa: E402
+from spm_data.io.shards import list_shards, read_shard, verify_shard  # noqa: E402
+from spm_data.jobs.executor import LocalExecutor  # noqa: E402
 
 
 def main(frames: int = 1024) -> None:
@@ -40,11 +41,11 @@ def main(frames: int = 1024) -> None:
                     apply_occlusion(rgb, mask, occ.rects)
             best_mem = min(best_mem, time.perf_counter() - started)
             started = time.perf_counter()
-            summary = occlude_dataset(tmp / "in", tmp / f"out{attempt}", low=0.0, high=0.6, workers=1)
+            summary = occlude_dataset(tmp / "in", tmp / f"out{attempt}", low=0.0, high=0.6)
             best_cmd = min(best_cmd, time.perf_counter() - started)
             assert summary.frames == frames
         started = time.perf_counter()
-        occlude_dataset(tmp / "in", tmp / "out-2w", low=0.0, high=0.6, workers=2)
+        occlude_dataset(tmp / "in", tmp / "out-2w", low=0.0, high=0.6, executor=LocalExecutor(workers=2))
         two = time.perf_counter() - started
         print(f"{frames} frames of 128x128, best of 3 (2 workers: one run)")
         print(f"| step | frames/s |\n|---|---|\n| place rectangles (in memory, one core) | {frames / best_mem:.0f} |\n"

@@ -24,6 +24,7 @@ from spm_model.dataset import load_features  # noqa: E402
 from spm_model.evaluation import evaluate  # noqa: E402
 from spm_model.features import FeatureConfig  # noqa: E402
 from spm_model.report import aggregate  # noqa: E402
+from spm_data.jobs.executor import LocalExecutor  # noqa: E402
 
 TARGETS = {"views": [("success_tol5", ">=", 97.0)],
            "instances": [("success_tol5", ">=", 60.0), ("geodesic_median_deg", "<=", 6.0)],
@@ -41,7 +42,7 @@ def main(argv=None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args(argv)
     start = time.time()
-    table = load_features(args.shards, FeatureConfig(), workers=args.workers)
+    table = load_features(args.shards, FeatureConfig(), executor=LocalExecutor(workers=args.workers))
     print(f"{len(table)} frames from {args.shards} (features {time.time() - start:.0f} s)")
     rows = []
     for protocol, targets in TARGETS.items():

@@ -17,11 +17,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from spm_data.paths import camera_path  # noqa: E402
+from spm_data.core.paths import camera_path  # noqa: E402
 from spm_data.render import make_renderer  # noqa: E402
-from spm_data.instances import load_instance  # noqa: E402
-from spm_data.render_jobs import plan_shards, render_dataset  # noqa: E402
-from spm_data.specs import find_spec, load_spec  # noqa: E402
+from spm_data.core.instances import load_instance  # noqa: E402
+from spm_data.commands.render_jobs import plan_shards, render_dataset  # noqa: E402
+from spm_data.core.specs import find_spec, load_spec  # noqa: E402
+from spm_data.jobs.executor import LocalExecutor  # noqa: E402
 
 
 def bench(spec, frames: int, renderer_name: str, repeats: int = 3) -> tuple[float, float]:
@@ -51,7 +52,7 @@ def _bench_once(spec, frames: int, renderer_name: str) -> tuple[float, float]:
     bare = time.perf_counter() - started
     with tempfile.TemporaryDirectory() as out:
         started = time.perf_counter()
-        summary = render_dataset([spec], out, limit=frames, workers=1)
+        summary = render_dataset([spec], out, limit=frames)
         whole = time.perf_counter() - started
     assert summary.frames == frames
     return bare, whole
@@ -74,7 +75,7 @@ def bench_blender(base, engine: str, samples: int, frames: int) -> dict:
     n = len(R)
 
     def bare_loop():
-        from spm_data.poses import cv_to_gl_camera_to_world
+        from spm_data.core.poses import cv_to_gl_camera_to_world
         import mathutils
 
         started = time.perf_counter()
@@ -95,7 +96,7 @@ def bench_blender(base, engine: str, samples: int, frames: int) -> dict:
     result = {"bare_ms": 1000 * bare, "ours_ms": 1000 * ours}
     for workers in (1, 2):
         with tempfile.TemporaryDirectory() as out:
-            summary = render_dataset([spec], out, limit=frames, workers=workers)
+            summary = render_dataset([spec], out, limit=frames, executor=LocalExecutor(workers=workers))
             assert summary.frames == frames and not summary.failed, summary.report()
             result[f"fps_{workers}"] = frames / summary.seconds
     return result

@@ -12,10 +12,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from spm_data.paths import camera_path  # noqa: E402
+from spm_data.core.paths import camera_path  # noqa: E402
 from spm_data.render import make_renderer  # noqa: E402
-from spm_data.instances import instance_count, load_instance  # noqa: E402
-from spm_data.specs import all_spec_paths, load_spec  # noqa: E402
+from spm_data.core.instances import instance_count, load_instance  # noqa: E402
+from spm_data.core.specs import all_spec_paths, load_spec  # noqa: E402
 
 
 def main(stride: int = 13) -> None:

@@ -58,7 +58,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from spm_data.shards import list_shards, read_shard  # noqa: E402
+from spm_data.io.shards import list_shards, read_shard  # noqa: E402
 from spm_model.bunches import BunchError, fit_bunches  # noqa: E402
 from spm_model.ellipse import EllipseError, fit_ellipse  # noqa: E402
 from spm_model.estimator import SPMEstimator  # noqa: E402
@@ -111,8 +111,8 @@ def subset_masks(labels: dict, instances: int, az_step: int, el_step: int, keys=
 # ----------------------------------------------------------------------------- render (512 px)
 
 def cmd_render(args) -> None:
-    from spm_data.render_jobs import ShardJob, effective_spec, plan_shards, render_shard
-    from spm_data.specs import parse_spec
+    from spm_data.commands.render_jobs import ShardJob, effective_spec, plan_shards, render_shard
+    from spm_data.core.specs import parse_spec
 
     labels = read_labels(list_shards(args.shards))
     _, needed = subset_masks(labels, args.instances, args.azimuth_step, args.elevation_step)

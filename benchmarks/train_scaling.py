@@ -28,14 +28,15 @@ import numpy as np
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from spm_data.render_jobs import load_run_specs, render_dataset  # noqa: E402
-from spm_data.shards import read_shard  # noqa: E402
+from spm_data.commands.render_jobs import load_run_specs, render_dataset  # noqa: E402
+from spm_data.io.shards import read_shard  # noqa: E402
 from spm_model.dataset import find_shards, load_features  # noqa: E402
 from spm_model.ellipse import fit_ellipse  # noqa: E402
 from spm_model.estimator import SPMEstimator  # noqa: E402
 from spm_model.evaluation import splits  # noqa: E402
 from spm_model.features import FeatureConfig, frames_features  # noqa: E402
 from spm_model.metrics import pose_errors, summarise  # noqa: E402
+from spm_data.jobs.executor import LocalExecutor  # noqa: E402
 
 
 def make_shards(folder: Path) -> Path:
@@ -43,7 +44,7 @@ def make_shards(folder: Path) -> Path:
     specs = load_run_specs(all_classes=True)
     from dataclasses import replace
 
-    from spm_data.paths import AngleRange
+    from spm_data.core.paths import AngleRange
 
     specs = [replace(s, camera=replace(s.camera, elevation=AngleRange(20, 30, 5)),
                      mesh=replace(s.mesh, instances=1),
@@ -147,11 +148,11 @@ def main() -> None:
             for old in sample.glob(".spm-features/*"):
                 old.unlink()
             started = time.perf_counter()
-            n = len(load_features(sample, workers=workers))
+            n = len(load_features(sample, executor=LocalExecutor(workers=workers)))
             elapsed = time.perf_counter() - started
             print(f"feature extraction of {n} frames (4 shards, no cache) with {workers} worker(s): "
                   f"{elapsed:.1f} s, {n / elapsed:.1f} frames/s")
-        table = load_features(shards, workers=args.workers)  # cached after a first spm train
+        table = load_features(shards, executor=LocalExecutor(workers=args.workers))  # cached after a first spm train
         pso_ms, direct_ms = ellipse_timing(shards)
         print(f"ellipse fit per frame: PSO (Eq. 1) {pso_ms:.2f} ms, direct {direct_ms:.3f} ms "
               f"({pso_ms / direct_ms:.0f}x)")

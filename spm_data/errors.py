@@ -32,7 +32,7 @@ class RenderError(SpmError):
 
 
 class LockError(SpmError):
-    """An output folder is locked by another run (spm_data.locking)."""
+    """An output folder is locked by another run (spm_data.io.locking)."""
 
 
 class SpmWarning(UserWarning):

@@ -9,7 +9,9 @@
 - ``LSPose``: a linear least-squares (ridge) map from the raw image vectors to
   the label, angles as cos/sin as in the regressor.
 
-All follow scikit-learn's contract: keyword-only parameters, ``fit`` returns self.
+All follow scikit-learn's contract: keyword-only parameters, ``fit`` returns self,
+learned state ends in ``_`` (``FITTED``); predict before fit raises ModelError
+(spm_model/fitted.py).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import numpy as np
 from scipy.linalg import eigh
 from scipy.spatial import cKDTree
 
+from spm_model.fitted import check_fitted
 from spm_model.regressor import _labels, _targets
 
 
@@ -28,6 +31,10 @@ def _mean_labels(labels: np.ndarray) -> np.ndarray:
 
 
 class KNNPose:
+    """The mean label of the ``k`` nearest training vectors (angles on the circle)."""
+
+    FITTED = ("tree_", "y_")
+
     def __init__(self, *, k: int = 1):
         self.k = k
 
@@ -37,6 +44,7 @@ class KNNPose:
         return self
 
     def predict(self, X) -> np.ndarray:
+        check_fitted(self, self.FITTED)
         k = min(self.k, len(self.y_))
         _, idx = self.tree_.query(np.asarray(X, dtype=np.float64), k=k)
         return _mean_labels(self.y_[np.asarray(idx).reshape(len(X), k)])
@@ -56,6 +64,10 @@ def _fit_centred(raw) -> tuple[np.ndarray, np.ndarray]:
 
 
 class PCAPose:
+    """Nearest training image in the top ``components`` principal axes of the unit raw vectors."""
+
+    FITTED = ("mean_", "basis_", "knn_")
+
     def __init__(self, *, components: int = 20):
         self.components = components
 
@@ -70,10 +82,15 @@ class PCAPose:
         return self
 
     def predict(self, raw) -> np.ndarray:
+        check_fitted(self, self.FITTED)
         return self.knn_.predict((_unit_rows(raw) - self.mean_) @ self.basis_)
 
 
 class LSPose:
+    """Ridge regression (``alpha``) from the unit raw vectors to the label, angles as cos/sin."""
+
+    FITTED = ("mean_", "target_mean_", "coef_")
+
     def __init__(self, *, alpha: float = 1.0):
         self.alpha = alpha
 
@@ -85,4 +102,5 @@ class LSPose:
         return self
 
     def predict(self, raw) -> np.ndarray:
+        check_fitted(self, self.FITTED)
         return _labels((_unit_rows(raw) - self.mean_) @ self.coef_ + self.target_mean_)

@@ -7,7 +7,7 @@ shards), in the per-user cache ``$SPM_CACHE_DIR`` (else ``$XDG_CACHE_HOME/spm/fe
 default ``~/.cache/spm/features``) under a hash of the shard folder's absolute
 path, with one warning. A cache file records the shard's size and modification
 time; a shard rewritten since is extracted again. Extraction runs shard by
-shard on ``workers`` processes (spm_data.executor), with per-frame progress.
+shard on an executor (spm_data.jobs.make_executor), with per-frame progress.
 """
 
 from __future__ import annotations
@@ -22,10 +22,11 @@ from pathlib import Path
 import numpy as np
 
 from spm_data.errors import ShardError, SpmError, SpmWarning
-from spm_data.executor import LocalExecutor
-from spm_data.folders import open_tree
-from spm_data.locking import pid_alive
-from spm_data.shards import PARTIAL_PREFIX, read_attrs, read_shard, write_npz_atomic
+from spm_data.jobs.executor import LocalExecutor
+from spm_data.io.folders import open_tree
+from spm_data.io.locking import pid_alive
+from spm_data.io.files import PARTIAL_PREFIX, write_npz_atomic
+from spm_data.io.shards import read_attrs, read_shard
 from spm_model.features import FeatureConfig, frames_features
 
 CACHE_DIR = ".spm-features"
@@ -36,7 +37,7 @@ READ_BLOCK = 256  # frames read from a shard at a time (bounded memory for big s
 
 def find_shards(folder, allow_partial: bool = False) -> list[Path]:
     """Every shard under ``folder``, each folder read by its manifest
-    (spm_data.folders.open_tree; hidden folders skipped)."""
+    (spm_data.io.folders.open_tree; hidden folders skipped)."""
     return open_tree(folder, allow_partial=allow_partial)
 
 
@@ -197,19 +198,19 @@ def remove_stale_partials(shards: list[Path]) -> list[Path]:
     return removed
 
 
-def load_features(folder, config: FeatureConfig = FeatureConfig(), *, workers: int = 1,
-                  progress=None, executor=None, allow_partial: bool = False) -> FeatureTable:
+def load_features(folder, config: FeatureConfig = FeatureConfig(), *, progress=None, executor=None,
+                  allow_partial: bool = False) -> FeatureTable:
     """Extract (or reuse) the features of every shard under ``folder``, one job per
-    shard on ``executor`` (default: ``workers`` local processes); progress is a
+    shard on ``executor`` (spm_data.jobs.make_executor; default: this process); progress is a
     callable taking frame deltas, with a settable ``total`` (a tqdm bar).
-    allow_partial: read folders still being written (spm_data.folders.open_folder)."""
+    allow_partial: read folders still being written (spm_data.io.folders.open_folder)."""
     shards = find_shards(folder, allow_partial)
     remove_stale_partials(shards)
     paths = {s: cached(s, config) for s in shards}   # where each shard's features are, once decided
     todo = [(str(s), config) for s, p in paths.items() if p is None]
     if progress is not None:
         progress.total = sum(int(read_attrs(path)["frames"]) for path, _ in todo)
-    executor = executor or LocalExecutor(workers=workers, retries=1)
+    executor = executor or LocalExecutor(workers=1, retries=1)
     outcomes = executor.run(extract_shard, todo, on_progress=progress)
     failed = [o for o in outcomes if o.error]
     if failed:

@@ -22,6 +22,7 @@ import numpy as np
 
 from spm_data.errors import SpmError
 from spm_model.bunches import BunchError, fit_bunches
+from spm_model.descriptors import describe, hog_descriptor
 from spm_model.ellipse import EllipseError
 from spm_model.keypoints import homography_inliers, sift_keypoints
 from spm_model.manifold import ORDERS, initial_manifold
@@ -149,9 +150,7 @@ def frames_features(rgb: np.ndarray, mask: np.ndarray, instance_id: np.ndarray, 
     (n, raw_size^2) uint8, train_neighbours (n,) int8 (path neighbours matched;
     0: the training feature used the query rule), and with K, template (n, 3535)
     float64 (spm_model/template.py's descriptor)."""
-    from spm_model.template import _hog, describe
-
-    hog = _hog()
+    hog = hog_descriptor()
     n = len(rgb)
     sift = []
     for i in range(n):

@@ -1,7 +1,7 @@
 """What every pose estimator gets: a sequence of frames, one dict per frame.
 
 ``frames[i]`` is ``{"rgb": (H, W, 3) uint8, "mask": (H, W) bool, "K": (3, 3)
-float64}`` (OpenCV pixel convention, spm_data/poses.py). ``mask`` is the
+float64}`` (OpenCV pixel convention, spm_data/core/poses.py). ``mask`` is the
 object's silhouette as the shard stores it (on occluded copies, the whole
 silhouette; the rectangles are drawn into rgb). Images are read from the shards
 lazily, a block of frames at a time, so a sequence of 100,000 frames costs no
@@ -20,7 +20,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from spm_data.shards import read_shard
+from spm_data.io.shards import read_shard
 
 READ_BLOCK = 256   # frames read from a shard at a time
 # What a method may read besides the images: features and intrinsics, never labels,

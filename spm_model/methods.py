@@ -2,6 +2,8 @@
 ``fit(frames, poses)`` returns self, ``predict(frames)`` returns (n, 6) labels
 (rx, ry, rz degrees, t metres; a row of NaN where the method has no estimate).
 ``frames`` is a sequence of per-frame dicts (spm_model/frames.py); poses (n, 6).
+Learned state ends in ``_`` (each class's ``FITTED``); predict before fit raises
+ModelError (spm_model/fitted.py).
 
 Built in: SPM and KNN on its re-projected vectors (the paper's Tables 1 and 2),
 the PCA- and LS-based raw-image baselines (§3.3-3.4), the reference template
@@ -18,8 +20,9 @@ import re
 import numpy as np
 
 from spm_model.baselines import KNNPose, LSPose, PCAPose
-from spm_model.estimator import ModelError, SPMEstimator
+from spm_model.estimator import SPMEstimator
 from spm_model.features import FeatureConfig, FeatureError, image_features, raw_vector
+from spm_model.fitted import ModelError, check_fitted, is_fitted
 from spm_model.frames import column
 from spm_model.template import TemplatePose
 
@@ -42,6 +45,8 @@ class SPMPose:
     computed from each image by the query rule. Frames without a feature are
     left out of training and get NaN."""
 
+    FITTED = ("model_",)
+
     def __init__(self, *, seed: int = 0, features: FeatureConfig = FeatureConfig(), params: dict | None = None):
         self.seed = seed
         self.features = features
@@ -59,12 +64,8 @@ class SPMPose:
         self.model_ = SPMEstimator(**(self.params or {}), features=self.features, seed=self.seed).fit(X[ok], y[ok])
         return self
 
-    def _check_fitted(self):
-        if not hasattr(self, "model_"):
-            raise ModelError(f"this {type(self).__name__} is not fitted yet; call fit(frames, poses) first")
-
     def predict(self, frames) -> np.ndarray:
-        self._check_fitted()
+        check_fitted(self, self.FITTED)
         X = self.vectors(frames, "query")
         ok = np.isfinite(X).all(axis=1)
         out = np.full((len(X), 6), np.nan)
@@ -77,21 +78,22 @@ class SPMNeighbours:
     """KNN (Table 2) on the re-projected vectors of ``spm`` (an SPMPose, fitted
     here on the same frames unless it already is)."""
 
+    FITTED = ("spm_", "knn_")
+
     def __init__(self, *, k: int = 1, spm: SPMPose | None = None):
         self.k = k
         self.spm = spm
 
     def fit(self, frames, poses) -> "SPMNeighbours":
-        self.spm_ = self.spm if self.spm is not None and hasattr(self.spm, "model_") else \
-            (self.spm or SPMPose()).fit(frames, poses)
+        spm = self.spm if self.spm is not None else SPMPose()
+        self.spm_ = spm if is_fitted(spm, spm.FITTED) else spm.fit(frames, poses)
         X = self.spm_.vectors(frames, "train")
         ok = np.isfinite(X).all(axis=1)
         self.knn_ = KNNPose(k=self.k).fit(self.spm_.model_.transform(X[ok]), np.asarray(poses, np.float64)[ok])
         return self
 
     def predict(self, frames) -> np.ndarray:
-        if not hasattr(self, "knn_"):
-            raise ModelError("this SPMNeighbours is not fitted yet; call fit(frames, poses) first")
+        check_fitted(self, self.FITTED)
         X = self.spm_.vectors(frames, "query")
         ok = np.isfinite(X).all(axis=1)
         out = np.full((len(X), 6), np.nan)
@@ -103,6 +105,8 @@ class SPMNeighbours:
 class RawImagePose:
     """The paper's appearance baselines on 32 x 32 grey object boxes:
     ``kind = "pca"`` (PCA + nearest neighbour) or ``"ls"`` (least squares)."""
+
+    FITTED = ("model_",)
 
     def __init__(self, *, kind: str = "pca", size: int = 32):
         self.kind = kind
@@ -119,13 +123,14 @@ class RawImagePose:
         return self
 
     def predict(self, frames) -> np.ndarray:
-        if not hasattr(self, "model_"):
-            raise ModelError("this RawImagePose is not fitted yet; call fit(frames, poses) first")
+        check_fitted(self, self.FITTED)
         return self.model_.predict(self._raw(frames))
 
 
 class ChancePose:
     """The pose of a random training frame (seeded): the floor every method must beat."""
+
+    FITTED = ("poses_",)
 
     def __init__(self, *, seed: int = 0):
         self.seed = seed
@@ -135,8 +140,7 @@ class ChancePose:
         return self
 
     def predict(self, frames) -> np.ndarray:
-        if not hasattr(self, "poses_"):
-            raise ModelError("this ChancePose is not fitted yet; call fit(frames, poses) first")
+        check_fitted(self, self.FITTED)
         rng = np.random.default_rng(self.seed)
         return self.poses_[rng.integers(0, len(self.poses_), len(frames))]
 

@@ -12,8 +12,8 @@ measures one angle, so its success uses that angle, its geodesic error is
 undefined (NaN) and so is its translation error. A frame without an estimate
 (NaN prediction) fails every criterion.
 
-Per degree of freedom, the errors are read with spm_data.poses's conventions
-(:func:`spm_data.poses.label_to_view`): azimuth, elevation and in-plane roll of
+Per degree of freedom, the errors are read with spm_data.core.poses's conventions
+(:func:`spm_data.core.poses.label_to_view`): azimuth, elevation and in-plane roll of
 the camera around the object, the distance to it, and azimuth modulo 180°
 (the error left when front and back are confused).
 """
@@ -24,7 +24,7 @@ import numpy as np
 
 from scipy.spatial.transform import Rotation
 
-from spm_data.poses import label_to_pose, label_to_view, pose_to_label, wrap_degrees
+from spm_data.core.poses import label_to_pose, label_to_view, pose_to_label, wrap_degrees
 
 SUM_THRESHOLDS = (5.0, 3.0)
 TOLERANCE_DEG = 5.0

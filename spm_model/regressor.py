@@ -9,12 +9,16 @@ regressed as is. Exact kernel ridge costs O(n^3); above ``landmarks`` training
 vectors (after the noise copies) it becomes the Nystrom / subset-of-regressors
 solution on ``landmarks`` random centres, ``min ||K_nm c - Z||^2 + alpha c^T K_mm c``,
 which equals exact kernel ridge when the centres are all the vectors. Follows scikit-learn's estimator contract (keyword-only
-parameters stored as given, ``fit`` returns self, learned state ends in ``_``).
+parameters stored as given, ``fit`` returns self, learned state ends in ``_``; an unfitted
+regressor raises ModelError, spm_model/fitted.py). ``from_state`` rebuilds a fitted
+regressor from its learned attributes (how a model file is read).
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from spm_model.fitted import check_fitted
 
 
 def _targets(y: np.ndarray) -> np.ndarray:
@@ -32,7 +36,10 @@ class RBFPoseRegressor:
     """Kernel ridge regressor with an RBF kernel ``exp(-gamma_ ||x - x'||^2)``;
     ``gamma=None`` uses the median heuristic, ``gamma_ = 1 / (width_scale * median
     squared distance)``: ``width_scale`` > 1 widens the kernel (it is ignored when
-    ``gamma`` is given). ``landmarks``: the Nystrom centres (see the module docstring)."""
+    ``gamma`` is given). ``landmarks``: the Nystrom centres (see the module docstring).
+    Learned: ``gamma_``, ``X_fit_`` (the centres), ``dual_coef_`` (m, 9), ``mean_`` (9,)."""
+
+    FITTED = ("gamma_", "X_fit_", "dual_coef_", "mean_")
 
     def __init__(self, *, gamma: float | None = None, alpha: float = 1e-3, noise: float = 0.0,
                  noise_copies: int = 0, landmarks: int = 2000, seed: int = 0, width_scale: float = 1.0):
@@ -43,6 +50,15 @@ class RBFPoseRegressor:
         self.noise_copies = noise_copies
         self.landmarks = landmarks
         self.seed = seed
+
+    @classmethod
+    def from_state(cls, *, gamma_: float, X_fit_: np.ndarray, dual_coef_: np.ndarray, mean_: np.ndarray,
+                   **params) -> "RBFPoseRegressor":
+        """The fitted regressor with these parameters and learned attributes (taken as given:
+        no copy, no conversion), as ``fit`` would leave it."""
+        model = cls(**params)
+        model.gamma_, model.X_fit_, model.dual_coef_, model.mean_ = gamma_, X_fit_, dual_coef_, mean_
+        return model
 
     def _kernel(self, A, B):
         d2 = (A ** 2).sum(1)[:, None] + (B ** 2).sum(1)[None, :] - 2 * A @ B.T
@@ -91,8 +107,7 @@ class RBFPoseRegressor:
 
     def predict(self, X) -> np.ndarray:
         """(n, d) -> (n, 6) labels: angles in (-180, 180] degrees, t in metres."""
-        if not hasattr(self, "dual_coef_"):
-            raise ValueError("this regressor is not fitted yet; call fit(X, y) first")
+        check_fitted(self, self.FITTED)
         X = np.asarray(X, dtype=np.float64)
         if X.ndim != 2 or X.shape[1] != self.X_fit_.shape[1]:
             raise ValueError(f"expected X with {self.X_fit_.shape[1]} columns, got shape {X.shape}")

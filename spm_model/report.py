@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 
 from spm_data.errors import SpmError
-from spm_data.outputs import unwritable
-from spm_data.shards import atomic_file, write_json_atomic
+from spm_data.io.outputs import unwritable
+from spm_data.io.files import atomic_file, write_json_atomic
 from spm_model.methods import METHOD_NAMES
 from spm_model.metrics import CURVE_THRESHOLDS
 
@@ -118,19 +118,30 @@ def _surface_cell(s, key, digits=1):
 
 
 def markdown(evaluation: dict, summary: dict, context: dict) -> str:
-    runs = summary["runs"]
-    ecc, classes = evaluation["eccentricity"], summary["classes"]
     names = list(summary["methods"]) + (["chance"] if summary["chance"] else [])
-    lines = [f"# Pose benchmark ({summary['protocol']} protocol, {runs} run{'s' if runs != 1 else ''})", "",
-             *plain_summary(summary), "",
-             f"Command: `{context.get('command', '')}`", "",
-             f"Data: {context.get('frames', '?')} frames under `{context.get('shards', '')}`; SPM features: "
-             f"{context.get('train_features', '?')} frames with training features, {context.get('query_features', '?')}"
-             f" with query features ({context.get('without_path_neighbour', 0)} frames had no path neighbour for the "
-             "training rule). Criteria (the paper's): **±5° tolerance** (Table 2), every rotation angle within 5°, "
-             "inclusive; **sum < 5° (3°)** (Fig. 5), the summed absolute angle errors below 5° (3°). A frame without "
-             "an estimate fails. σ: over runs. Schema of results.json: docs/results-schema.md.", "",
-             "## Table 1 analogue: SPM", "",
+    return "\n".join(_intro(summary, context) + _paper_tables(evaluation, summary) + _method_tables(summary, names)
+                     + _class_and_occlusion_tables(summary, names) + [
+        "", "Plots: `accuracy.png` (accuracy against geodesic threshold), `occlusion.png`. Models trained on "
+        "every frame: `model.npz` (SPM) and `reference-model.npz` (HOG templates).", ""])
+
+
+def _intro(summary: dict, context: dict) -> list:
+    runs = summary["runs"]
+    return [f"# Pose benchmark ({summary['protocol']} protocol, {runs} run{'s' if runs != 1 else ''})", "",
+            *plain_summary(summary), "",
+            f"Command: `{context.get('command', '')}`", "",
+            f"Data: {context.get('frames', '?')} frames under `{context.get('shards', '')}`; SPM features: "
+            f"{context.get('train_features', '?')} frames with training features, {context.get('query_features', '?')}"
+            f" with query features ({context.get('without_path_neighbour', 0)} frames had no path neighbour for the "
+            "training rule). Criteria (the paper's): **±5° tolerance** (Table 2), every rotation angle within 5°, "
+            "inclusive; **sum < 5° (3°)** (Fig. 5), the summed absolute angle errors below 5° (3°). A frame without "
+            "an estimate fails. σ: over runs. Schema of results.json: docs/results-schema.md.", ""]
+
+
+def _paper_tables(evaluation: dict, summary: dict) -> list:
+    """The analogues of the paper's Tables 1 and 2, per class, with the paper's numbers beside ours."""
+    ecc, classes = evaluation["eccentricity"], summary["classes"]
+    lines = ["## Table 1 analogue: SPM", "",
              "The paper's Table 1 counts successful grasps; its pose criterion is Table 2's ±5°, used here.", "",
              "| Class | ±5° % | σ | sum<5° % | sum<3° % | Mean eccentricity | σ | Paper success % | Paper ecc. |",
              "|---|---|---|---|---|---|---|---|---|"]
@@ -145,6 +156,12 @@ def markdown(evaluation: dict, summary: dict, context: dict) -> str:
         k1, k3, paper = row["knn1"], row["knn3"], PAPER_TABLE2.get(c)
         lines.append(f"| {c} | {_fmt(k1['success_tol5'])} | {_fmt(k1['std']['success_tol5'])} | {_fmt(k3['success_tol5'])} "
                      f"| {_fmt(k3['std']['success_tol5'])} | {paper[0] if paper else '–'} | {paper[2] if paper else '–'} |")
+    return lines
+
+
+def _method_tables(summary: dict, names: list) -> list:
+    """Every method over all test frames: the paper's criteria, per-DoF errors, BOP surface errors."""
+    lines = []
     lines += ["", "## Every method, all test frames", "",
               "| Method | Estimated | ±5° % | σ | sum<5° % | sum<3° % | AUC 45° | Geodesic median ° | p90 ° "
               "| Azimuth ° | Az. mod 180 ° | Elevation ° | Roll ° | Distance mm |", "|---|" + "---|" * 14]
@@ -156,7 +173,7 @@ def markdown(evaluation: dict, summary: dict, context: dict) -> str:
                      f"{_fmt(s['auc_45'])} | {_fmt(s['geodesic_median_deg'])} | {_fmt(s['geodesic_p90_deg'])} | "
                      f"{_fmt(d['azimuth_deg'])} | {_fmt(d['azimuth_mod180_deg'])} | {_fmt(d['elevation_deg'])} | "
                      f"{_fmt(d['roll_deg'])} | {_fmt(d['distance_mm'])} |")
-    lines += ["", "Per DoF: median absolute errors (spm_data/poses.py's viewing angles and distance).", "",
+    lines += ["", "Per DoF: median absolute errors (spm_data/core/poses.py's viewing angles and distance).", "",
               "## Surface errors (BOP), where the mesh is known", "",
               "| Method | Frames | ADD(-S) <10% d % | ADD <10% d % | ADD-S <10% d % | AR MSSD % | AR MSPD % "
               "| MSSD median mm | MSPD median px |", "|---|---|---|---|---|---|---|---|---|"]
@@ -166,6 +183,12 @@ def markdown(evaluation: dict, summary: dict, context: dict) -> str:
                      f"{_surface_cell(s, 'add_recall')} | {_surface_cell(s, 'adds_recall')} | {_surface_cell(s, 'ar_mssd')} "
                      f"| {_surface_cell(s, 'ar_mspd')} | {_surface_cell(s, 'mssd_median_mm')} | "
                      f"{_surface_cell(s, 'mspd_median_px')} |")
+    return lines
+
+
+def _class_and_occlusion_tables(summary: dict, names: list) -> list:
+    classes = summary["classes"]
+    lines = []
     lines += ["", "## Per class, ±5° % (geodesic median °)", "",
               "| Class | " + " | ".join(_name(m) for m in names) + " |", "|---|" + "---|" * len(names)]
     for c, row in classes.items():
@@ -177,9 +200,7 @@ def markdown(evaluation: dict, summary: dict, context: dict) -> str:
         if row["frames"]:
             cells = " | ".join(_fmt(summary["occlusion"][m][b]["success_sum5"]) for m in names)
             lines.append(f"| {row['low']:.0%}–{row['high']:.0%} | {row['frames']} | {cells} |")
-    lines += ["", "Plots: `accuracy.png` (accuracy against geodesic threshold), `occlusion.png`. Models trained on "
-              "every frame: `model.npz` (SPM) and `reference-model.npz` (HOG templates).", ""]
-    return "\n".join(lines)
+    return lines
 
 
 def _axes():

@@ -169,7 +169,7 @@ def summarise_surface(errors: dict) -> dict | None:
 
 
 def _mesh_key(attrs: dict, instance_id: int):
-    from spm_data.instances import MESH_ATTRS
+    from spm_data.core.instances import MESH_ATTRS
 
     if attrs.get("source") != "synthetic" or not attrs.get("spec"):
         return None
@@ -182,7 +182,7 @@ _MODELS: dict = {}
 def _model(key) -> ObjectModel:
     """The ObjectModel of a rendered instance, rebuilt from its spec (cached per process)."""
     if key not in _MODELS:
-        from spm_data.instances import shard_mesh
+        from spm_data.core.instances import shard_mesh
 
         mesh = shard_mesh(dict(key[0]), key[1])
         _MODELS[key] = object_model(mesh.to_trimesh())
@@ -196,7 +196,7 @@ def frame_surface_errors(pred: np.ndarray, true: np.ndarray, K: np.ndarray, widt
     Returns (n,) arrays ``add``, ``adds``, ``mssd`` (metres), ``mspd`` (pixels),
     ``diameter`` (metres), ``symmetric`` (1 when the model has a symmetry),
     ``mspd_scale`` (width / 640); NaN where the mesh is unknown."""
-    from spm_data.poses import label_to_pose
+    from spm_data.core.poses import label_to_pose
 
     n = len(pred)
     out = {k: np.full(n, np.nan) for k in SURFACE_ERRORS}
@@ -225,7 +225,7 @@ def frame_surface_errors(pred: np.ndarray, true: np.ndarray, K: np.ndarray, widt
 
 def mesh_keys(shards: np.ndarray, instance_ids: np.ndarray) -> list:
     """Per frame, the key of the mesh it was rendered from, or None (not rendered by spm)."""
-    from spm_data.shards import read_attrs
+    from spm_data.io.shards import read_attrs
 
     attrs = {s: read_attrs(s) for s in set(shards.tolist())}
     return [_mesh_key(attrs[s], i) for s, i in zip(shards.tolist(), instance_ids.tolist())]

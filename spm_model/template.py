@@ -30,55 +30,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from spm_data.poses import label_to_pose, pose_to_label
+from spm_data.core.poses import label_to_pose, pose_to_label
+from spm_model.descriptors import GEOMETRY, HOG_SIZE, describe, hog_descriptor
+from spm_model.fitted import check_fitted
 from spm_model.frames import column
-
-SIDE = 64
-MARGIN = 0.05
-HOG_SIZE = 3528
-GEOMETRY = ("box_u", "box_v", "box_side", "fx", "fy", "cx", "cy")  # pixels: box centre and longer side; K
-
-
-def _hog():
-    import cv2
-
-    # Signed gradients, 18 bins: a dark-to-light edge differs from light-to-dark (97.6% vs 97.0%
-    # within ±5° with 9 unsigned bins, views protocol of the default dataset).
-    return cv2.HOGDescriptor((SIDE, SIDE), (16, 16), (8, 8), (8, 8), 18, 1, -1, 0, 0.2, True, 64, True)
-
-
-def box_of(mask: np.ndarray) -> tuple[float, float, float] | None:
-    """(H, W) bool -> (u, v, side): the box centre (OpenCV pixels) and its longer side; None if empty."""
-    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-    if not len(rows):
-        return None
-    return (cols[0] + cols[-1]) / 2.0, (rows[0] + rows[-1]) / 2.0, float(max(rows[-1] - rows[0], cols[-1] - cols[0]) + 1)
-
-
-def describe(rgb: np.ndarray, mask: np.ndarray, K: np.ndarray, hog=None) -> np.ndarray:
-    """(H, W, 3) uint8, (H, W) bool, (3, 3) -> (HOG_SIZE + 7,) float32: the HOG
-    descriptor then GEOMETRY; NaN when the mask is empty."""
-    import cv2
-
-    out = np.full(HOG_SIZE + len(GEOMETRY), np.nan, dtype=np.float32)
-    mask = np.asarray(mask) > 0
-    box = box_of(mask)
-    if box is None:
-        return out
-    u, v, side = box
-    scale = SIDE / (side * (1 + 2 * MARGIN))
-    warp = np.array([[scale, 0, SIDE / 2 - 0.5 - scale * u], [0, scale, SIDE / 2 - 0.5 - scale * v]], np.float32)
-    grey = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)
-    grey = np.where(mask, grey, 0).astype(np.uint8)
-    crop = cv2.warpAffine(grey, warp, (SIDE, SIDE), flags=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
-    out[:HOG_SIZE] = (hog or _hog()).compute(crop).ravel()
-    out[HOG_SIZE:] = (u, v, side, K[0, 0], K[1, 1], K[0, 2], K[1, 2])
-    return out
-
+from spm_model.model_files import check_xy, load_model_file, need, need_finite, save_model_file
 
 def describe_frames(frames) -> np.ndarray:
     """(n, HOG_SIZE + 7) descriptors of a frame sequence (cached column ``template`` when present)."""
-    hog = _hog()
+    hog = hog_descriptor()
     return column(frames, "template", lambda f: describe(f["rgb"], f["mask"], f["K"], hog))
 
 
@@ -117,7 +77,12 @@ def _principal_axes(centred: np.ndarray, k: int) -> np.ndarray:
 
 
 class TemplatePose:
-    """fit(frames, poses (n, 6)) -> self; predict(frames) -> (n, 6), NaN for an empty mask."""
+    """fit(frames, poses (n, 6)) -> self; predict(frames) -> (n, 6), NaN for an empty mask.
+    Learned (FITTED, in model-file order; the file names them without the ``_``): the HOG
+    mean and PCA basis, the templates' codes, poses, box geometry and distances, and the
+    training focal length per image height."""
+
+    FITTED = ("mean_", "basis_", "codes_", "poses_", "geometry_", "distance_", "focal_per_height_")
 
     def __init__(self, *, components: int = 128, size_neighbours: int = 15, ray_correction: bool = False):
         self.components = components
@@ -125,7 +90,6 @@ class TemplatePose:
         self.ray_correction = ray_correction
 
     def fit(self, frames, poses) -> "TemplatePose":
-        from spm_model.estimator import check_xy
 
         desc = describe_frames(frames)
         poses = np.asarray(poses, dtype=np.float64)
@@ -155,16 +119,9 @@ class TemplatePose:
         nearest = np.take_along_axis(window, np.argsort(gap, axis=1, kind="stable")[:, :k], axis=1)
         return np.median(self.distance_[order][nearest], axis=1)
 
-    def _check_fitted(self):
-        from spm_model.estimator import ModelError
-
-        if not all(hasattr(self, k) for k in ("codes_", "basis_", "mean_", "poses_", "geometry_", "distance_",
-                                                "focal_per_height_")):
-            raise ModelError("this TemplatePose is not fitted yet; call fit(frames, poses) first")
-
     def nearest(self, hog: np.ndarray) -> np.ndarray:
         """(m, HOG_SIZE) descriptors -> (m,) index of the nearest template."""
-        self._check_fitted()
+        check_fitted(self, self.FITTED)
         z = (_unit(hog) - self.mean_) @ self.basis_
         sq = (self.codes_ ** 2).sum(axis=1)
         return np.concatenate([np.argmin(sq[None] - 2 * z[s: s + 1024] @ self.codes_.T, axis=1)
@@ -172,7 +129,7 @@ class TemplatePose:
 
     def predict_descriptors(self, desc: np.ndarray, K: np.ndarray) -> np.ndarray:
         """(n, HOG_SIZE + 7) descriptors, (n, 3, 3) K -> (n, 6) labels."""
-        self._check_fitted()
+        check_fitted(self, self.FITTED)
         out = np.full((len(desc), 6), np.nan)
         ok = np.isfinite(desc).all(axis=1)
         if not ok.any():
@@ -194,7 +151,7 @@ class TemplatePose:
     def predict_image(self, rgb: np.ndarray, mask=None, K=None) -> dict:
         """One (H, W, 3) uint8 image, its (H, W) mask or region of interest (None: the
         whole image), K (None: the training images' field of view, centred) -> {"pose": (6,)}."""
-        self._check_fitted()
+        check_fitted(self, self.FITTED)
         h, w = rgb.shape[:2]
         if K is None:
             f = self.focal_per_height_ * h
@@ -203,43 +160,49 @@ class TemplatePose:
         return {"pose": self.predict_descriptors(describe(rgb, mask, K)[None], K[None])[0]}
 
     def save(self, path):
-        from spm_model.estimator import save_model_file
 
-        self._check_fitted()
-        return save_model_file(path, "template", {k: v for k, v in vars(self).items() if not k.endswith("_")},
-                               {k[:-1]: v for k, v in vars(self).items() if k.endswith("_")})
+        check_fitted(self, self.FITTED)
+        params = {k: v for k, v in vars(self).items() if not k.endswith("_")}
+        return save_model_file(path, "template", params, {k[:-1]: getattr(self, k) for k in self.FITTED})
 
     @classmethod
     def load(cls, path) -> "TemplatePose":
-        from spm_model.estimator import load_model_file
 
         return cls.from_model_file(*load_model_file(path, "template"))
 
     @classmethod
     def from_model_file(cls, header: dict, arrays: dict) -> "TemplatePose":
-        """The model a file's (header, arrays) describe (load_model_file)."""
-        model = cls(**header["params"])
-        for k, v in arrays.items():
-            setattr(model, k + "_", v)
-        model._check_fitted()
+        """The model a file's (header, arrays) describe (load_model_file); KeyError naming the
+        first missing array (in FITTED order); arrays it does not know are ignored."""
+        return cls.from_state(**header["params"], **{k: arrays[k[:-1]] for k in cls.FITTED})
+
+    @classmethod
+    def from_state(cls, *, mean_, basis_, codes_, poses_, geometry_, distance_, focal_per_height_,
+                   **params) -> "TemplatePose":
+        """The fitted matcher with these parameters and learned attributes (taken as given),
+        as ``fit`` would leave it."""
+        model = cls(**params)
+        model.mean_, model.basis_, model.codes_, model.poses_ = mean_, basis_, codes_, poses_
+        model.geometry_, model.distance_, model.focal_per_height_ = geometry_, distance_, focal_per_height_
         return model
 
     def check_loaded(self) -> None:
         """ValueError when a loaded model's arrays do not fit together (a damaged or hand-made file)."""
-        from spm_model.estimator import _need, _need_finite
 
+        check_fitted(self, self.FITTED)
         n, k = len(self.poses_), self.basis_.shape[-1]
-        _need(self.mean_.shape == (HOG_SIZE,) and self.basis_.shape == (HOG_SIZE, k) and n > 0,
+        need(self.mean_.shape == (HOG_SIZE,) and self.basis_.shape == (HOG_SIZE, k) and n > 0,
               f"mean {self.mean_.shape} and basis {self.basis_.shape}, expected ({HOG_SIZE},), ({HOG_SIZE}, k)")
-        _need(self.codes_.shape == (n, k) and self.poses_.shape == (n, 6)
+        need(self.codes_.shape == (n, k) and self.poses_.shape == (n, 6)
               and self.geometry_.shape == (n, len(GEOMETRY)) and self.distance_.shape == (n,),
               f"templates of different lengths (codes {self.codes_.shape}, poses {self.poses_.shape}, "
               f"geometry {self.geometry_.shape}, distance {self.distance_.shape})")
-        _need(np.shape(self.focal_per_height_) == () and float(self.focal_per_height_) > 0,
+        need(np.shape(self.focal_per_height_) == () and float(self.focal_per_height_) > 0,
               f"focal_per_height is {self.focal_per_height_!r}")
-        _need_finite(self.mean_, self.basis_, self.codes_, self.poses_, self.geometry_, self.distance_)
+        need_finite(self.mean_, self.basis_, self.codes_, self.poses_, self.geometry_, self.distance_)
 
     def predict(self, frames) -> np.ndarray:
+        check_fitted(self, self.FITTED)
         desc = describe_frames(frames)
         K = column(frames, "K", lambda f: np.asarray(f["K"], np.float64))
         return self.predict_descriptors(desc, K)

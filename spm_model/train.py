@@ -9,10 +9,11 @@ from pathlib import Path
 import numpy as np
 
 from spm_data.errors import SpmError, one_line
-from spm_data.outputs import removing_created
-from spm_data.importing import ImageError, decode_bytes
+from spm_data.io.outputs import removing_created
+from spm_data.io.images import ImageError, decode_bytes
 from spm_model.dataset import FeatureTable, load_features
-from spm_model.estimator import ModelError, SPMEstimator, load_model_file
+from spm_model.estimator import ModelError, SPMEstimator
+from spm_model.model_files import load_model_file
 from spm_model.evaluation import evaluate, frame_errors
 from spm_model.features import FeatureConfig, FeatureError
 from spm_model.frames import Frames
@@ -46,7 +47,7 @@ def load_estimators(specs) -> dict:
             for spec, cls in classes.items()}
 
 
-def train(shards, report_dir=None, *, protocol: str = "loco", runs: int = 3, workers: int = 1,
+def train(shards, report_dir=None, *, protocol: str = "loco", runs: int = 3,
           features: FeatureConfig = FeatureConfig(), model_params: dict | None = None, progress=None,
           log=lambda message: None, command: str = "spm train", executor=None, estimators=(),
           allow_partial: bool = False) -> dict:
@@ -58,7 +59,7 @@ def train(shards, report_dir=None, *, protocol: str = "loco", runs: int = 3, wor
         raise ModelError(f"--runs must be at least 1, got {runs}")
     out = check_report_folder(report_dir if report_dir else Path(shards) / "report")  # before any work
     plugins = load_estimators(estimators)
-    table = load_features(shards, features, workers=workers, progress=progress, executor=executor,
+    table = load_features(shards, features, progress=progress, executor=executor,
                           allow_partial=allow_partial)
     counts = check_classes(table)
     log(f"{len(table)} frames, {len(counts)} classes: " + ", ".join(f"{c} {n}" for c, n in counts.items())
@@ -102,10 +103,6 @@ def load_model(path):
     try:
         model = kinds[header["kind"]].from_model_file(header, arrays)
         model.check_loaded()
-    except ModelError as exc:
-        if str(exc).startswith(str(path)):
-            raise
-        problem = "some of its arrays are missing" if "not fitted" in str(exc) else str(exc)
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, SpmError) as exc:
         problem = (f"no {exc.args[0]!r} in it" if isinstance(exc, KeyError) and exc.args else
                    f"{type(exc).__name__}: {exc}" if isinstance(exc, IndexError) else str(exc))
@@ -114,13 +111,13 @@ def load_model(path):
     raise ModelError(f"{path}: damaged spm model file ({one_line(problem)}); retrain it with spm train")
 
 
-def evaluate_model(model_path, shards, *, workers: int = 1, progress=None, executor=None,
+def evaluate_model(model_path, shards, *, progress=None, executor=None,
                    allow_partial: bool = False) -> dict:
     """Score a saved model (SPM or reference) on every frame under ``shards``:
     {"classes": {class: summary}, "all": summary} (summaries: spm_model/metrics.py)."""
     model = load_model(model_path)
     features = model.features if isinstance(model, SPMEstimator) else FeatureConfig()
-    table = load_features(shards, features, workers=workers, progress=progress, executor=executor,
+    table = load_features(shards, features, progress=progress, executor=executor,
                           allow_partial=allow_partial)
     if isinstance(model, SPMEstimator):
         ok = np.isfinite(table.query_vector).all(axis=1)

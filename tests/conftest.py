@@ -99,7 +99,7 @@ def write_pyrender_128_spec(folder, cls, *, seed, az_stop, el, per_shard, instan
 def model_shards(tmp_path_factory):
     """Three classes (box, car, cup), 48 views each at 128x128 (pyrender): enough
     keypoints for the SPM pipeline. Read-only for tests: copy before writing."""
-    from spm_data.render_jobs import load_run_specs, render_dataset
+    from spm_data.commands.render_jobs import load_run_specs, render_dataset
 
     root = tmp_path_factory.mktemp("model")
     specs = root / "specs"
@@ -114,7 +114,7 @@ def model_shards(tmp_path_factory):
 def instance_shards(tmp_path_factory):
     """Two classes (car, cup), 2 instances each, 48 views per instance (azimuth 0-115
     at elevations 20 and 25) at 128x128 (pyrender). Read-only for tests."""
-    from spm_data.render_jobs import load_run_specs, render_dataset
+    from spm_data.commands.render_jobs import load_run_specs, render_dataset
 
     root = tmp_path_factory.mktemp("instances")
     specs = root / "specs"

@@ -9,14 +9,14 @@ import trimesh
 from click.testing import CliRunner
 
 from cli import data_cli
-from spm_data.bop import export_bop, import_bop
-from spm_data.coco import load_scene_gt_coco, rle_to_mask
+from spm_data.formats.bop import export_bop, import_bop
+from spm_data.formats.coco import load_scene_gt_coco, rle_to_mask
 from spm_data.errors import MeshError
-from spm_data.ply import load_ply
-from spm_data.poses import cv_to_gl_camera_to_world
+from spm_data.formats.ply import load_ply
+from spm_data.core.poses import cv_to_gl_camera_to_world
 from spm_data.render.pyrender_backend import _offscreen
-from spm_data.render_jobs import load_run_specs, render_dataset
-from spm_data.shards import list_shards, read_shard
+from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.io.shards import list_shards, read_shard
 
 
 @pytest.fixture
@@ -144,8 +144,8 @@ def test_scene_gt_coco_decodes_to_our_visible_masks(small_specs_dir, tmp_path):
 
 
 def test_occluded_export_has_occluder_depth_so_bop_visibility_agrees(small_specs_dir, tmp_path):
-    from spm_data.bop import DEPTH_SCALE
-    from spm_data.folders import open_folder
+    from spm_data.formats.bop import DEPTH_SCALE
+    from spm_data.io.folders import open_folder
 
     render_dataset(load_run_specs(["cup"], specs_dir=small_specs_dir), tmp_path / "r", limit=6)
     CliRunner().invoke(data_cli, ["occlude", "--in", str(tmp_path / "r"), "--out", str(tmp_path / "o"),

@@ -3,9 +3,9 @@
 import numpy as np
 import trimesh
 
-from spm_data.bop_models import (diameter, eval_resample, load_models_info, model_info, save_models_info,
+from spm_data.formats.bop_models import (diameter, eval_resample, load_models_info, model_info, save_models_info,
                                  symmetry_info, texture_colors)
-from spm_data.symmetries import NO_SYMMETRY, Symmetries, rotation
+from spm_data.core.symmetries import NO_SYMMETRY, Symmetries, rotation
 
 
 def test_texture_colors_take_the_pixel_at_uv_with_v_up():

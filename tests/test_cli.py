@@ -4,7 +4,7 @@ import sys
 from click.testing import CliRunner
 
 from cli import data_cli
-from spm_data.shards import read_manifest
+from spm_data.io.shards import read_manifest
 
 
 def run(*args):

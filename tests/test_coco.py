@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from spm_data.coco import (load_scene_gt_coco, mask_bbox, mask_to_rle, rle_to_mask, save_scene_gt_coco,
+from spm_data.formats.coco import (load_scene_gt_coco, mask_bbox, mask_to_rle, rle_to_mask, save_scene_gt_coco,
                            scene_coco)
 from spm_data.errors import SpmError
 

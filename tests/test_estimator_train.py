@@ -7,7 +7,7 @@ from click.testing import CliRunner
 from PIL import Image
 
 from cli import model_cli
-from spm_data.shards import read_shard
+from spm_data.io.shards import read_shard
 from spm_model.dataset import load_features
 from spm_model.estimator import ModelError, SPMEstimator
 from spm_model.evaluation import splits
@@ -42,7 +42,8 @@ def test_estimator_fits_saves_and_loads_as_one_file(table, tmp_path):
     assert np.array_equal(loaded.predict(X), model.predict(X))
     with pytest.raises(ModelError, match=r"expected features of shape \(n, 16\)"):
         model.predict(X[:, :8])
-    with pytest.raises(ModelError, match="not fitted yet"):
+    with pytest.raises(ModelError, match=r"^this SPMEstimator is not fitted yet; call fit\(X, y\) first, "
+                                         r"or load a model file with SPMEstimator\.load\(path\)$"):
         SPMEstimator().predict(X)
     (tmp_path / "junk.npz").write_bytes(b"junk")
     with pytest.raises(ModelError, match="not an spm model file"):
@@ -152,7 +153,7 @@ def test_cli_train_predict_evaluate_and_bad_input(model_shards, tmp_path):
 def test_a_class_with_too_few_frames_is_named(model_shards, tmp_path):
     shards = tmp_path / "s"
     shutil.copytree(model_shards, shards)
-    from spm_data.shards import write_manifest, write_shard
+    from spm_data.io.shards import write_manifest, write_shard
 
     cup = sorted(shards.glob("cup*.h5"))[0]
     arrays = read_shard(cup, frames=slice(0, 4))

@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 
 from spm_data.errors import SpmError
-from spm_data.executor import run_jobs
+from spm_data.jobs.executor import run_jobs
 
 
 def crashing_job(job, report):
@@ -49,9 +49,17 @@ def test_a_job_that_keeps_dying_is_reported_and_the_rest_finish():
     assert outcomes[3].error == "bad job 5"
 
 
-def test_workers_are_recycled_after_n_jobs():
-    outcomes = run_jobs(crashing_job, [(i, None, "") for i in range(5)], workers=1, recycle_after=2)
-    assert [o.result for o in outcomes] == [0, 2, 4, 6, 8]
+@pytest.mark.parametrize("recycle_after, processes", [(2, 3), (0, 1)])
+def test_workers_are_recycled_after_n_jobs(recycle_after, processes):
+    from spm_data.jobs.outcome import probe_job
+
+    outcomes = run_jobs(probe_job, list(range(5)), workers=1, recycle_after=recycle_after)
+    pids = [o.result["pid"] for o in outcomes]
+    assert [o.result["job"] for o in outcomes] == [0, 1, 2, 3, 4]
+    # One worker at a time: a new process every recycle_after jobs (2 + 2 + 1), or one for all.
+    assert len(set(pids)) == processes and os.getpid() not in pids
+    if recycle_after:
+        assert pids[0] == pids[1] != pids[2] == pids[3] != pids[4]
 
 
 def test_in_process_mode():
@@ -63,7 +71,7 @@ def test_ray_executor_without_ray_says_how_to_install_it(monkeypatch):
     import sys
 
     from spm_data.errors import SpmError
-    from spm_data.executor import make_executor
+    from spm_data.jobs import make_executor
 
     monkeypatch.setitem(sys.modules, "ray", None)  # as if not installed: import ray raises ImportError
     with pytest.raises(SpmError, match=r"pip install 'spm\[ray\]'"):

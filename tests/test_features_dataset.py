@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from spm_data.errors import ShardError
-from spm_data.shards import read_shard, write_manifest, write_shard
+from spm_data.io.shards import read_shard, write_manifest, write_shard
 from spm_model import dataset
 from spm_model.dataset import cache_path, find_shards, load_features
 from spm_model.features import FeatureConfig, FeatureError, image_features, path_neighbours, raw_vector

@@ -14,9 +14,9 @@ from click.testing import CliRunner
 from cli import data_cli, model_cli
 from conftest import reaped, wait_for
 from spm_data.errors import ShardError
-from spm_data.locking import lock_owner
-from spm_data.render_jobs import load_run_specs, render_dataset
-from spm_data.shards import FIELDS, list_shards, read_manifest, read_shard, write_shard
+from spm_data.io.locking import lock_owner
+from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.io.shards import FIELDS, list_shards, read_manifest, read_shard, write_shard
 
 SPEC = ('class = "{cls}"\nseed = 4\n[mesh]\ninstances = 2\n[camera]\nazimuth = [0, 35, 5]\n'
         'elevation = [20, 20, 5]\ndistances = [0.6]\n[image]\nwidth = 96\nheight = 96\n'

@@ -9,12 +9,12 @@ import pytest
 from click.testing import CliRunner
 
 from cli import data_cli
-from spm_data.bop import import_bop
+from spm_data.formats.bop import import_bop
 from spm_data.errors import SpmError
-from spm_data.importing import FrameRecord, import_records
-from spm_data.posed_folder import import_cvl, import_folder
-from spm_data.poses import camera_pose
-from spm_data.shards import list_shards
+from spm_data.formats.importing import FrameRecord, import_records
+from spm_data.formats.posed_folder import import_cvl, import_folder
+from spm_data.core.poses import camera_pose
+from spm_data.io.shards import list_shards
 
 EULER = ["image", "rx", "ry", "rz", "tx", "ty", "tz"]
 GOOD = [10, 20, 30, 0.01, -0.02, 0.5]

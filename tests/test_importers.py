@@ -11,14 +11,14 @@ import pytest
 from click.testing import CliRunner
 
 from cli import data_cli
-from spm_data.bop import export_bop, import_bop
-from spm_data.coil100 import import_coil100
-from spm_data.importing import parse_pnm
-from spm_data.merge import merge_folders
-from spm_data.posed_folder import import_cvl, import_folder
-from spm_data.poses import camera_pose, wrap_degrees
-from spm_data.render_jobs import load_run_specs, render_dataset
-from spm_data.shards import list_shards, read_manifest, read_shard
+from spm_data.formats.bop import export_bop, import_bop
+from spm_data.formats.coil100 import import_coil100
+from spm_data.io.images import parse_pnm
+from spm_data.commands.merge import merge_folders
+from spm_data.formats.posed_folder import import_cvl, import_folder
+from spm_data.core.poses import camera_pose, wrap_degrees
+from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.io.shards import list_shards, read_manifest, read_shard
 
 
 def coil_image(obj, angle):
@@ -107,7 +107,7 @@ def test_coil100_tar_of_16_bit_ppm(tmp_path):
 def test_pnm_parser_is_strict_about_truncation():
     img = coil_image(1, 0)
     np.testing.assert_array_equal(parse_pnm(ppm16(img)), img)
-    from spm_data.importing import ImageError
+    from spm_data.io.images import ImageError
 
     with pytest.raises(ImageError, match="truncated"):
         parse_pnm(ppm16(img)[:-10])

@@ -6,9 +6,9 @@ import pytest
 import trimesh
 
 from spm_data.errors import MeshError
-from spm_data.instances import instance_count, mesh_attrs, mesh_record, shard_mesh
-from spm_data.shards import file_sha256
-from spm_data.specs import load_spec
+from spm_data.core.instances import instance_count, mesh_attrs, mesh_record, shard_mesh
+from spm_data.io.files import file_sha256
+from spm_data.core.specs import load_spec
 
 
 def files_spec(folder):
@@ -31,7 +31,7 @@ def test_mesh_records_are_relative_to_the_spec_and_hashed(tmp_path):
 
 
 def test_procedural_specs_record_nothing_machine_specific(tmp_path):
-    from spm_data.specs import parse_spec
+    from spm_data.core.specs import parse_spec
 
     spec = parse_spec('class = "cup"')
     assert mesh_record(spec, 0) is None and mesh_attrs(spec, {0: None}) == {}

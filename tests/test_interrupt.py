@@ -7,7 +7,9 @@ import sys
 import pytest
 
 from conftest import reaped, wait_for
-from spm_data.shards import list_shards, read_manifest
+from spm_data.io.shards import list_shards, read_manifest
+
+pytestmark = pytest.mark.slow  # renders interrupted in subprocesses
 
 SPEC = 'class = "cup"\n[image]\nwidth = 64\nheight = 64\n[render]\nrenderer = "pyrender"\nframes_per_shard = 128\n'
 

@@ -2,10 +2,10 @@ import cv2
 import numpy as np
 import pytest
 
-from spm_data.meshes import procedural_mesh
-from spm_data.paths import camera_path
+from spm_data.core.meshes import procedural_mesh
+from spm_data.core.paths import camera_path
 from spm_data.render import make_renderer
-from spm_data.specs import parse_spec
+from spm_data.core.specs import parse_spec
 from spm_model.bunches import BunchError, fit_bunches
 from spm_model.keypoints import frame_keypoints, homography_inliers, sift_keypoints
 from spm_model.manifold import initial_manifold

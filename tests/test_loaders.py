@@ -1,4 +1,4 @@
-"""spm_data.loaders.ShardDataset: a shard folder as a map-style dataset, read lazily
+"""spm_data.io.loaders.ShardDataset: a shard folder as a map-style dataset, read lazily
 per process (fork and spawn workers), verified like every other read."""
 
 import multiprocessing
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from spm_data.errors import ShardError
-from spm_data.loaders import ShardDataset
-from spm_data.shards import FIELDS, MANIFEST, read_shard, write_manifest, write_shard
+from spm_data.io.loaders import ShardDataset
+from spm_data.io.shards import FIELDS, MANIFEST, read_shard, write_manifest, write_shard
 from test_hostile_reads import flip_stored_byte
 from test_shards import make_arrays as shard_arrays
 
@@ -100,7 +100,7 @@ def test_an_unknown_field_is_a_one_line_error(folder, fields, bad):
         ShardDataset(folder, fields=fields)
     message = str(info.value)
     assert "\n" not in message
-    assert "expected names from spm_data.shards.FIELDS" in message and "visible_mask" in message
+    assert "expected names from spm_data.io.shards.FIELDS" in message and "visible_mask" in message
     assert "got " in message and f"fix or drop {bad}" in message
 
 

@@ -10,9 +10,9 @@ import subprocess
 import pytest
 
 from conftest import reaped
-from spm_data import locking
+from spm_data.io import locking
 from spm_data.errors import LockError, SpmError
-from spm_data.locking import LOCK_NAME, LockOwner, OutputLock, lock_owner
+from spm_data.io.locking import LOCK_NAME, LockOwner, OutputLock, lock_owner
 
 HOST = socket.gethostname()
 SINCE = "2026-11-22 17:40:02+00:00"
@@ -65,6 +65,7 @@ def _racer(folders, barrier, results, me):
         barrier.abort()
 
 
+@pytest.mark.slow  # 200 racing pairs of processes
 @pytest.mark.parametrize("planted", ["none", "stale", "stale pid-only"])
 def test_of_two_racing_processes_exactly_one_takes_the_lock(tmp_path, planted):
     folders = []

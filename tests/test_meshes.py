@@ -4,7 +4,7 @@ import trimesh
 from PIL import Image
 
 from spm_data.errors import MeshError
-from spm_data.meshes import CLASSES, load_mesh_file, procedural_mesh, to_textured
+from spm_data.core.meshes import CLASSES, load_mesh_file, procedural_mesh, to_textured
 
 
 @pytest.mark.parametrize("cls", CLASSES)
@@ -123,7 +123,7 @@ def _box_with(lid_or_handle: bool):
 
 @pytest.mark.parametrize("lid_or_handle", [True, False])
 def test_box_symmetries_map_the_surface_onto_itself(lid_or_handle):
-    from spm_data.symmetries import rotation
+    from spm_data.core.symmetries import rotation
 
     box = _box_with(lid_or_handle)
     turns = box.symmetries.discrete
@@ -137,7 +137,7 @@ def test_box_symmetries_map_the_surface_onto_itself(lid_or_handle):
 
 
 def test_ball_is_symmetric_about_z_at_every_angle_and_turned_over():
-    from spm_data.symmetries import rotation
+    from spm_data.core.symmetries import rotation
 
     ball = min((procedural_mesh("ball", i) for i in range(8)), key=lambda m: m.extents[2] / m.extents[0])
     assert ball.extents[2] < 0.92 * ball.extents[0]   # the flattest of 8: clearly a spheroid
@@ -150,7 +150,7 @@ def test_ball_is_symmetric_about_z_at_every_angle_and_turned_over():
 
 
 def test_asymmetric_classes_declare_no_symmetry():
-    from spm_data.symmetries import rotation
+    from spm_data.core.symmetries import rotation
 
     for cls in ("car", "motorcycle", "animal4", "cup"):
         mesh = procedural_mesh(cls, 0)
@@ -169,9 +169,9 @@ def test_gltf_meshes_are_turned_to_z_up_and_front_x(tmp_path):
 
 
 def test_gltf_box_stands_upright_at_elevation_zero(tmp_path):
-    from spm_data.poses import camera_pose
+    from spm_data.core.poses import camera_pose
     from spm_data.render import make_renderer
-    from spm_data.specs import parse_spec
+    from spm_data.core.specs import parse_spec
 
     trimesh.creation.box(extents=(0.1, 0.4, 0.1)).export(tmp_path / "tall.glb")
     spec = parse_spec('class = "t"\n[mesh]\nsource = "files"\nfiles = ["tall.glb"]\n'

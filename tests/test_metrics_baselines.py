@@ -1,7 +1,7 @@
 import numpy as np
 
 from spm_model.baselines import KNNPose, LSPose, PCAPose
-from spm_data.poses import camera_poses, pose_to_label
+from spm_data.core.poses import camera_poses, pose_to_label
 from spm_model.metrics import accuracy_curve, curve_auc, pose_errors, success_rate, summarise, tolerance_rate
 
 

@@ -3,9 +3,11 @@ import pytest
 from click.testing import CliRunner
 
 from cli import data_cli
-from spm_data.occlude_jobs import occlude_dataset
-from spm_data.render_jobs import load_run_specs, render_dataset
-from spm_data.shards import file_sha256, list_shards, read_attrs, read_manifest, read_shard, write_manifest, write_shard
+from spm_data.commands.occlude_jobs import occlude_dataset
+from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.io.files import file_sha256
+from spm_data.io.shards import list_shards, read_attrs, read_manifest, read_shard, write_manifest, write_shard
+from spm_data.jobs.executor import LocalExecutor
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +60,7 @@ def test_fixed_fraction_is_hit_within_one_percent(rendered, tmp_path):
 
 def test_same_seed_same_bytes_other_seed_other_bytes(rendered, tmp_path):
     occlude_dataset(rendered, tmp_path / "a", seed=4, copies=2)
-    occlude_dataset(rendered, tmp_path / "b", seed=4, copies=2, workers=2)
+    occlude_dataset(rendered, tmp_path / "b", seed=4, copies=2, executor=LocalExecutor(workers=2))
     occlude_dataset(rendered, tmp_path / "c", seed=5, copies=2)
     a, b, c = hashes(tmp_path / "a"), hashes(tmp_path / "b"), hashes(tmp_path / "c")
     assert a == b

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from spm_data.errors import SpmError
-from spm_data.occlusion import apply_occlusion, occlude_image, occlude_mask
+from spm_data.core.occlusion import apply_occlusion, occlude_image, occlude_mask
 
 
 def disc(h=128, w=128, r=30, cx=60, cy=70):

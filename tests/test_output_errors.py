@@ -23,7 +23,7 @@ import pytest
 from click.testing import CliRunner
 
 from cli import data_cli, model_cli
-from spm_data.shards import write_manifest
+from spm_data.io.shards import write_manifest
 from spm_model import dataset
 from spm_model.features import FeatureConfig
 

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from spm_data.errors import SpecError
-from spm_data.paths import AngleRange, CameraGrid, camera_path, snake_digits, snake_order
+from spm_data.core.paths import AngleRange, CameraGrid, camera_path, snake_digits, snake_order
 
 
 def test_default_path_has_936_views_in_single_5_degree_steps():
@@ -101,7 +101,7 @@ def test_lazy_path_is_the_materialised_walk_bit_for_bit(grid):
     points = path.at(pick)
     for name, values in walk.items():
         assert getattr(points, name).tobytes() == values[pick].tobytes(), name
-    from spm_data.poses import camera_poses
+    from spm_data.core.poses import camera_poses
 
     R, t = path.poses(pick)
     R0, t0 = camera_poses(walk["azimuth"][pick], walk["elevation"][pick], walk["roll"][pick],

@@ -5,7 +5,7 @@ import pytest
 import trimesh
 
 from spm_data.errors import SpmError
-from spm_data.ply import load_ply, save_ply
+from spm_data.formats.ply import load_ply, save_ply
 
 
 def test_round_trip_keeps_every_array(tmp_path):

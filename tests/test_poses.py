@@ -2,7 +2,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from spm_data.poses import (camera_pose, camera_poses, cv_to_gl_camera_to_world, gl_camera_to_world_to_cv,
+from spm_data.core.poses import (camera_pose, camera_poses, cv_to_gl_camera_to_world, gl_camera_to_world_to_cv,
                             intrinsics_from_fov, label_to_pose, pose_to_label, project_points, wrap_degrees)
 
 angles = st.floats(-720, 720, allow_nan=False)
@@ -102,7 +102,7 @@ def test_intrinsics_are_centred_on_pixel_centres():
 
 
 def test_label_to_view_inverts_camera_poses_roll_included():
-    from spm_data.poses import label_to_view
+    from spm_data.core.poses import label_to_view
 
     rng = np.random.default_rng(4)
     az, el, roll = rng.uniform(-179, 180, 50), rng.uniform(-85, 85, 50), rng.uniform(-179, 180, 50)
@@ -116,7 +116,7 @@ def test_label_to_view_inverts_camera_poses_roll_included():
 
 
 def test_k_corner_origin_round_trip_is_exact():
-    from spm_data.poses import K_from_corner_origin, K_to_corner_origin, intrinsics_from_fov
+    from spm_data.core.poses import K_from_corner_origin, K_to_corner_origin, intrinsics_from_fov
 
     K = intrinsics_from_fov(35.0, 128, 96)
     bop = K_to_corner_origin(K)
@@ -126,7 +126,7 @@ def test_k_corner_origin_round_trip_is_exact():
 
 
 def test_gltf_to_object_is_a_rotation_taking_up_and_front():
-    from spm_data.poses import GLTF_TO_OBJECT, is_rotation
+    from spm_data.core.poses import GLTF_TO_OBJECT, is_rotation
 
     assert is_rotation(GLTF_TO_OBJECT)
     np.testing.assert_array_equal(GLTF_TO_OBJECT @ [0, 1, 0], [0, 0, 1])   # glTF up -> +z

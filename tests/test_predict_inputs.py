@@ -14,8 +14,8 @@ from click.testing import CliRunner
 from PIL import Image
 
 from cli import model_cli
-from spm_data.importing import decode_image
-from spm_data.poses import intrinsics_from_fov
+from spm_data.io.images import decode_image
+from spm_data.core.poses import intrinsics_from_fov
 from spm_model.estimator import SPMEstimator
 from spm_model.features import FeatureConfig, image_features
 from spm_model.template import TemplatePose

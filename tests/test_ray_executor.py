@@ -1,7 +1,7 @@
 """The Ray executor: same arrays as the local pool, and a killed task is retried.
 
 A local Ray instance with 2 CPUs, listening on loopback only, is started by the
-executor itself (spm_data/ray_executor.py)."""
+executor itself (spm_data/jobs/ray_executor.py)."""
 
 import os
 import signal
@@ -16,10 +16,12 @@ ray = pytest.importorskip("ray")
 
 from conftest import write_pyrender_128_spec  # noqa: E402
 from spm_data.errors import SpmError  # noqa: E402
-from spm_data.executor import make_executor  # noqa: E402
-from spm_data.occlude_jobs import occlude_dataset  # noqa: E402
-from spm_data.render_jobs import load_run_specs, render_dataset  # noqa: E402
-from spm_data.shards import list_shards, read_manifest, read_shard  # noqa: E402
+from spm_data.jobs import make_executor  # noqa: E402
+from spm_data.commands.occlude_jobs import occlude_dataset  # noqa: E402
+from spm_data.commands.render_jobs import load_run_specs, render_dataset  # noqa: E402
+from spm_data.io.shards import list_shards, read_manifest, read_shard  # noqa: E402
+
+pytestmark = pytest.mark.slow  # starts a local Ray cluster
 
 @pytest.fixture
 def specs(tmp_path):
@@ -42,7 +44,7 @@ def assert_same_arrays(a: Path, b: Path):
 
 def test_ray_renders_and_occludes_the_same_arrays_as_local_processes(specs, tmp_path):
     ray_exec = make_executor("ray", workers=2)
-    local = render_dataset(specs, tmp_path / "local", workers=1)
+    local = render_dataset(specs, tmp_path / "local")
     remote = render_dataset(specs, tmp_path / "ray", executor=ray_exec)
     assert remote.failed == [] and remote.frames == local.frames == 80 and len(remote.done) == 4
     assert_same_arrays(tmp_path / "local", tmp_path / "ray")
@@ -72,7 +74,7 @@ def _kill_first_running_task(found: list, stop: threading.Event):
 
 
 def test_a_killed_task_is_retried_and_the_run_completes(specs, tmp_path):
-    render_dataset(specs, tmp_path / "local", workers=1)
+    render_dataset(specs, tmp_path / "local")
     found, stop = [], threading.Event()
     killer = threading.Thread(target=_kill_first_running_task, args=(found, stop), daemon=True)
     killer.start()
@@ -91,7 +93,7 @@ def test_features_on_ray_equal_local_and_a_failing_job_is_reported(specs, tmp_pa
     from spm_model.dataset import extract_shard, load_features
     from spm_model.features import FeatureConfig
 
-    render_dataset(specs, tmp_path / "shards", workers=1)
+    render_dataset(specs, tmp_path / "shards")
     config = FeatureConfig(ellipse="direct")
     shards = list_shards(tmp_path / "shards")
     jobs = [(str(shards[0]), config), (str(tmp_path / "missing.h5"), config), (str(shards[1]), config)]
@@ -109,7 +111,7 @@ def test_features_on_ray_equal_local_and_a_failing_job_is_reported(specs, tmp_pa
 
 
 def test_recycle_after_replaces_ray_worker_processes():
-    from spm_data.executor import probe_job
+    from spm_data.jobs.outcome import probe_job
 
     recycled = make_executor("ray", workers=1, recycle_after=2).run(probe_job, list(range(6)))
     pids = [o.result["pid"] for o in recycled]
@@ -119,7 +121,7 @@ def test_recycle_after_replaces_ray_worker_processes():
 
 
 def test_the_local_instance_listens_on_loopback_only():
-    from spm_data.ray_executor import RayExecutor
+    from spm_data.jobs.ray_executor import RayExecutor
 
     executor = RayExecutor(workers=2)
     assert executor._connect(ray)          # started here, although ray was imported first
@@ -141,7 +143,7 @@ def test_cli_occlude_with_the_ray_executor(specs, tmp_path):
 
     from cli import data_cli
 
-    render_dataset(specs, tmp_path / "in", workers=1)
+    render_dataset(specs, tmp_path / "in")
     runner = CliRunner()
     args = ["occlude", "--in", str(tmp_path / "in"), "--max", "0.4", "--workers", "2"]
     r = runner.invoke(data_cli, args + ["--out", str(tmp_path / "ray"), "--executor", "ray"])

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from spm_data.poses import wrap_degrees
+from spm_data.core.poses import wrap_degrees
+from spm_model.fitted import ModelError
 from spm_model.regressor import RBFPoseRegressor
 
 
@@ -42,7 +43,7 @@ def test_training_with_noise_smooths_and_stays_accurate():
 def test_estimator_contract_and_messages():
     m = RBFPoseRegressor(gamma=2.0, alpha=0.5)
     assert (m.gamma, m.alpha, m.noise) == (2.0, 0.5, 0.0) and not hasattr(m, "dual_coef_")
-    with pytest.raises(ValueError, match="not fitted yet"):
+    with pytest.raises(ModelError, match=r"^this RBFPoseRegressor is not fitted yet; call fit\(X, y\) first$"):
         m.predict(np.zeros((1, 2)))
     with pytest.raises(ValueError, match=r"y \(n, 6\)"):
         m.fit(np.zeros((3, 2)), np.zeros((3, 5)))

@@ -13,10 +13,12 @@ from hypothesis import strategies as st
 
 from conftest import reaped, wait_for
 from spm_data.errors import SpmError
-from spm_data.locking import LOCK_NAME, lock_owner
-from spm_data.render_jobs import load_run_specs, render_dataset
-from spm_data.shards import list_shards, read_manifest, read_shard, write_shard
-from spm_data.specs import parse_spec
+from spm_data.io.locking import LOCK_NAME, lock_owner
+from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.io.shards import list_shards, read_manifest, read_shard, write_shard
+from spm_data.core.specs import parse_spec
+
+pytestmark = pytest.mark.slow  # renders killed and resumed at random points (fuzzing)
 
 SPEC = ('class = "cup"\n[mesh]\ninstances = 2\n[camera]\nazimuth = [0, 355, 5]\nelevation = [0, 20, 10]\n'
         '[image]\nwidth = 48\nheight = 48\n[render]\nrenderer = "{renderer}"\nframes_per_shard = {per}\n'
@@ -245,7 +247,7 @@ def test_fuzzed_shard_bytes_raise_only_shard_errors(tmp_path, data):
         raw = raw[: data.draw(st.integers(0, len(raw)))]
     path = tmp_path / f"f{data.draw(st.integers(0, 10**9))}.h5"
     path.write_bytes(bytes(raw))
-    from spm_data.validate import validate_shard
+    from spm_data.commands.validate import validate_shard
 
     try:
         read_shard(path)

@@ -11,12 +11,14 @@ import numpy as np
 import pytest
 import trimesh
 
-from spm_data.meshes import load_mesh_file, procedural_mesh
-from spm_data.paths import AngleRange, CameraGrid, camera_path
+from spm_data.core.meshes import load_mesh_file, procedural_mesh
+from spm_data.core.paths import AngleRange, CameraGrid, camera_path
 from spm_data.render import make_renderer
-from spm_data.render_jobs import load_run_specs, render_dataset
-from spm_data.shards import list_shards, read_attrs, read_manifest, read_shard
-from spm_data.specs import parse_spec
+from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.io.shards import list_shards, read_attrs, read_manifest, read_shard
+from spm_data.core.specs import parse_spec
+
+pytestmark = pytest.mark.slow  # Blender renders (Cycles and Workbench)
 
 
 

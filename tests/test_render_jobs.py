@@ -2,8 +2,10 @@ import numpy as np
 import pytest
 
 from spm_data.errors import ShardError, SpecError
-from spm_data.render_jobs import load_run_specs, plan_shards, render_dataset
-from spm_data.shards import list_shards, read_attrs, read_manifest, read_shard, file_sha256
+from spm_data.commands.render_jobs import load_run_specs, plan_shards, render_dataset
+from spm_data.io.files import file_sha256
+from spm_data.io.shards import list_shards, read_attrs, read_manifest, read_shard
+from spm_data.jobs.executor import LocalExecutor
 
 IMAGE_KEYS = ("rgb", "depth", "mask", "pose", "R", "t", "K", "azimuth", "elevation", "distance", "instance_id")
 
@@ -61,8 +63,8 @@ def test_same_seed_same_arrays_other_seed_other_arrays(small_specs_dir, tmp_path
 
 def test_two_workers_give_the_same_arrays_as_one(small_specs_dir, tmp_path):
     specs = load_run_specs(["cup"], specs_dir=small_specs_dir)
-    render_dataset(specs, tmp_path / "one", limit=20, workers=1)
-    summary = render_dataset(specs, tmp_path / "two", limit=20, workers=2)
+    render_dataset(specs, tmp_path / "one", limit=20)
+    summary = render_dataset(specs, tmp_path / "two", limit=20, executor=LocalExecutor(workers=2))
     assert len(summary.done) == 3 and not summary.failed
     assert_same_arrays(arrays_of(tmp_path / "one"), arrays_of(tmp_path / "two"))
 
@@ -158,7 +160,7 @@ renderer = "pyrender"
                                           (10**9 + 7, 3), (864_144_000, 4), (864_144_000, 1000), (2**40, 999),
                                           (123_457, 123_456)])
 def test_limit_picks_are_the_old_linspace_picks(total, limit):
-    from spm_data.render_jobs import limit_picks
+    from spm_data.commands.render_jobs import limit_picks
 
     if total <= 10**7:
         old = np.unique(np.round(np.linspace(0, total - 1, limit)).astype(np.int64))
@@ -195,7 +197,7 @@ def test_plans_are_the_old_plans(small_specs_dir):
 def test_a_limit_on_a_fine_grid_plans_without_the_full_frame_list(tmp_path):
     import tracemalloc
 
-    from spm_data.paths import camera_path
+    from spm_data.core.paths import camera_path
 
     (tmp_path / "cup.toml").write_text(FINE_SPEC)
     tracemalloc.start()
@@ -226,8 +228,8 @@ def test_an_absurd_plan_is_refused_in_one_line(tmp_path):
 
 
 def test_a_streamed_shard_is_what_write_shard_writes(small_specs_dir, tmp_path, monkeypatch):
-    from spm_data import render_jobs
-    from spm_data.shards import write_shard
+    from spm_data.commands import render_jobs
+    from spm_data.io.shards import write_shard
 
     def rewrite(path, to):
         """``path``'s fields and attributes written again by write_shard in one piece."""

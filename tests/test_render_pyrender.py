@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from spm_data.meshes import procedural_mesh
-from spm_data.paths import AngleRange, CameraGrid, camera_path
-from spm_data.poses import project_points
+from spm_data.core.meshes import procedural_mesh
+from spm_data.core.paths import AngleRange, CameraGrid, camera_path
+from spm_data.core.poses import project_points
 from spm_data.render import make_renderer, spec_intrinsics
-from spm_data.specs import parse_spec
+from spm_data.core.specs import parse_spec
 
 
 def ray_depths(mesh, K, R, t, pixels):
@@ -80,7 +80,7 @@ def test_mask_and_depth_match_ray_casting_the_mesh(renderer, cls):
 def test_sphere_on_the_axis_is_centred_on_the_principal_point(renderer):
     import trimesh
 
-    from spm_data.meshes import to_textured
+    from spm_data.core.meshes import to_textured
 
     r, spec = renderer
     r.set_mesh(to_textured(trimesh.creation.icosphere(5), "s", 0.25, np.random.default_rng(0)))

@@ -5,8 +5,8 @@ from click.testing import CliRunner
 
 from cli import data_cli
 from test_hostile_reads import flip_stored_byte
-from spm_data.render_jobs import load_run_specs, render_dataset
-from spm_data.shards import list_shards, read_manifest, read_shard, verify_shard
+from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.io.shards import list_shards, read_manifest, read_shard, verify_shard
 
 SPEC = ('class = "cup"\nseed = 2\n[mesh]\ninstances = 1\n[camera]\nazimuth = [0, 55, 5]\n'
         'elevation = [20, 20, 5]\ndistances = [0.6]\n[image]\nwidth = 64\nheight = 64\n'

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from spm_data.errors import ShardError
-from spm_data.shards import (FIELDS, SCHEMA_VERSION, file_sha256, list_shards, read_attrs, read_manifest,
-                             read_shard, write_manifest, write_shard)
+from spm_data.io.files import file_sha256
+from spm_data.io.shards import FIELDS, SCHEMA_VERSION, list_shards, read_attrs, read_manifest, read_shard, write_manifest, write_shard
 
 
 def make_arrays(n=3, h=8, w=10, seed=0):

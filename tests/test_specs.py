@@ -1,8 +1,8 @@
 import pytest
 
 from spm_data.errors import SpecError
-from spm_data.meshes import CLASSES
-from spm_data.specs import all_spec_paths, load_spec, parse_spec
+from spm_data.core.meshes import CLASSES
+from spm_data.core.specs import all_spec_paths, load_spec, parse_spec
 
 
 def test_builtin_specs_cover_the_six_classes_and_load():

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from spm_data.errors import MeshError
-from spm_data.symmetries import declared_symmetries, parse_symmetry, rotation
+from spm_data.core.symmetries import declared_symmetries, parse_symmetry, rotation
 
 
 def test_declared_symmetries_expand_n_fold_turns():

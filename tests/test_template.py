@@ -1,10 +1,11 @@
 import numpy as np
 import pytest
 
-from spm_data.poses import label_to_pose
-from spm_data.shards import list_shards, read_shard
+from spm_data.core.poses import label_to_pose
+from spm_data.io.shards import list_shards, read_shard
 from spm_model.estimator import ModelError
-from spm_model.template import TemplatePose, box_of, describe
+from spm_model.descriptors import box_of, describe
+from spm_model.template import TemplatePose
 
 
 @pytest.fixture(scope="module")
@@ -27,9 +28,10 @@ def test_each_training_frame_finds_itself_and_the_model_file_round_trips(frames,
     path = model.save(tmp_path / "ref.npz")
     loaded = TemplatePose.load(path)
     assert loaded.components == 32 and np.array_equal(loaded.predict(f), pred)
-    with pytest.raises(ModelError, match="not fitted yet"):
+    with pytest.raises(ModelError, match=r"^this TemplatePose is not fitted yet; call fit\(frames, poses\) first, "
+                                         r"or load a model file with TemplatePose\.load\(path\)$"):
         TemplatePose().predict(f)
-    from spm_model.estimator import save_model_file
+    from spm_model.model_files import save_model_file
 
     save_model_file(tmp_path / "other.npz", "spm", {}, {"W": np.zeros(2)})
     with pytest.raises(ModelError, match="of kind spm is not one this spm reads here"):

@@ -7,9 +7,9 @@ import pytest
 from click.testing import CliRunner
 
 from cli import data_cli
-from spm_data.render_jobs import load_run_specs, render_dataset
-from spm_data.shards import SCHEMA_VERSION, read_attrs, read_shard, write_manifest, write_shard
-from spm_data.validate import validate_folder
+from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.io.shards import SCHEMA_VERSION, read_attrs, read_shard, write_manifest, write_shard
+from spm_data.commands.validate import validate_folder
 
 
 @pytest.fixture(scope="module")
@@ -101,4 +101,4 @@ def test_bad_values_inside_a_shard_are_caught(good, tmp_path):
 
 def test_folder_without_shards(tmp_path):
     r = CliRunner().invoke(data_cli, ["validate", str(tmp_path)])
-    assert r.exit_code == 1 and "no shards (*.h5) to validate" in r.output
+    assert r.exit_code == 1 and "no shards (*.h5) in" in r.output and "nothing to validate" in r.output

@@ -6,7 +6,7 @@ world, render settings) is built once per renderer and the mesh once per
 instance; a frame only moves the camera and renders one multi-layer EXR
 (Combined, Depth, Object Index) that is read back with the OpenEXR package.
 
-Blender runs in worker processes only (spm_data.render_jobs): a crash or a
+Blender runs in worker processes only (spm_data.commands.render_jobs): a crash or a
 leak in Blender takes down a worker, never the run.
 """
 
@@ -21,8 +21,8 @@ import warnings
 import numpy as np
 
 from spm_data.errors import RenderError
-from spm_data.poses import K_to_corner_origin, cv_to_gl_camera_to_world
-from spm_data.render import light_rotations, spec_intrinsics
+from spm_data.core.poses import K_to_corner_origin, cv_to_gl_camera_to_world
+from spm_data.render import Renderer, light_rotations
 
 NO_HIT_DEPTH = 1e9  # Blender writes 1e10 where no surface was hit
 INSTALL_HINT = "install it with: pip install 'spm[blender]' (bpy 5.0.x, Python 3.11)"
@@ -81,17 +81,15 @@ def _tail(path: str, lines: int = 3) -> str:
         return ""
 
 
-class Renderer:
+class BlenderRenderer(Renderer):
     """bpy renderer for one spec (engine, samples, image size, intrinsics, lights)."""
 
     name = "blender"
 
     def __init__(self, spec):
+        super().__init__(spec)
         self._bpy, self._mathutils = _import_bpy()
         self._exr = _import_openexr()
-        self.spec = spec
-        self.width, self.height = spec.image.width, spec.image.height
-        self.K = spec_intrinsics(spec)
         settings = spec.render.blender
         self.engine = settings.engine
         if self.engine == "eevee":
@@ -110,9 +108,14 @@ class Renderer:
 
     # ------------------------------------------------------------------ scene
     def _build_scene(self) -> None:
-        bpy = self._bpy
-        bpy.ops.wm.read_factory_settings(use_empty=True)
-        sc = bpy.context.scene
+        self._bpy.ops.wm.read_factory_settings(use_empty=True)
+        sc = self._bpy.context.scene
+        self._set_engine(sc)
+        self._set_output(sc)
+        self._add_camera(sc)
+        self._add_lights(sc)
+
+    def _set_engine(self, sc) -> None:
         s = self.spec.render.blender
         r = sc.render
         r.resolution_x, r.resolution_y, r.resolution_percentage = self.width, self.height, 100
@@ -135,9 +138,13 @@ class Renderer:
             sc.display.shading.color_type = "TEXTURE"
             sc.display.render_aa = "OFF"  # pixel-centre samples, as for Cycles
         sc.view_settings.view_transform = "Standard"
+
+    def _set_output(self, sc) -> None:
+        """One multi-layer EXR a frame: Combined, Depth and Object Index, 32-bit, uncompressed."""
         layer = sc.view_layers[0]
         layer.use_pass_z = True
         layer.use_pass_object_index = True
+        r = sc.render
         img = r.image_settings
         img.media_type = "MULTI_LAYER_IMAGE"
         img.file_format = "OPEN_EXR_MULTILAYER"
@@ -146,7 +153,8 @@ class Renderer:
         r.filepath = self._exr_path
         r.use_file_extension = False
 
-        cam = bpy.data.cameras.new("spm-camera")
+    def _add_camera(self, sc) -> None:
+        cam = self._bpy.data.cameras.new("spm-camera")
         K, W, H = self.K, self.width, self.height
         cam.sensor_fit = "HORIZONTAL"
         cam.sensor_width = 36.0
@@ -156,21 +164,23 @@ class Renderer:
         cam.shift_x = (W / 2.0 - cx) / max(W, H)
         cam.shift_y = (cy - H / 2.0) / max(W, H)
         cam.clip_start, cam.clip_end = 0.01, 100.0
-        self._camera = bpy.data.objects.new("spm-camera", cam)
+        self._camera = self._bpy.data.objects.new("spm-camera", cam)
         sc.collection.objects.link(self._camera)
         sc.camera = self._camera
 
-        lighting = self.spec.lighting
+    def _add_lights(self, sc) -> None:
+        """Suns parented to the camera (as the pyrender backend's lights move with it), and
+        the ambient term as the world's colour."""
+        bpy, lighting = self._bpy, self.spec.lighting
         for i, rot in enumerate(light_rotations(lighting.lights)):
             sun = bpy.data.lights.new(f"spm-sun-{i}", "SUN")
             sun.energy = lighting.strength
             obj = bpy.data.objects.new(f"spm-sun-{i}", sun)
             sc.collection.objects.link(obj)
-            obj.parent = self._camera  # moves with the camera, as in the pyrender backend
+            obj.parent = self._camera
             local = np.eye(4)
             local[:3, :3] = rot
             obj.matrix_basis = self._mathutils.Matrix(local.tolist())
-
         world = bpy.data.worlds.new("spm-world")
         sc.world = world
         if world.node_tree is None:  # Blender < 5 needs asking; 5.x always has nodes

@@ -10,8 +10,8 @@ import os
 import numpy as np
 
 from spm_data.errors import RenderError
-from spm_data.poses import K_to_corner_origin, cv_to_gl_camera_to_world
-from spm_data.render import light_rotations, mask_from_depth, spec_intrinsics
+from spm_data.core.poses import K_to_corner_origin, cv_to_gl_camera_to_world
+from spm_data.render import Renderer, light_rotations, mask_from_depth
 
 # EGL needs no display; it must be chosen before OpenGL is first imported.
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
@@ -85,15 +85,14 @@ def max_image_side(offscreen) -> int | None:
     return _MAX_SIDE[0]
 
 
-class Renderer:
+class PyrenderRenderer(Renderer):
     """pyrender offscreen renderer for one spec (image size, intrinsics, lights)."""
 
     name = "pyrender"
 
     def __init__(self, spec):
+        super().__init__(spec)
         self._pr = _import_pyrender()
-        self.width, self.height = spec.image.width, spec.image.height
-        self.K = spec_intrinsics(spec)
         self.lighting = spec.lighting
         try:
             self._renderer = _offscreen(self._pr, self.width, self.height)

@@ -1,0 +1,120 @@
+"""``spm``: train, evaluate and apply pose estimators on shard folders."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from cli.common import ALLOW_PARTIAL, Progress, executor_options, handle_errors
+from spm_data.errors import SpmError
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="spm")
+def model_cli():
+    """spm: train and evaluate the Sparse Pose Manifolds estimator on spm-data shards."""
+
+
+def _parse_roi(text):
+    try:
+        x, y, w, h = (int(v) for v in text.split(","))
+    except ValueError:
+        raise SpmError(f"--roi expects x,y,width,height in whole pixels, got {text!r}; "
+                       "e.g. --roi 200,120,240,240") from None
+    return x, y, w, h
+
+
+@model_cli.command("train")
+@click.option("--shards", required=True, type=click.Path(), help="Folder of shards (searched recursively).")
+@click.option("--report", "report_dir", default=None, type=click.Path(), help="Report folder [default: SHARDS/report].")
+@click.option("--protocol", type=click.Choice(["loco", "views", "instances"]), default="loco", show_default=True,
+              help="loco: leave one class out; views: new views of seen objects; instances: leave one instance "
+                   "out of every class (category level).")
+@click.option("--runs", default=3, show_default=True, type=click.IntRange(min=1), help="Repeated runs (seeds) for sigma.")
+@click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1), help="Feature-extraction processes.")
+@click.option("--ellipse", type=click.Choice(["pso", "direct"]), default="pso", show_default=True,
+              help="Ellipse fit: Eq. 1 by particle swarm (the paper's) or the direct fit.")
+@click.option("--gamma", default=8, show_default=True, type=click.IntRange(min=5), help="EM clusters per frame.")
+@click.option("--estimator", "estimators", multiple=True, metavar="MODULE:CLASS",
+              help="Also evaluate your estimator (fit(frames, poses), predict(frames)); repeatable. docs/estimators.md")
+@ALLOW_PARTIAL
+@executor_options
+@handle_errors
+def train_cmd(shards, report_dir, protocol, runs, ellipse, gamma, estimators, allow_partial, executor):
+    """Extract features (cached), evaluate SPM and the baselines, write the report and the model."""
+    from spm_model.features import FeatureConfig
+    from spm_model.train import train
+
+    bar = Progress()
+    try:
+        result = train(shards, report_dir, protocol=protocol, runs=runs,
+                       features=FeatureConfig(gamma=gamma, ellipse=ellipse), progress=bar, executor=executor,
+                       log=lambda m: bar.bar.write(m), command="spm " + " ".join(sys.argv[1:]),
+                       estimators=estimators, allow_partial=allow_partial)
+    except KeyboardInterrupt:
+        bar.close()
+        click.echo("interrupted; features already cached are kept", err=True)
+        sys.exit(130)
+    bar.close()
+    click.echo(result["text"])
+    click.echo(f"report: {result['report']}/results.md, models: {result['model']} (SPM), "
+               f"{result['reference_model']} (reference)")
+
+
+@model_cli.command("evaluate")
+@click.option("--model", "model_path", required=True, type=click.Path(), help="model.npz (SPM) or reference-model.npz from spm train.")
+@click.option("--shards", required=True, type=click.Path(), help="Folder of shards to score it on.")
+@click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1), help="Feature-extraction processes.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@ALLOW_PARTIAL
+@executor_options
+@handle_errors
+def evaluate_cmd(model_path, shards, as_json, allow_partial, executor):
+    """Score a trained model (SPM or reference) on other shards: ±5°, sum < 5° and < 3°, errors."""
+    import json
+
+    from spm_model.train import evaluate_model
+
+    bar = Progress()
+    try:
+        result = evaluate_model(model_path, shards, progress=bar, executor=executor,
+                                allow_partial=allow_partial)
+    finally:
+        bar.close()
+    if as_json:
+        click.echo(json.dumps(result, indent=2))
+        return
+    click.echo(f"{'class':<12}{'frames':>8}{'±5° %':>8}{'sum<5 %':>9}{'sum<3 %':>9}{'geo med':>9}{'t med mm':>10}")
+    for name, s in [*result["classes"].items(), ("all", result["all"])]:
+        fmt = lambda v: "-" if v is None else f"{v:.1f}"  # noqa: E731
+        click.echo(f"{name:<12}{s['frames']:>8}{fmt(s['success_tol5']):>8}{fmt(s['success_sum5']):>9}"
+                   f"{fmt(s['success_sum3']):>9}{fmt(s['geodesic_median_deg']):>9}{fmt(s['translation_median_mm']):>10}")
+
+
+@model_cli.command("predict")
+@click.option("--model", "model_path", required=True, type=click.Path(),
+              help="model.npz (SPM) or reference-model.npz from spm train.")
+@click.argument("images", nargs=-1, required=True, type=click.Path())
+@click.option("--roi", default=None, help="Region of interest x,y,width,height (pixels) holding the object.")
+@click.option("--mask", "mask_path", default=None, type=click.Path(), help="Object mask image (non-zero = object).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@handle_errors
+def predict_cmd(model_path, images, roi, mask_path, as_json):
+    """Print the 6-DoF pose estimate of each image (rx ry rz degrees, t metres).
+
+    stdout: one line per image that got a pose (--json: every image, failed ones as
+    {"image", "error"}); stderr: one "error: IMAGE: reason" line per image that failed.
+    The other images still get their results; exit status 1 if any image failed."""
+    from spm_model.train import format_predictions, prediction_errors, predict_images
+
+    results = predict_images(model_path, images, roi=None if roi is None else _parse_roi(roi),
+                             mask_path=mask_path)
+    out = format_predictions(results, as_json)
+    if out:
+        click.echo(out)
+    failed = prediction_errors(results)
+    for line in failed:
+        click.echo(f"error: {line}", err=True)
+    if failed:
+        sys.exit(1)

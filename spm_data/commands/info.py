@@ -1,0 +1,63 @@
+"""Human-readable summaries of a shard or a shard folder (``spm-data info``)."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from spm_data.errors import ShardError, SpmWarning
+from spm_data.io.folders import open_folder
+from spm_data.io.shards import MANIFEST, read_attrs, read_manifest, read_shard, shard_layout
+
+
+def describe_shard(path) -> str:
+    attrs = read_attrs(path)
+    lines = [f"shard {path}", f"  schema v{attrs['schema_version']}, {attrs['frames']} frames, "
+             f"{attrs.get('width')}x{attrs.get('height')}, renderer {attrs.get('renderer')} "
+             f"({attrs.get('renderer_version', '')}), seed {attrs.get('seed')}"]
+    for name, (shape, dtype) in shard_layout(path).items():
+        lines.append(f"  {name:<20} {str(shape):<22} {dtype}")
+    meta = read_shard(path, ["class_name", "instance_name", "source", "azimuth", "elevation", "distance",
+                             "occlusion_fraction"])
+    if len(meta["class_name"]):
+        classes, counts = np.unique(meta["class_name"].astype(str), return_counts=True)
+        lines.append("  classes: " + ", ".join(f"{c} ({k})" for c, k in zip(classes, counts)))
+        lines.append("  instances: " + ", ".join(sorted(set(meta["instance_name"].astype(str)))))
+        lines.append("  sources: " + ", ".join(sorted(set(meta["source"].astype(str)))))
+        for key, unit in (("azimuth", "deg"), ("elevation", "deg"), ("distance", "m"), ("occlusion_fraction", "")):
+            v = meta[key]
+            lines.append(f"  {key}: {v.min():.3g}..{v.max():.3g} {unit}".rstrip())
+    return "\n".join(lines)
+
+
+def describe_folder(folder) -> str:
+    folder = Path(folder)
+    with warnings.catch_warnings(record=True) as caught:  # info describes a partial folder, noting its gaps
+        warnings.simplefilter("always", SpmWarning)
+        shards = open_folder(folder, allow_partial=True).shards
+    lines = [f"folder {folder}: {len(shards)} shards"] + [f"  note: {w.message}" for w in caught]
+    if (folder / MANIFEST).is_file():
+        m = read_manifest(folder)
+        lines.append(f"  manifest: {m.get('frames', '?')} frames in {len(m['shards'])} shards")
+        for c, k in m.get("classes", {}).items():
+            lines.append(f"    {c:<24} {k} frames")
+    else:
+        lines.append(f"  no {MANIFEST} (an interrupted or foreign folder?)")
+    total = 0
+    for p in shards:
+        a = read_attrs(p)
+        total += int(a["frames"])
+        lines.append(f"  {p.name:<28} {a['frames']:>6} frames  {p.stat().st_size / 1e6:8.2f} MB  {a.get('renderer', '')}")
+    lines.append(f"  total: {total} frames")
+    return "\n".join(lines)
+
+
+def describe(path) -> str:
+    path = Path(path)
+    if path.is_dir():
+        return describe_folder(path)
+    if path.is_file():
+        return describe_shard(path)
+    raise ShardError(f"no such shard or folder: {path}")

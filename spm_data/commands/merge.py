@@ -1,0 +1,130 @@
+"""`spm-data merge A B ... --out C`: shard folders of any sources into one, rebalanced
+into full shards (one run of shards per image size), every frame exactly once."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from spm_data.errors import SpmError
+from spm_data.io.folders import open_folder
+from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
+from spm_data.io.files import file_sha256
+from spm_data.io.shards import (FIELDS, OPTIONAL_FIELDS, manifest_entry, read_shard, shard_layout, verify_shard,
+                                 write_shard)
+
+
+@dataclass(frozen=True)
+class MergeJob:
+    name: str
+    plan_key: str
+    out_dir: str
+    frames_from: tuple = field(repr=False)   # ((shard path, (frame indices...)), ...)
+    renames: tuple = ()                      # ((old class, new class), ...)
+    optional: tuple = ()                     # optional fields every source shard has
+
+    @property
+    def frames(self) -> int:
+        return sum(len(idx) for _, idx in self.frames_from)
+
+
+def parse_renames(spec: str | None) -> dict[str, str]:
+    """``old=new,old2=new2`` -> dict."""
+    if not spec:
+        return {}
+    out = {}
+    for part in spec.split(","):
+        if "=" not in part or not part.split("=", 1)[0].strip() or not part.split("=", 1)[1].strip():
+            raise SpmError(f"--classes: expected old=new[,old=new...], got {part!r}")
+        old, new = (x.strip() for x in part.split("=", 1))
+        out[old] = new
+    return out
+
+
+def plan_merge(inputs, out_dir, *, sources=None, renames=None, frames_per_shard=256,
+               allow_partial=False) -> list[MergeJob]:
+    if not inputs:
+        raise SpmError("give at least one folder to merge")
+    out_dir = Path(out_dir)
+    shards = []
+    for folder in inputs:
+        folder = Path(folder)
+        if out_dir.exists() and folder.resolve() == out_dir.resolve():
+            raise SpmError(f"--out {out_dir} is one of the inputs; merge into a new folder")
+        shards += open_folder(folder, allow_partial=allow_partial).shards
+    info = {p: _shard_info(p) for p in shards}  # attrs, sources, fields and checksum, read once each
+    renames = renames or {}
+    groups: dict[tuple, list] = {}   # (H, W) -> [(shard, frames)]
+    for path in shards:
+        i = info[path]
+        keep = np.arange(i["frames"])
+        if sources:
+            keep = keep[np.isin(i["source"], list(sources))]
+        if len(keep):
+            groups.setdefault((i["height"], i["width"]), []).append((path, keep))
+    if not groups:
+        raise SpmError(f"no frames left after --sources {','.join(sources or [])}")
+    jobs = []
+    for (h, w), items in sorted(groups.items()):
+        flat = [(str(p), int(i)) for p, idx in items for i in idx]
+        tag = f"{w}x{h}"
+        for k, start in enumerate(range(0, len(flat), frames_per_shard)):
+            part = flat[start:start + frames_per_shard]
+            by_shard: dict[str, list] = {}
+            for p, i in part:
+                by_shard.setdefault(p, []).append(i)
+            frames_from = tuple((p, tuple(ix)) for p, ix in by_shard.items())
+            optional = tuple(f for f in OPTIONAL_FIELDS
+                             if all(f in info[Path(p)]["fields"] for p, _ in frames_from))
+            stamp = [(p, info[Path(p)]["sha256"]) for p, _ in frames_from]
+            key = hashlib.sha256(json.dumps([stamp, frames_from, sorted(renames.items()), optional]).encode())
+            jobs.append(MergeJob(f"merged-{tag}-{k:05d}.h5", key.hexdigest(), str(out_dir), frames_from,
+                                 tuple(sorted(renames.items())), optional))
+    return jobs
+
+
+def _shard_info(path) -> dict:
+    attrs = verify_shard(path)  # every checksum, before anything is written
+    fields = set(shard_layout(path))
+    return {"schema_version": int(attrs["schema_version"]), "frames": int(attrs["frames"]),
+            "height": int(attrs["height"]), "width": int(attrs["width"]), "fields": fields,
+            "source": read_shard(path, ["source"])["source"].astype(str), "sha256": file_sha256(path)}
+
+
+def merge_shard(job: MergeJob, report=lambda n: None) -> dict:
+    parts = []
+    fields = list(FIELDS) + list(job.optional)
+    for path, frames in job.frames_from:
+        parts.append(read_shard(path, fields, frames=np.asarray(frames)))
+        report(len(frames))
+    arrays = {}
+    rects = max(p["occlusion_rects"].shape[1] for p in parts)
+    for f in fields:
+        values = [p[f] for p in parts]
+        if f == "occlusion_rects":  # pad to the widest rectangle count
+            values = [np.pad(v, ((0, 0), (0, rects - v.shape[1]), (0, 0))) for v in values]
+        arrays[f] = np.concatenate(values)
+    renames = dict(job.renames)
+    arrays["class_name"] = np.asarray([renames.get(c, c) for c in arrays["class_name"]], dtype=object)
+    attrs = {"plan_key": job.plan_key, "renderer": "merged", "seed": 0, "source": "merged",
+             "merged_from": json.dumps([[Path(p).parent.name + "/" + Path(p).name, len(ix)]
+                                        for p, ix in job.frames_from])}
+    target = write_shard(Path(job.out_dir) / job.name, arrays, attrs)
+    return {"entry": manifest_entry(target)}
+
+
+def merge_folders(inputs, out_dir, *, sources=None, renames=None, frames_per_shard=256,
+                  progress=None, executor=None, allow_partial=False) -> RunSummary:
+    """Merge shard folders into ``out_dir``; the manifest records every source folder."""
+    jobs = plan_merge(inputs, out_dir, sources=sources, renames=renames, frames_per_shard=frames_per_shard,
+                      allow_partial=allow_partial)
+    read = {Path(p) for j in jobs for p, _ in j.frames_from}  # the shards each folder's manifest listed
+    record = {"sources": [{"folder": str(Path(f)), "shards": sum(p.parent == Path(f) for p in read)}
+                          for f in inputs],
+              "filters": {"sources": list(sources or []), "classes": renames or {}}}
+    return run_shard_jobs(merge_shard, jobs, out_dir, executor=executor, progress=progress, verb="merged",
+                          manifest_extra=record)

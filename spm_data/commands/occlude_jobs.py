@@ -1,0 +1,123 @@
+"""`spm-data occlude`: write occluded copies of a shard folder (the input is only read).
+
+One job per (input shard, copy). Frame ``i`` of copy ``k`` of shard ``S`` draws
+its target and rectangles from ``default_rng([seed, crc32(S), i, k])``, so the
+output does not depend on workers or order, and a seed gives identical bytes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from spm_data.errors import ShardError, SpmError
+from spm_data.io.folders import open_folder
+from spm_data.core.occlusion import apply_occlusion, check_range, occlude_mask
+from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
+from spm_data.io.shards import manifest_entry, read_attrs, read_shard, shard_layout, verify_shard, write_shard
+
+DERIVED_FIELDS = ("visible_mask", "source_shard", "source_frame")
+
+
+@dataclass(frozen=True)
+class OccludeJob:
+    source: str          # input shard path
+    name: str            # output shard name
+    copy: int
+    low: float
+    high: float
+    rects: int
+    seed: int
+    plan_key: str
+    out_dir: str
+    frames: int
+
+
+def occlusion_report(summary: RunSummary) -> str:
+    unreachable = sum(r["unreachable"] for r in summary.results.values())
+    return summary.report([f"  {unreachable} frames could not reach their target (object too small or thin); "
+                           "they keep the closest coverage found"])
+
+
+def check_inputs(in_dir, out_dir, allow_partial=False) -> list[Path]:
+    """Every input shard (as the folder's manifest lists them), checked before anything is written."""
+    in_dir, out_dir = Path(in_dir), Path(out_dir)
+    if not in_dir.is_dir():
+        raise ShardError(f"input folder not found: {in_dir}")
+    if out_dir.exists() and out_dir.resolve() == in_dir.resolve():
+        raise ShardError(f"--out {out_dir} is the input folder; occlusion never modifies its input, "
+                         "give another --out")
+    shards = list(open_folder(in_dir, allow_partial=allow_partial).shards)
+    for path in shards:
+        attrs = verify_shard(path)  # every checksum, before anything is written
+        try:
+            data = read_shard(path, ["mask", "occlusion_rects"])
+        except ShardError as exc:
+            raise ShardError(f"{path}: cannot occlude a shard without masks ({exc})") from None
+        if int(attrs["frames"]) and not data["mask"].any():
+            raise ShardError(f"{path}: every mask is empty, so there is no object to occlude")
+        if data["occlusion_rects"].any():
+            raise ShardError(f"{path}: already occluded; occlude the unoccluded shards instead")
+    return shards
+
+
+def plan_occlusion(shards, out_dir, low, high, copies=1, rects=1, seed=0) -> list[OccludeJob]:
+    check_range(low, high)
+    if copies < 1 or rects < 1:
+        raise SpmError(f"--copies and --rects must be >= 1, got {copies} and {rects}")
+    jobs = []
+    for path in shards:
+        attrs = read_attrs(path)
+        stamp = f"{path.name}:{attrs.get('plan_key', '')}:{path.stat().st_size}"
+        for k in range(copies):
+            key = hashlib.sha256(json.dumps([stamp, low, high, rects, seed, k]).encode()).hexdigest()
+            name = f"{path.stem}-occ{k}.h5" if copies > 1 else path.name
+            jobs.append(OccludeJob(str(path), name, k, float(low), float(high), int(rects), int(seed), key,
+                                   str(out_dir), int(attrs["frames"])))
+    return jobs
+
+
+def occlude_shard(job: OccludeJob, report=lambda n: None) -> dict:
+    """Occlude every frame of one input shard; write the output shard atomically."""
+    data = read_shard(job.source, ["rgb", "mask"])
+    attrs = read_attrs(job.source)
+    n = int(attrs["frames"])
+    h, w = data["mask"].shape[1:]
+    rgb = data["rgb"].copy()
+    visible = np.zeros((n, h, w), np.uint8)
+    rects = np.zeros((n, job.rects, 4), np.int32)
+    fractions = np.zeros(n, np.float32)
+    reached = np.zeros(n, bool)
+    stem = zlib.crc32(Path(job.source).name.encode())
+    for i in range(n):
+        rng = np.random.default_rng([job.seed, stem, i, job.copy])
+        target = float(rng.uniform(job.low, job.high)) if job.high > job.low else job.low
+        occ = occlude_mask(data["mask"][i], target, rng, rects=job.rects, bounds=(job.low, job.high))
+        rgb[i], visible[i] = apply_occlusion(data["rgb"][i], data["mask"][i], occ.rects)
+        rects[i], fractions[i], reached[i] = occ.rects, occ.fraction, occ.reached
+        report(1)
+    changed = dict(rgb=rgb, visible_mask=visible, occlusion_rects=rects, occlusion_fraction=fractions,
+                   source_shard=np.asarray([Path(job.source).name] * n, dtype=object),
+                   source_frame=np.arange(n, dtype=np.int64))
+    unchanged = [name for name in shard_layout(job.source) if name not in changed]
+    out_attrs = {k: v for k, v in attrs.items() if k not in ("schema_version", "frames", "height", "width")}
+    out_attrs.update(plan_key=job.plan_key, occlusion_seed=job.seed, occlusion_min=job.low,
+                     occlusion_max=job.high, occlusion_rects=job.rects, occlusion_copy=job.copy,
+                     occlusion_source=Path(job.source).name, source_plan_key=attrs.get("plan_key", ""))
+    # Depth, mask, poses...: copied chunk for chunk, no decompressing and recompressing.
+    target = write_shard(Path(job.out_dir) / job.name, changed, out_attrs, copy_from=(job.source, unchanged))
+    return {"entry": manifest_entry(target), "unreachable": int((~reached).sum())}
+
+
+def occlude_dataset(in_dir, out_dir, *, low=0.0, high=0.6, copies=1, rects=1, seed=0,
+                    progress=None, executor=None, allow_partial=False) -> RunSummary:
+    """Occlude every shard of ``in_dir`` into ``out_dir`` (resuming), then write its manifest.
+    Everything is checked before anything is written; ``allow_partial``: see folders.open_folder."""
+    shards = check_inputs(in_dir, out_dir, allow_partial)
+    jobs = plan_occlusion(shards, out_dir, low, high, copies, rects, seed)
+    return run_shard_jobs(occlude_shard, jobs, out_dir, executor=executor, progress=progress, verb="occluded")

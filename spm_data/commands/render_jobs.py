@@ -1,0 +1,248 @@
+"""Render specs into shard folders: plan shards, render the missing ones, write the manifest.
+
+The unit of work is one shard: ``frames_per_shard`` consecutive frames of a
+class's frame list (every instance's camera path, instance after instance).
+A shard that exists is complete (shards.ShardWriter is atomic) and carries
+the ``plan_key`` it was made for, so a re-run skips it, and a re-run with a
+different spec or options refuses to mix its frames in.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import zlib
+from dataclasses import dataclass, field, replace
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from spm_data import __version__
+from spm_data.core.backgrounds import background_image, composite
+from spm_data.errors import SpecError
+from spm_data.core.instances import instance_count, load_instance, mesh_attrs, mesh_record
+from spm_data.core.paths import camera_path
+from spm_data.core.poses import pose_to_label
+from spm_data.render import make_renderer, spec_intrinsics
+from spm_data.jobs.executor import LocalExecutor
+from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
+from spm_data.io.shards import SCHEMA_VERSION, ShardWriter, manifest_entry
+from spm_data.core.specs import RenderSpec, all_spec_paths, find_spec, load_spec
+
+
+@dataclass(frozen=True, init=False)
+class ShardJob:
+    """One shard's frames: either given (``instances``, ``path_indices``) or
+    ``frame_range = (first, stop, n_path)``, frames ``first .. stop - 1`` of the
+    class's frame list (frame ``g`` is instance ``g // n_path`` at path index
+    ``g % n_path``), turned into arrays only when asked, so a plan of many
+    shards holds no per-frame arrays."""
+
+    spec: RenderSpec
+    name: str
+    shard_index: int
+    plan_key: str = ""
+    out_dir: str = ""
+    frame_range: tuple = field(default=(), repr=False)  # (frames_from, frames_to, n_path), or ()
+    _given: tuple = field(default=(), repr=False)       # (instances, path_indices), or ()
+
+    def __init__(self, spec, name, shard_index, instances=None, path_indices=None, plan_key="", out_dir="",
+                 frame_range=()):
+        given = ()
+        if instances is not None or path_indices is not None:
+            given = (np.asarray(instances, dtype=np.int64), np.asarray(path_indices, dtype=np.int64))
+            if given[0].shape != given[1].shape or given[0].ndim != 1 or frame_range:
+                raise ValueError("ShardJob: give instances and path_indices of one length, or frame_range")
+        elif not frame_range:
+            raise ValueError("ShardJob: give instances and path_indices, or frame_range")
+        for key, value in (("spec", spec), ("name", name), ("shard_index", shard_index), ("plan_key", plan_key),
+                           ("out_dir", out_dir), ("frame_range", tuple(int(v) for v in frame_range)),
+                           ("_given", given)):
+            object.__setattr__(self, key, value)
+
+    @property
+    def frames(self) -> int:
+        return int(len(self._given[0])) if self._given else self.frame_range[1] - self.frame_range[0]
+
+    def frame_ids(self) -> tuple[np.ndarray, np.ndarray]:
+        """(instances, path_indices): (n,) int64 each, the instance ids and camera path indices."""
+        if self._given:
+            return self._given
+        first, stop, n_path = self.frame_range
+        return np.divmod(np.arange(first, stop, dtype=np.int64), n_path)
+
+    @property
+    def instances(self) -> np.ndarray:
+        """(n,) int64 instance ids."""
+        return self.frame_ids()[0]
+
+    @property
+    def path_indices(self) -> np.ndarray:
+        """(n,) int64 indices into the camera path."""
+        return self.frame_ids()[1]
+
+
+# --------------------------------------------------------------------------- planning
+
+def effective_spec(spec: RenderSpec, renderer: str | None = None, seed: int | None = None) -> RenderSpec:
+    """``spec`` with command-line overrides applied."""
+    if renderer is not None:
+        spec = spec.replace(render=replace(spec.render, renderer=renderer))
+    if seed is not None:
+        spec = spec.replace(seed=int(seed))
+    return spec
+
+
+def load_run_specs(classes=(), all_classes=False, spec_files=(), specs_dir=None, renderer=None, seed=None):
+    """The specs a render run names: ``--class`` names, ``--all``, explicit files."""
+    paths = [find_spec(c, specs_dir) for c in classes] + [Path(p) for p in spec_files]
+    if all_classes:
+        paths += all_spec_paths(specs_dir)
+    if not paths:
+        raise SpecError("nothing to render: give --class NAME, --all or --spec FILE")
+    unique = list(dict.fromkeys(p.resolve() for p in paths))
+    return [effective_spec(load_spec(p), renderer=renderer, seed=seed) for p in unique]
+
+
+MAX_PLAN_FRAMES = 2 ** 40  # a frame list longer than this is a mistake in the spec, not a plan
+
+
+def limit_picks(total: int, limit: int) -> np.ndarray:
+    """The ``limit`` frame numbers (sorted, int64) of a ``total``-frame list that
+    ``--limit`` renders, evenly spread (linspace builds ``limit`` values, never ``total``)."""
+    if limit >= total:
+        return np.arange(total, dtype=np.int64)
+    return np.unique(np.round(np.linspace(0, total - 1, limit)).astype(np.int64))
+
+
+def plan_shards(spec: RenderSpec, out_dir, limit: int | None = None) -> list[ShardJob]:
+    """Split the class's frames into shard jobs. ``limit``: at most that many
+    frames, evenly spread over all instances and views (a quick look).
+
+    Memory is bounded by the jobs, not the frame list: without a limit a job is
+    a range of frame numbers, with one only the picked frames are computed."""
+    n_path = camera_path(spec.camera).size
+    n_inst = instance_count(spec)
+    total = n_path * n_inst
+    if total > MAX_PLAN_FRAMES:
+        raise SpecError(f"{spec.class_name}: {n_inst:,} instances x {n_path:,} camera views = {total:,} frames, "
+                        f"more than 2**40 ({MAX_PLAN_FRAMES:,}); use coarser camera steps or fewer instances")
+    if limit is not None and limit < 1:
+        raise SpecError(f"--limit must be >= 1, got {limit}")
+    key = hashlib.sha256(json.dumps({"spec": spec.fingerprint(), "limit": limit,
+                                     "schema": SCHEMA_VERSION}).encode()).hexdigest()
+    per = spec.render.frames_per_shard
+    common = {"spec": spec, "plan_key": key, "out_dir": str(out_dir)}
+    if limit is None or limit >= total:
+        return [ShardJob(name=f"{spec.class_name}-{i:05d}.h5", shard_index=i,
+                         frame_range=(s, min(s + per, total), n_path), **common)
+                for i, s in enumerate(range(0, total, per))]
+    pick = limit_picks(total, limit)
+    instances, path_idx = np.divmod(pick, n_path)
+    return [ShardJob(name=f"{spec.class_name}-{i:05d}.h5", shard_index=i,
+                     instances=instances[s:s + per], path_indices=path_idx[s:s + per], **common)
+            for i, s in enumerate(range(0, len(pick), per))]
+
+
+# --------------------------------------------------------------------------- one shard
+
+@lru_cache(maxsize=2)
+def _renderer_for(spec: RenderSpec):
+    return make_renderer(spec)
+
+
+def frame_rng(spec: RenderSpec, instance: int, path_index: int) -> np.random.Generator:
+    """Per-frame randomness (backgrounds): independent of shard layout and worker."""
+    return np.random.default_rng([spec.seed, zlib.crc32(spec.class_name.encode()), instance, path_index, 1])
+
+
+# A render worker is replaced after this many shards, so a leak in a renderer (Blender's
+# grows over long runs) cannot grow without bound; the CLI's --recycle-after default.
+RECYCLE_AFTER = 16
+BLOCK_BYTES = 64 << 20  # raw image bytes a worker holds while writing a shard (at least one frame)
+
+
+def block_frames(height: int, width: int) -> int:
+    """Frames per block of a shard being written: as many as fit BLOCK_BYTES of
+    rgb + depth + mask (8 bytes a pixel), at least one. A function of the image
+    size only, so a spec's shards are the same bytes on every machine; a shard
+    that fits one block is byte for byte what ``shards.write_shard`` writes."""
+    return max(1, BLOCK_BYTES // (height * width * 8))
+
+
+def render_shard(job: ShardJob, report=lambda n: None) -> dict:
+    """Render ``job`` and write its shard atomically, streaming the images a block
+    of frames at a time (block_frames), so a worker's memory stays about one
+    block whatever the shard's length; returns its manifest entry."""
+    spec = job.spec
+    renderer = _renderer_for(spec)
+    path = camera_path(spec.camera)
+    instances, path_indices = job.frame_ids()
+    points = path.at(path_indices)
+    R, t = points.poses()
+    n, h, w = job.frames, spec.image.height, spec.image.width
+    per = max(1, min(n, block_frames(h, w)))
+    block = {"rgb": np.zeros((per, h, w, 3), np.uint8), "depth": np.zeros((per, h, w), np.float32),
+             "mask": np.zeros((per, h, w), np.uint8)}
+    with ShardWriter(Path(job.out_dir) / job.name, frames=n, height=h, width=w, images=tuple(block)) as writer:
+        current, names, records = None, {}, {}
+        for start in range(0, n, per):
+            k = min(per, n - start)
+            for j in range(k):
+                i = start + j
+                inst, pidx = instances[i], path_indices[i]
+                if inst != current:
+                    mesh = load_instance(spec, int(inst))
+                    renderer.set_mesh(mesh)
+                    current, names[int(inst)] = inst, mesh.name
+                    records[int(inst)] = mesh_record(spec, int(inst))
+                out = renderer.render(R[i], t[i])
+                if spec.background.kind == "black":
+                    block["rgb"][j] = out["rgb"]
+                else:
+                    background = background_image(spec, frame_rng(spec, int(inst), int(pidx)))
+                    block["rgb"][j] = composite(out["rgb"], out["alpha"], background)
+                block["depth"][j] = out["depth"]
+                block["mask"][j] = out["mask"]
+                del out
+                report(1)
+            writer.write_images(start, {f: a[:k] for f, a in block.items()})
+        del block
+        labels = {
+            "K": np.broadcast_to(spec_intrinsics(spec), (n, 3, 3)).copy(), "R": R, "t": t,
+            "pose": pose_to_label(R, t).reshape(n, 6),
+            "azimuth": points.azimuth, "elevation": points.elevation, "roll": points.roll,
+            "distance": points.distance, "look_at": np.broadcast_to(path.look_at, (n, 3)).copy(),
+            "path_index": path_indices.astype(np.int64), "instance_id": instances.astype(np.int64),
+            "instance_name": [names[int(i)] for i in instances], "class_name": [spec.class_name] * n,
+            "source": ["synthetic"] * n, "label_measured": np.ones((n, 6), bool),
+            "occlusion_fraction": np.zeros(n, np.float32), "occlusion_rects": np.zeros((n, 1, 4), np.int32),
+        }
+        attrs = {"spec": spec.text, "spec_fingerprint": spec.fingerprint(), "plan_key": job.plan_key,
+                 "seed": spec.seed, "class_name": spec.class_name, "shard_index": job.shard_index,
+                 "renderer": renderer.name, "renderer_version": renderer.version(),
+                 "renderer_settings": json.dumps(renderer.settings(), sort_keys=True),
+                 "spm_version": __version__, "source": "synthetic", "object_size": spec.mesh.size,
+                 **mesh_attrs(spec, records)}
+        target = writer.finish(labels, attrs)
+    return {"entry": manifest_entry(target)}
+
+
+def render_dataset(specs: list[RenderSpec], out_dir, *, limit=None, progress=None, executor=None) -> RunSummary:
+    """Render every spec into ``out_dir`` (resuming), then write manifest.json.
+
+    executor: where shards are rendered (spm_data.jobs.make_executor: workers,
+    recycling); default: one local worker, replaced every RECYCLE_AFTER shards.
+    With one local worker pyrender renders in this process; Blender always
+    renders in worker processes. progress: a callable taking frame deltas and a
+    ``total`` attribute (e.g. a tqdm bar), or None.
+    """
+    jobs = [job for spec in specs for job in plan_shards(spec, out_dir, limit)]
+    names = [j.name for j in jobs]
+    if len(set(names)) != len(names):
+        raise SpecError("two specs share a class name; each class needs its own name")
+    in_process = all(j.spec.render.renderer == "pyrender" for j in jobs)
+    executor = executor or LocalExecutor(workers=1, retries=1, recycle_after=RECYCLE_AFTER)
+    return run_shard_jobs(render_shard, jobs, out_dir, executor=executor, in_process=in_process,
+                          progress=progress, verb="rendered")

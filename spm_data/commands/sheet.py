@@ -1,0 +1,143 @@
+"""Contact sheets: frames of a shard with the pose axes drawn from K, R, t, so a person can check labels."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from spm_data.errors import ShardError, SpmError
+from spm_data.core.poses import project_points
+from spm_data.io.outputs import removing_created, space_fix, unwritable
+from spm_data.io.files import atomic_file
+from spm_data.io.shards import read_attrs, read_shard
+
+AXIS_COLOURS = ((255, 40, 40), (40, 255, 40), (60, 120, 255))  # x red, y green, z blue (RGB)
+IMAGE_TYPES = {".png": "png", ".jpg": "jpeg", ".jpeg": "jpeg", ".pdf": "pdf", ".svg": "svg"}  # extension: format
+
+
+def check_image_path(path, example: str = "sheet.png") -> Path:
+    """``path`` as a Path when it names an image this module writes (an extension of
+    IMAGE_TYPES) in a folder that is, or can be made, writable; else a one-line SpmError.
+    Creates nothing: for checking before any work is done."""
+    path = Path(path)
+    if path.is_dir():
+        raise SpmError(f"{path} is a folder; give an image file name such as {path / example}")
+    if path.suffix.lower() not in IMAGE_TYPES:
+        got = f"unsupported extension {path.suffix!r}" if path.suffix else "no extension"
+        raise SpmError(f"{path}: {got}; give a file name ending in {', '.join(IMAGE_TYPES)}")
+    problem = unwritable(path.parent)
+    if problem and problem[1] == "file":
+        raise SpmError(f"cannot write {path}: {problem[0]} is a file, not a folder; give --out a path in a folder")
+    if problem:
+        raise SpmError(f"cannot write {path}: {problem[0]} is read-only; give --out a path in a writable folder")
+    return path
+
+
+def save_image(path: Path, write) -> Path:
+    """Write ``path`` atomically: ``write(binary file)`` fills a temporary file beside it, which
+    then replaces ``path``. On any failure nothing is left, nor the folders made for it; an
+    OSError (read-only, disk full) becomes a one-line SpmError."""
+    path = Path(path)
+    try:
+        with removing_created(path):
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with atomic_file(path) as tmp, open(tmp, "wb") as fh:
+                write(fh)
+                fh.flush()
+                os.fsync(fh.fileno())
+    except OSError as exc:
+        fix = space_fix(exc, "give --out a path in a writable folder")
+        raise SpmError(f"could not write {path}: {exc.strerror or exc}; {fix}") from None
+    return path
+
+
+def draw_pose(image: np.ndarray, K, R, t, length: float, scale: int = 1) -> np.ndarray:
+    """Draw the object frame's axes (``length`` metres) on an RGB image upscaled by ``scale``."""
+    import cv2
+
+    pts = np.array([[0, 0, 0], [length, 0, 0], [0, length, 0], [0, 0, length]], dtype=np.float64)
+    uv, z = project_points(pts, K, R, t)
+    if np.any(z <= 0) or not np.all(np.isfinite(uv)):
+        return image
+    uv = (uv + 0.5) * scale - 0.5  # OpenCV pixel centres survive the upscale
+    origin = tuple(int(round(c)) for c in uv[0])
+    for end, colour in zip(uv[1:], AXIS_COLOURS):
+        cv2.line(image, origin, tuple(int(round(c)) for c in end), colour, 2, lineType=cv2.LINE_AA)
+    return image
+
+
+def contact_sheet(shard, out_png, frames: int = 24, columns: int = 6, scale: int = 2) -> Path:
+    """Write an image (PNG, JPEG, PDF or SVG, by ``out_png``'s extension) of a grid of
+    ``frames`` evenly spaced frames of ``shard``; returns its path."""
+    import cv2
+
+    out_png = check_image_path(out_png, "sheet.png")
+    attrs = read_attrs(shard)
+    n = int(attrs["frames"])
+    if n == 0:
+        raise ShardError(f"{shard}: shard has no frames")
+    pick = np.unique(np.round(np.linspace(0, n - 1, min(frames, n))).astype(int))
+    data = read_shard(shard, ["rgb", "mask", "K", "R", "t", "azimuth", "elevation", "distance",
+                              "occlusion_rects"], frames=pick)
+    length = 0.5 * float(attrs.get("object_size", 0.2))
+    tiles = []
+    for i in range(len(pick)):
+        img = cv2.resize(data["rgb"][i], None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+        img = np.ascontiguousarray(img)
+        mask = cv2.resize(data["mask"][i], None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+        contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        cv2.drawContours(img, contours, -1, (255, 220, 0), 1)
+        for x0, y0, x1, y1 in data["occlusion_rects"][i]:
+            if x1 > x0 and y1 > y0:
+                cv2.rectangle(img, (int(x0) * scale, int(y0) * scale), (int(x1) * scale - 1, int(y1) * scale - 1),
+                              (255, 0, 255), 1)
+        draw_pose(img, data["K"][i], data["R"][i], data["t"][i], length, scale)
+        caption = f"#{pick[i]} az{data['azimuth'][i]:.0f} el{data['elevation'][i]:.0f} d{data['distance'][i]:.2f}"
+        cv2.putText(img, caption, (3, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (255, 255, 255), 1, cv2.LINE_AA)
+        tiles.append(img)
+    h, w = tiles[0].shape[:2]
+    rows = -(-len(tiles) // columns)
+    sheet = np.full((rows * (h + 2), min(columns, len(tiles)) * (w + 2), 3), 40, np.uint8)
+    for k, tile in enumerate(tiles):
+        r, c = divmod(k, columns)
+        sheet[r * (h + 2):r * (h + 2) + h, c * (w + 2):c * (w + 2) + w] = tile
+    fmt = IMAGE_TYPES[out_png.suffix.lower()]
+    if fmt in ("png", "jpeg"):
+        ok, encoded = cv2.imencode(".png" if fmt == "png" else ".jpg", cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
+        if not ok:
+            raise SpmError(f"could not encode {out_png} as {fmt.upper()}")
+        return save_image(out_png, lambda fh: fh.write(encoded.tobytes()))
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.image import imsave
+
+    return save_image(out_png, lambda fh: imsave(fh, sheet, format=fmt))
+
+
+def occlusion_histogram(folder, out_png, bins: int = 30, allow_partial: bool = False) -> Path:
+    """Histogram (PNG, JPEG, PDF or SVG, by ``out_png``'s extension) of the per-frame covered
+    fractions of every shard in ``folder``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from spm_data.io.folders import open_folder
+
+    out_png = check_image_path(out_png, "occlusion-hist.png")
+    shards = open_folder(folder, allow_partial=allow_partial).shards
+    fractions = np.concatenate([read_shard(p, ["occlusion_fraction"])["occlusion_fraction"] for p in shards])
+    fig, ax = plt.subplots(figsize=(6, 3.2), dpi=100)
+    ax.hist(fractions, bins=bins, range=(0, 1), color="#4a7ab0", edgecolor="white")
+    ax.set_xlabel("fraction of the object's mask covered")
+    ax.set_ylabel("frames")
+    ax.set_title(f"{len(fractions)} frames, {len(shards)} shards: min {fractions.min():.3f}, "
+                 f"max {fractions.max():.3f}", fontsize=9)
+    fig.tight_layout()
+    try:
+        return save_image(out_png, lambda fh: fig.savefig(fh, format=IMAGE_TYPES[out_png.suffix.lower()]))
+    finally:
+        plt.close(fig)

@@ -1,0 +1,115 @@
+"""`spm-data validate DIR`: every shard against the schema, and the manifest against the files.
+
+Returns problems as (shard or "manifest.json", message); none means valid. A
+flipped byte is caught by the checksum (and, inside compressed chunks, by the
+decoder), a truncated file by HDF5, a newer schema by its version, a manifest
+that disagrees with the files by comparing the two.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from spm_data.errors import ShardError
+from spm_data.core.poses import pose_to_label
+from spm_data.io.files import file_sha256
+from spm_data.io.shards import (FIELDS, MANIFEST, OPTIONAL_FIELDS, check_arrays, list_shards, no_shards, read_attrs,
+                                 read_manifest, read_shard)
+
+
+def _angle_difference(a, b):
+    return np.abs((np.asarray(a) - np.asarray(b) + 180.0) % 360.0 - 180.0)
+
+
+def validate_shard(path) -> list[str]:
+    """Problems of one shard (empty list: valid)."""
+    try:
+        attrs = read_attrs(path)
+        data = read_shard(path)
+    except ShardError as exc:
+        return [str(exc).replace(f"{path}: ", "")]
+    problems = []
+    missing = [f for f in FIELDS if f not in data]
+    if missing:
+        return [f"missing fields {', '.join(missing)}"]
+    unknown = [f for f in data if f not in FIELDS and f not in OPTIONAL_FIELDS]
+    if unknown:
+        problems.append(f"unknown fields {', '.join(unknown)}")
+    try:
+        n, h, w = check_arrays({k: v for k, v in data.items() if k not in unknown})
+    except ShardError as exc:
+        return problems + [str(exc)]
+    if int(attrs.get("frames", -1)) != n:
+        problems.append(f"attribute frames = {attrs.get('frames')} but the datasets hold {n} frames")
+    for name in ("R", "t", "K", "pose"):
+        bad = ~np.isfinite(data[name].reshape(n, -1)).all(axis=1)
+        if bad.any():
+            problems.append(f"non-finite {name} in frames {np.flatnonzero(bad)[:10].tolist()}")
+    R = data["R"]
+    if n and np.isfinite(R).all():
+        ortho = np.abs(R @ np.transpose(R, (0, 2, 1)) - np.eye(3)).reshape(n, -1).max(axis=1)
+        bad = (ortho > 1e-6) | (np.abs(np.linalg.det(R) - 1) > 1e-6)
+        if bad.any():
+            problems.append(f"R is not a rotation in frames {np.flatnonzero(bad)[:10].tolist()}")
+        elif np.isfinite(data["t"]).all() and np.isfinite(data["pose"]).all():
+            label = pose_to_label(R, data["t"]).reshape(n, 6)
+            off = (_angle_difference(label[:, :3], data["pose"][:, :3]).max(axis=1) > 1e-6) | \
+                  (np.abs(label[:, 3:] - data["pose"][:, 3:]).max(axis=1) > 1e-9)
+            if off.any():
+                problems.append(f"pose disagrees with R, t in frames {np.flatnonzero(off)[:10].tolist()}")
+    empty = ~data["mask"].reshape(n, -1).any(axis=1)
+    if empty.any():
+        problems.append(f"empty mask in {int(empty.sum())} frames (first: {np.flatnonzero(empty)[:10].tolist()})")
+    if np.any((data["mask"] > 1)):
+        problems.append("mask holds values other than 0 and 1")
+    if (data["depth"] < 0).any() or not np.isfinite(data["depth"]).all():
+        problems.append("depth has negative or non-finite values")
+    return problems
+
+
+def validate_folder(folder) -> list[tuple[str, str]]:
+    """(where, problem) for every shard in ``folder`` and its manifest."""
+    folder = Path(folder)
+    shards = list_shards(folder)
+    if not shards:
+        raise no_shards(folder, "nothing to validate")
+    problems = [(p.name, msg) for p in shards for msg in validate_shard(p)]
+    try:
+        manifest = read_manifest(folder) if folder.is_dir() else None
+    except ShardError as exc:
+        return problems + [(MANIFEST, str(exc).replace(f"{folder}/", "").replace(f"{folder}: ", ""))]
+    if manifest is None:
+        return problems
+    listed = {e.get("file"): e for e in manifest["shards"]}
+    on_disk = {p.name: p for p in shards}
+    for name in sorted(set(listed) - set(on_disk)):
+        problems.append((MANIFEST, f"lists {name}, which is not in the folder"))
+    for name in sorted(set(on_disk) - set(listed)):
+        problems.append((MANIFEST, f"does not list {name}"))
+    for name in sorted(set(listed) & set(on_disk)):
+        entry, path = listed[name], on_disk[name]
+        if entry.get("bytes") != path.stat().st_size:
+            problems.append((name, f"size {path.stat().st_size} bytes, manifest says {entry.get('bytes')} "
+                                   "(truncated or replaced?)"))
+        elif entry.get("sha256") != file_sha256(path):
+            problems.append((name, "checksum differs from the manifest (a changed or flipped byte)"))
+        try:
+            frames = int(read_attrs(path)["frames"])
+        except (ShardError, KeyError, ValueError):
+            continue
+        if entry.get("frames") != frames:
+            problems.append((name, f"manifest says {entry.get('frames')} frames, the shard has {frames}"))
+    total = sum(int(e.get("frames", 0)) for e in manifest["shards"])
+    if manifest.get("frames") != total:
+        problems.append((MANIFEST, f"total frames {manifest.get('frames')} is not the sum of its shards ({total})"))
+    return problems
+
+
+def validation_report(folder, problems) -> str:
+    if not problems:
+        return f"{folder}: all shards valid; manifest agrees with the files"
+    lines = [f"{folder}: {len(problems)} problems"]
+    lines += [f"  {where}: {msg}" for where, msg in problems]
+    return "\n".join(lines)

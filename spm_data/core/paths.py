@@ -1,0 +1,219 @@
+"""Camera paths: an ordered walk over an azimuth x elevation (x roll) x distance grid.
+
+The walk is serpentine (a reflected mixed-radix Gray code): consecutive frames
+differ by exactly one step on exactly one angle axis, so a path is a camera
+moving in 5 degree steps, as in the paper. The pose convention is in poses.py.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from spm_data.errors import SpecError
+from spm_data.core.poses import camera_poses
+
+_EPS = 1e-9
+
+
+@dataclass(frozen=True)
+class AngleRange:
+    """Inclusive ``start..stop`` in ``step`` degrees (``stop == start`` is one value)."""
+
+    start: float
+    stop: float
+    step: float
+
+    def count(self, name: str = "range") -> int:
+        """How many values (a Python int, no array); raises SpecError for an empty
+        or non-dividing range."""
+        if not self.step > 0:
+            raise SpecError(f"{name}: step must be > 0 degrees, got {self.step}")
+        span = self.stop - self.start
+        if span < 0:
+            raise SpecError(f"{name}: empty grid, start {self.start} is above stop {self.stop}")
+        count = span / self.step
+        if abs(count - round(count)) > 1e-6:
+            raise SpecError(f"{name}: step {self.step} does not divide the range "
+                            f"{self.start}..{self.stop} (span {span}); pick a step that divides it")
+        return int(round(count)) + 1
+
+    def value_at(self, k) -> np.ndarray:
+        """Value(s) number ``k`` (int array), float64 degrees: exactly ``values()[k]``."""
+        return self.start + self.step * np.asarray(k, dtype=np.int64).astype(np.float64)
+
+    def values(self, name: str = "range") -> np.ndarray:
+        """(K,) float64 degrees; raises SpecError for an empty or non-dividing range."""
+        return self.start + self.step * np.arange(self.count(name), dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class CameraGrid:
+    """What a spec says about the camera path.
+
+    distance_mode: ``"cycle"`` gives frame ``i`` the distance ``distances[i % n]``
+    (views per instance = azimuths x elevations x rolls); ``"grid"`` repeats the
+    whole angle walk at every distance (views x n).
+    """
+
+    azimuth: AngleRange = AngleRange(0.0, 355.0, 5.0)
+    elevation: AngleRange = AngleRange(0.0, 60.0, 5.0)
+    roll: AngleRange = AngleRange(0.0, 0.0, 5.0)
+    distances: tuple[float, ...] = (0.6, 0.7, 0.8)
+    distance_mode: str = "cycle"
+    look_at: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class PathPoints:
+    """Some points of a path: every array has the shape of the index asked for,
+    float64 (degrees / metres)."""
+
+    azimuth: np.ndarray
+    elevation: np.ndarray
+    roll: np.ndarray
+    distance: np.ndarray
+    look_at: np.ndarray  # (3,) metres, object frame
+
+    def poses(self):
+        """Object->camera ``R`` (n, 3, 3), ``t`` (n, 3) (OpenCV camera)."""
+        return camera_poses(self.azimuth, self.elevation, self.roll, self.distance, self.look_at)
+
+
+@dataclass(frozen=True)
+class CameraPath:
+    """An ordered path, computed on demand: nothing of size ``len(path)`` is held.
+
+    ``at(index)`` gives the points at an index array (or slice) by computing each
+    index's serpentine digits (:func:`snake_digits`); ``poses(index)`` their
+    poses. ``azimuth``, ``elevation``, ``roll`` and ``distance`` materialise the
+    whole path as (N,) arrays: for small paths only (tests, plots).
+    """
+
+    azimuths: AngleRange
+    elevations: AngleRange
+    rolls: AngleRange
+    distances: tuple[float, ...]
+    distance_mode: str
+    look_at: np.ndarray  # (3,) metres, object frame
+
+    @property
+    def sizes(self) -> tuple[int, ...]:
+        """Axis sizes of the walk, outermost first: (roll, elevation, azimuth),
+        with distance first in ``"grid"`` mode."""
+        angles = (self.rolls.count(), self.elevations.count(), self.azimuths.count())
+        return ((len(self.distances),) + angles) if self.distance_mode == "grid" else angles
+
+    @property
+    def size(self) -> int:
+        """Number of points (a Python int, however large; ``len`` needs it to fit an index)."""
+        return math.prod(self.sizes)
+
+    def __len__(self) -> int:
+        return self.size
+
+    def indices(self, index=slice(None)) -> np.ndarray:
+        """``index`` (a slice, an int or int array, negatives from the end, or a
+        boolean mask) as int64 positions, checked against the path's length."""
+        n = self.size
+        if isinstance(index, slice):
+            return np.arange(*index.indices(n), dtype=np.int64)
+        idx = np.asarray(index)
+        if idx.dtype == bool:
+            if idx.shape != (n,):
+                raise IndexError(f"boolean index of shape {idx.shape} does not match a path of {n} points")
+            return np.flatnonzero(idx).astype(np.int64)
+        if idx.size and not np.issubdtype(idx.dtype, np.integer):
+            raise IndexError(f"path indices must be integers, got {idx.dtype}")
+        idx = idx.astype(np.int64)
+        if idx.size and (idx.min() < -n or idx.max() >= n):
+            bad = idx.min() if idx.min() < -n else idx.max()
+            raise IndexError(f"index {bad} is out of bounds for a path of {n} points")
+        return np.where(idx < 0, idx + n, idx)
+
+    def at(self, index=slice(None)) -> PathPoints:
+        """The points at ``index`` (see :meth:`indices`)."""
+        idx = self.indices(index)
+        digits = snake_digits(idx, self.sizes)
+        if self.distance_mode == "grid":
+            dist = np.asarray(self.distances, dtype=np.float64)[digits[0]]
+            digits = digits[1:]
+        else:
+            dist = np.asarray(self.distances, dtype=np.float64)[idx % len(self.distances)]
+        return PathPoints(azimuth=self.azimuths.value_at(digits[2]), elevation=self.elevations.value_at(digits[1]),
+                          roll=self.rolls.value_at(digits[0]), distance=dist, look_at=self.look_at)
+
+    def poses(self, index=slice(None)):
+        """Object->camera ``R`` (n, 3, 3), ``t`` (n, 3) for ``index`` (OpenCV camera)."""
+        return self.at(index).poses()
+
+    @property
+    def azimuth(self) -> np.ndarray:
+        return self.at().azimuth
+
+    @property
+    def elevation(self) -> np.ndarray:
+        return self.at().elevation
+
+    @property
+    def roll(self) -> np.ndarray:
+        return self.at().roll
+
+    @property
+    def distance(self) -> np.ndarray:
+        return self.at().distance
+
+
+def snake_order(sizes: list[int]) -> np.ndarray:
+    """(prod(sizes), len(sizes)) int indices, first axis outermost, walked so
+    that consecutive rows differ by one in exactly one column."""
+    if not sizes:
+        return np.zeros((1, 0), dtype=np.int64)
+    inner = snake_order(sizes[1:])
+    blocks = []
+    for i in range(sizes[0]):
+        block = inner if i % 2 == 0 else inner[::-1]
+        blocks.append(np.column_stack([np.full(len(block), i, dtype=np.int64), block]))
+    return np.concatenate(blocks, axis=0)
+
+
+def snake_digits(index, sizes) -> list[np.ndarray]:
+    """Row ``index`` of ``snake_order(sizes)`` without building it: one int64
+    array per axis (outermost first), each of ``index``'s shape.
+
+    The walk is a reflected mixed-radix Gray code: the outer digit is
+    ``index // inner``, and in an odd block the inner walk runs backwards, so
+    the position within the block is mirrored before the next digit is read.
+    """
+    rest = np.asarray(index, dtype=np.int64)
+    digits = []
+    for j in range(len(sizes)):
+        inner = math.prod(sizes[j + 1:])
+        digit, rest = np.divmod(rest, inner)
+        rest = np.where(digit % 2 == 1, inner - 1 - rest, rest)
+        digits.append(digit)
+    return digits
+
+
+def camera_path(grid: CameraGrid) -> CameraPath:
+    """Walk ``grid`` into an ordered :class:`CameraPath` (validated; holds no
+    per-point arrays, so any grid is instant)."""
+    grid.azimuth.count("camera.azimuth")
+    n_el = grid.elevation.count("camera.elevation")
+    grid.roll.count("camera.roll")
+    # The values increase, so the largest |elevation| is at an end.
+    lo, hi = grid.elevation.value_at(0), grid.elevation.value_at(n_el - 1)
+    if max(abs(lo), abs(hi)) > 90 + _EPS:
+        raise SpecError(f"camera.elevation: values must lie in [-90, 90] degrees, got {lo}..{hi}")
+    distances = np.asarray(grid.distances, dtype=np.float64)
+    if distances.size == 0:
+        raise SpecError("camera.distances: empty list; give at least one distance in metres")
+    if np.any(~np.isfinite(distances)) or np.any(distances <= 0):
+        raise SpecError(f"camera.distances: every distance must be a finite number > 0 metres, got {list(grid.distances)}")
+    if grid.distance_mode not in ("cycle", "grid"):
+        raise SpecError(f"camera.distance_mode: expected 'cycle' or 'grid', got {grid.distance_mode!r}")
+    return CameraPath(azimuths=grid.azimuth, elevations=grid.elevation, rolls=grid.roll,
+                      distances=tuple(float(d) for d in grid.distances), distance_mode=grid.distance_mode,
+                      look_at=np.asarray(grid.look_at, dtype=np.float64))

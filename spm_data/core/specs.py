@@ -1,0 +1,266 @@
+"""Render specs: one TOML file per class (render_specs/), loaded once into frozen dataclasses.
+
+Every key is checked: an unknown key, a wrong type or a bad value raises
+SpecError naming the file and the key (``cup.toml: camera.azimth: unknown key``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from spm_data.errors import MeshError, SpecError
+from spm_data.core.meshes import CLASSES
+from spm_data.core.symmetries import parse_symmetry
+from spm_data.core.paths import AngleRange, CameraGrid, camera_path
+
+RENDERERS = ("pyrender", "blender")
+BACKGROUNDS = ("black", "color", "images")
+BLENDER_ENGINES = ("cycles", "workbench", "eevee")
+
+
+@dataclass(frozen=True)
+class MeshSpec:
+    source: str = "procedural"      # "procedural" | "files"
+    generator: str = ""             # procedural class; defaults to the spec's class
+    instances: int = 4              # procedural instances
+    files: tuple[str, ...] = ()     # globs relative to the spec file, for source = "files"
+    size: float = 0.25              # longest bounding-box side, metres
+    texture: str = "auto"           # "auto" (keep a file's own image texture) | "procedural"
+    symmetries: tuple[str, ...] = ()  # for files: "z" (every turn about z), "x/180" (n-fold turns)
+
+
+@dataclass(frozen=True)
+class ImageSpec:
+    width: int = 128
+    height: int = 128
+    fov: float = 35.0               # vertical field of view, degrees
+
+
+@dataclass(frozen=True)
+class LightingSpec:
+    ambient: float = 0.3            # 0..1 of white
+    lights: int = 3                 # directional lights that move with the camera
+    strength: float = 1.6           # per light (pyrender lux-like; Blender sun strength)
+
+
+@dataclass(frozen=True)
+class BackgroundSpec:
+    kind: str = "black"             # "black" | "color" | "images"
+    color: tuple[float, float, float] = (0.0, 0.0, 0.0)  # RGB 0..1, for kind = "color"
+    folder: str = ""                # images, for kind = "images" (relative to the spec file)
+
+
+@dataclass(frozen=True)
+class BlenderSpec:
+    engine: str = "cycles"          # "cycles" | "workbench"
+    samples: int = 16
+    denoise: bool = False
+    film_transparent: bool = True
+    threads: int = 0                # 0: Blender's default (all cores)
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    renderer: str = "blender"
+    frames_per_shard: int = 256
+    blender: BlenderSpec = BlenderSpec()
+
+
+@dataclass(frozen=True)
+class RenderSpec:
+    class_name: str
+    seed: int = 0
+    mesh: MeshSpec = MeshSpec()
+    camera: CameraGrid = CameraGrid()
+    image: ImageSpec = ImageSpec()
+    lighting: LightingSpec = LightingSpec()
+    background: BackgroundSpec = BackgroundSpec()
+    render: RenderSettings = RenderSettings()
+    base_dir: str = field(default=".", compare=False)  # where relative paths in the spec start
+    text: str = field(default="", compare=False, repr=False)  # the TOML as written
+
+    def replace(self, **changes) -> "RenderSpec":
+        return dataclasses.replace(self, **changes)
+
+    def fingerprint(self) -> str:
+        """sha256 of everything that changes the rendered arrays."""
+        payload = dataclasses.asdict(self)
+        payload.pop("text"), payload.pop("base_dir")
+        payload["mesh"].pop("symmetries")  # metadata for the BOP export: the pixels do not change
+        return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()
+
+
+# --------------------------------------------------------------------------- generic checked loading
+
+def _type_name(value) -> str:
+    return {bool: "boolean", int: "integer", float: "float", str: "string", list: "array",
+            dict: "table"}.get(type(value), type(value).__name__)
+
+
+def _convert(value, annotation: str, key: str):
+    if annotation == "bool":
+        if isinstance(value, bool):
+            return value
+    elif annotation == "int":
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+    elif annotation == "float":
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            if value != value or value in (float("inf"), float("-inf")):
+                raise SpecError(f"{key}: expected a finite number, got {value}")
+            return float(value)
+    elif annotation == "str":
+        if isinstance(value, str):
+            return value
+    elif annotation.startswith("tuple[float"):
+        if isinstance(value, list):
+            items = tuple(_convert(v, "float", f"{key}[{i}]") for i, v in enumerate(value))
+            if annotation.count("float") == 3 and len(items) != 3:
+                raise SpecError(f"{key}: expected 3 numbers, got {len(items)}")
+            return items
+    elif annotation.startswith("tuple[str"):
+        if isinstance(value, list):
+            return tuple(_convert(v, "str", f"{key}[{i}]") for i, v in enumerate(value))
+    elif annotation == "AngleRange":
+        if isinstance(value, list) and len(value) == 3:
+            return AngleRange(*(_convert(v, "float", f"{key}[{i}]") for i, v in enumerate(value)))
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return AngleRange(float(value), float(value), 1.0)
+        raise SpecError(f"{key}: expected [start, stop, step] in degrees or one number, got {value!r}")
+    expected = {"tuple[float, ...]": "array of numbers", "tuple[str, ...]": "array of strings",
+                "tuple[float, float, float]": "array of 3 numbers"}.get(annotation, annotation)
+    raise SpecError(f"{key}: expected {expected}, got {_type_name(value)} {value!r}")
+
+
+def _build(cls, table: dict, prefix: str):
+    if not isinstance(table, dict):
+        raise SpecError(f"{prefix.rstrip('.')}: expected a table, got {_type_name(table)}")
+    known = {f.name: f for f in dataclasses.fields(cls) if f.name not in ("text", "base_dir", "class_name")}
+    values = {}
+    for key, value in table.items():
+        if key not in known:
+            raise SpecError(f"{prefix}{key}: unknown key (expected one of: {', '.join(sorted(known))})")
+        annotation = known[key].type if isinstance(known[key].type, str) else known[key].type.__name__
+        nested = {"BlenderSpec": BlenderSpec}.get(annotation)
+        values[key] = _build(nested, value, f"{prefix}{key}.") if nested else _convert(value, annotation, prefix + key)
+    return cls(**values)
+
+
+_SECTIONS = {"mesh": MeshSpec, "camera": CameraGrid, "image": ImageSpec, "lighting": LightingSpec,
+             "background": BackgroundSpec, "render": RenderSettings}
+
+
+def parse_spec(text: str, name: str = "<spec>", base_dir: str = ".") -> RenderSpec:
+    """Parse and validate TOML ``text``; ``name`` prefixes every error message."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{name}: not valid TOML ({exc})") from None
+    try:
+        return _validate(_parse(data, text, base_dir))
+    except SpecError as exc:
+        raise SpecError(f"{name}: {exc}") from None
+
+
+def _parse(data: dict, text: str, base_dir: str) -> RenderSpec:
+    allowed = {"class", "seed", *_SECTIONS}
+    for key in data:
+        if key not in allowed:
+            raise SpecError(f"{key}: unknown key (expected one of: {', '.join(sorted(allowed))})")
+    if "class" not in data:
+        raise SpecError("class: missing; name the class, e.g. class = \"cup\"")
+    class_name = _convert(data["class"], "str", "class")
+    seed = _convert(data.get("seed", 0), "int", "seed")
+    sections = {key: _build(cls, data.get(key, {}), f"{key}.") for key, cls in _SECTIONS.items()}
+    return RenderSpec(class_name=class_name, seed=seed, base_dir=base_dir, text=text, **sections)
+
+
+def _check(ok: bool, message: str) -> None:
+    if not ok:
+        raise SpecError(message)
+
+
+def _validate(spec: RenderSpec) -> RenderSpec:
+    _check(spec.class_name.strip() != "" and "/" not in spec.class_name,
+           f"class: expected a non-empty name without '/', got {spec.class_name!r}")
+    _check(spec.seed >= 0, f"seed: expected an integer >= 0, got {spec.seed}")
+    m = spec.mesh
+    _check(m.source in ("procedural", "files"), f"mesh.source: expected 'procedural' or 'files', got {m.source!r}")
+    if m.source == "procedural":
+        gen = m.generator or spec.class_name
+        _check(gen in CLASSES, f"mesh.generator: {gen!r} is not a built-in class ({', '.join(CLASSES)}); "
+                               "set mesh.source = \"files\" for your own meshes")
+        _check(m.instances >= 1, f"mesh.instances: expected an integer >= 1, got {m.instances}")
+    else:
+        _check(len(m.files) > 0, "mesh.files: give at least one path or glob when mesh.source = \"files\"")
+    _check(m.source == "files" or not m.symmetries,
+           "mesh.symmetries: built-in classes know their own symmetries; declare them only for mesh files")
+    for i, entry in enumerate(m.symmetries):
+        try:
+            parse_symmetry(entry)
+        except MeshError as exc:
+            raise SpecError(f"mesh.symmetries[{i}]: {exc}") from None
+    _check(m.size > 0, f"mesh.size: expected metres > 0, got {m.size}")
+    _check(m.texture in ("auto", "procedural"), f"mesh.texture: expected 'auto' or 'procedural', got {m.texture!r}")
+    im = spec.image
+    _check(im.width >= 1 and im.height >= 1, f"image: width and height must be >= 1 pixel, got {im.width}x{im.height}")
+    _check(im.width <= 8192 and im.height <= 8192, f"image: at most 8192 pixels a side, got {im.width}x{im.height}")
+    _check(0 < im.fov < 180, f"image.fov: expected degrees in (0, 180), got {im.fov}")
+    camera_path(spec.camera)  # raises SpecError for steps, ranges, distances
+    li = spec.lighting
+    _check(0 <= li.ambient <= 1, f"lighting.ambient: expected 0..1, got {li.ambient}")
+    _check(0 <= li.lights <= 8, f"lighting.lights: expected 0..8, got {li.lights}")
+    _check(li.strength >= 0, f"lighting.strength: expected >= 0, got {li.strength}")
+    bg = spec.background
+    _check(bg.kind in BACKGROUNDS, f"background.kind: expected one of {', '.join(BACKGROUNDS)}, got {bg.kind!r}")
+    _check(all(0 <= c <= 1 for c in bg.color), f"background.color: expected 3 numbers in 0..1, got {list(bg.color)}")
+    _check(bg.kind != "images" or bg.folder != "", "background.folder: required when background.kind = \"images\"")
+    r = spec.render
+    _check(r.renderer in RENDERERS, f"render.renderer: expected one of {', '.join(RENDERERS)}, got {r.renderer!r}")
+    _check(r.frames_per_shard >= 1, f"render.frames_per_shard: expected an integer >= 1, got {r.frames_per_shard}")
+    b = r.blender
+    _check(b.engine in BLENDER_ENGINES, f"render.blender.engine: expected cycles or workbench, got {b.engine!r}")
+    _check(1 <= b.samples <= 65536, f"render.blender.samples: expected 1..65536, got {b.samples}")
+    _check(b.threads >= 0, f"render.blender.threads: expected >= 0, got {b.threads}")
+    return spec
+
+
+def load_spec(path) -> RenderSpec:
+    """Load ``path`` (a TOML render spec)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise SpecError(f"spec not found: {path}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SpecError(f"{path}: cannot read spec ({exc})") from None
+    return parse_spec(text, name=str(path), base_dir=str(path.parent.resolve()))
+
+
+def builtin_specs_dir() -> Path:
+    """render_specs/ next to the package (a source checkout or editable install)."""
+    return Path(__file__).resolve().parents[2] / "render_specs"
+
+
+def find_spec(class_name: str, specs_dir=None) -> Path:
+    """The spec file for ``class_name`` in ``specs_dir`` (default: the built-in folder)."""
+    folder = Path(specs_dir) if specs_dir else builtin_specs_dir()
+    path = folder / f"{class_name}.toml"
+    if not path.is_file():
+        available = sorted(p.stem for p in folder.glob("*.toml")) if folder.is_dir() else []
+        raise SpecError(f"no spec for class {class_name!r} in {folder} "
+                        f"(available: {', '.join(available) or 'none'})")
+    return path
+
+
+def all_spec_paths(specs_dir=None) -> list[Path]:
+    folder = Path(specs_dir) if specs_dir else builtin_specs_dir()
+    paths = sorted(folder.glob("*.toml"))
+    if not paths:
+        raise SpecError(f"no *.toml specs in {folder}")
+    return paths

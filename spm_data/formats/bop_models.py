@@ -1,0 +1,134 @@
+"""BOP object models from our meshes: ``models/``, ``models_eval/`` and ``models_info.json``.
+
+* ``models/obj_NNNNNN.ply``: the render mesh in millimetres, object frame, with
+  unit vertex normals, vertex colours (the texture sampled at each vertex, for
+  renderers that ignore textures) and texture coordinates, its texture beside it
+  as ``obj_NNNNNN.png`` (``comment TextureFile``), as BOP's textured models are.
+* ``models_eval/obj_NNNNNN.ply``: the same surface resampled so its vertices
+  spread evenly over it, the point set BOP's errors (ADD, MSSD, MSPD) average or
+  maximise over. BOP resamples with MeshLab (uniform resampling, then
+  decimation); we subdivide until no edge is longer than half a cell, then keep
+  one vertex per occupied cell of a grid of ``EVAL_CELL_FRACTION`` of the
+  diameter (about 5 mm on a 250 mm object): the surface point nearest the
+  mean of the cell's points (vertex clustering, without MeshLab).
+* ``models_info.json`` entries: ``diameter`` (largest distance between two
+  vertices), ``min_x`` ... ``size_z`` (bounding box), and the shape's
+  ``symmetries_discrete`` (4 x 4 row-major matrices, translation in mm) and
+  ``symmetries_continuous`` (``axis``, ``offset`` in mm), omitted when none.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from spm_data.errors import SpmError
+from spm_data.core.meshes import TexturedMesh
+from spm_data.core.symmetries import Symmetries
+from spm_data.formats.ply import save_ply
+
+MM_PER_M = 1000.0
+EVAL_CELL_FRACTION = 0.02  # models_eval: one vertex per cell of 2 % of the diameter
+
+
+def texture_colors(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """(V, 3) uint8: ``texture`` (H, W, 3) uint8 at ``uv`` (V, 2) (v = 0 at the bottom row), nearest pixel."""
+    h, w = texture.shape[:2]
+    col = np.clip(np.rint(uv[:, 0] * (w - 1)), 0, w - 1).astype(np.int64)
+    row = np.clip(np.rint((1.0 - uv[:, 1]) * (h - 1)), 0, h - 1).astype(np.int64)
+    return texture[row, col]
+
+
+def diameter(points: np.ndarray) -> float:
+    """Largest distance between two of ``points`` (N, 3), in their units (over the convex hull)."""
+    import trimesh
+
+    hull = trimesh.Trimesh(points, process=False).convex_hull.vertices if len(points) > 3 else points
+    return float(np.max(np.linalg.norm(hull[:, None] - hull[None], axis=2)))
+
+
+def eval_resample(vertices: np.ndarray, faces: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(vertices (V', 3), faces (F', 3), unit normals (V', 3)): the surface with one vertex
+    per occupied ``cell`` (same units as ``vertices``), the surface point nearest the mean there.
+    Faces that collapse are dropped; their vertices stay (a rod thinner than a cell is
+    still surface to measure), with the mean normal of the surface they stand for."""
+    import trimesh
+
+    merged = trimesh.Trimesh(vertices, faces, process=True)  # per-corner copies -> shared vertices
+    v, f = trimesh.remesh.subdivide_to_size(merged.vertices, merged.faces, max_edge=cell / 2.0)
+    fine_normals = np.asarray(trimesh.Trimesh(v, f, process=False).vertex_normals)
+    _, cluster = np.unique(np.floor(v / cell).astype(np.int64), axis=0, return_inverse=True)
+    cluster = cluster.ravel()
+    n = int(cluster.max()) + 1
+    centres, normals = np.zeros((n, 3)), np.zeros((n, 3))
+    np.add.at(centres, cluster, v)
+    np.add.at(normals, cluster, fine_normals)
+    centres /= np.bincount(cluster, minlength=n)[:, None]
+    # Each cell keeps its surface point nearest the cell's mean: the mean itself cuts corners.
+    order = np.lexsort((np.linalg.norm(v - centres[cluster], axis=1), cluster))
+    nearest = order[np.flatnonzero(np.r_[True, np.diff(cluster[order]) != 0])]
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    normals = np.where(length > 1e-6, normals / np.maximum(length, 1e-12), fine_normals[nearest])  # sides cancel
+    f = cluster[f]
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+    _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)  # duplicates out, winding kept
+    return v[nearest], f[np.sort(first)], normals
+
+
+def symmetry_info(symmetries: Symmetries) -> dict:
+    """The models_info.json symmetry keys (rotations about the object origin: zero offset)."""
+    info = {}
+    if symmetries.discrete:
+        mats = []
+        for R in symmetries.discrete:
+            M = np.eye(4)
+            M[:3, :3] = R
+            mats.append([round(float(x), 12) + 0.0 for x in M.ravel()])
+        info["symmetries_discrete"] = mats
+    if symmetries.continuous:
+        info["symmetries_continuous"] = [{"axis": [float(a) for a in axis], "offset": [0.0, 0.0, 0.0]}
+                                         for axis in symmetries.continuous]
+    return info
+
+
+def model_info(vertices_mm: np.ndarray, symmetries: Symmetries) -> dict:
+    lo, hi = vertices_mm.min(axis=0), vertices_mm.max(axis=0)
+    info = {"diameter": diameter(vertices_mm), "min_x": float(lo[0]), "min_y": float(lo[1]),
+            "min_z": float(lo[2]), "size_x": float(hi[0] - lo[0]), "size_y": float(hi[1] - lo[1]),
+            "size_z": float(hi[2] - lo[2])}
+    return {**info, **symmetry_info(symmetries)}
+
+
+def save_bop_model(root: Path, obj_id: int, mesh: TexturedMesh) -> dict:
+    """Write ``mesh`` as object ``obj_id`` under ``root`` (models/, models_eval/); returns its
+    models_info.json entry."""
+    import cv2
+
+    name = f"obj_{obj_id:06d}"
+    vertices = mesh.vertices * MM_PER_M
+    texture_name = f"{name}.png"
+    ok, png = cv2.imencode(".png", cv2.cvtColor(mesh.texture, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise SpmError(f"could not encode the texture of {mesh.name} as PNG")
+    (root / "models" / texture_name).write_bytes(png.tobytes())
+    save_ply(root / "models" / f"{name}.ply", vertices, mesh.faces, normals=mesh.normals,
+             colors=texture_colors(mesh.texture, mesh.uv), uv=mesh.uv, texture_file=texture_name)
+    info = model_info(vertices, mesh.symmetries)
+    v_eval, f_eval, n_eval = eval_resample(vertices, mesh.faces, EVAL_CELL_FRACTION * info["diameter"])
+    save_ply(root / "models_eval" / f"{name}.ply", v_eval, f_eval, normals=n_eval)
+    return info
+
+
+def save_models_info(path: Path, info: dict) -> None:
+    path.write_text(json.dumps({str(k): v for k, v in info.items()}, indent=1))
+
+
+def load_models_info(path) -> dict:
+    """models_info.json: obj_id (int) -> entry; SpmError naming the file if unreadable."""
+    try:
+        payload = json.loads(Path(path).read_text())
+        return {int(k): v for k, v in payload.items()}
+    except (OSError, ValueError, AttributeError) as exc:
+        raise SpmError(f"{path}: unreadable models_info.json ({exc})") from None

@@ -1,0 +1,65 @@
+"""Files written whole or not at all, and file hashes.
+
+Every file the library writes goes to a hidden ``.NAME.partial`` beside its
+target and is ``os.replace``-d into place when complete: a reader sees the old
+file or the whole new one, never half (shards, manifests, models, caches, reports).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+PARTIAL_PREFIX = "."
+PARTIAL_SUFFIX = ".partial"
+
+
+def partial_path(path: Path) -> Path:
+    return path.with_name(PARTIAL_PREFIX + path.name + PARTIAL_SUFFIX)
+
+
+def file_sha256(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+@contextlib.contextmanager
+def atomic_file(path, tmp=None):
+    """Yield a temporary path beside ``path`` (default ``.NAME.partial``); when the
+    block completes it becomes ``path`` (os.replace), when it raises it is removed,
+    so ``path`` is either the old file or the whole new one."""
+    path = Path(path)
+    tmp = Path(tmp) if tmp is not None else partial_path(path)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_npz_atomic(path, tmp=None, **arrays) -> Path:
+    """``np.savez`` to ``path`` atomically (atomic_file). Built in memory, then written in
+    one go: np.savez leaves its zip file open when a write fails (disk full), and Python
+    then prints that zip file's error on exit, after our one-line message."""
+    npz = io.BytesIO()
+    np.savez(npz, **arrays)
+    with atomic_file(path, tmp) as partial, open(partial, "wb") as fh:
+        fh.write(npz.getbuffer())
+    return Path(path)
+
+
+def write_json_atomic(path, payload) -> None:
+    with atomic_file(path) as tmp, open(tmp, "w") as fh:
+        json.dump(payload, fh, indent=2, sort_keys=True)
+        fh.write("\n")
+        fh.flush()
+        os.fsync(fh.fileno())

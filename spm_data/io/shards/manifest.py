@@ -1,0 +1,102 @@
+"""A folder's shards and its ``manifest.json``, written last (atomically), read strictly."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from spm_data.errors import ShardError
+from spm_data.io.files import PARTIAL_PREFIX, PARTIAL_SUFFIX, file_sha256, write_json_atomic
+from spm_data.io.shards.reader import read_attrs, read_shard
+from spm_data.io.shards.schema import MANIFEST, SCHEMA_VERSION, SHARD_SUFFIX
+
+def no_shards(where, hint: str = "make some with `spm-data render` or `spm-data import`") -> ShardError:
+    """The one error for a place with no shards in it (raise it)."""
+    return ShardError(f"no shards (*.h5) in {where}; {hint}")
+
+
+def list_shards(folder) -> list[Path]:
+    """The complete shards directly in ``folder`` or, for a file, that file."""
+    folder = Path(folder)
+    if folder.is_file():
+        return [folder]
+    if not folder.is_dir():
+        raise ShardError(f"no such folder or shard: {folder}")
+    return sorted(p for p in folder.iterdir()
+                  if p.suffix == SHARD_SUFFIX and not p.name.startswith(PARTIAL_PREFIX))
+
+
+def manifest_entry(path) -> dict:
+    """One manifest row for a complete shard: counts per class and a checksum."""
+    path = Path(path)
+    attrs = read_attrs(path)
+    names = read_shard(path, ["class_name"])["class_name"]
+    classes, counts = np.unique(names.astype(str), return_counts=True) if len(names) else ([], [])
+    return {"file": path.name, "frames": int(attrs["frames"]), "bytes": path.stat().st_size,
+            "sha256": file_sha256(path), "classes": {str(c): int(k) for c, k in zip(classes, counts)},
+            "renderer": str(attrs.get("renderer", "")), "schema_version": int(attrs["schema_version"])}
+
+
+def write_manifest(folder, known: dict | None = None, extra: dict | None = None, names=None) -> dict:
+    """(Re)write ``folder/manifest.json``: the shards the old manifest listed and,
+    of ``names`` (this run's shards), those complete on disk. Any other ``.h5``
+    in the folder is not adopted (``names=None``: every complete shard on disk).
+
+    known: entries already computed this run, by file name (saves re-hashing);
+    entries of the old manifest are reused when size still matches.
+    extra: more top-level keys (e.g. merge's ``sources``); an old manifest's are kept.
+    """
+    folder = Path(folder)
+    old, old_extra = {}, {}
+    if (folder / MANIFEST).exists():
+        try:
+            previous = read_manifest(folder)
+            old = {e["file"]: e for e in previous["shards"] if isinstance(e, dict) and "file" in e}
+            old_extra = {k: v for k, v in previous.items() if k not in ("schema_version", "shards", "frames", "classes")}
+        except (ShardError, TypeError):
+            old = {}
+    known = dict(known or {})
+    wanted = None if names is None else set(old) | set(names)
+    entries = []
+    for path in list_shards(folder):
+        if wanted is not None and path.name not in wanted:
+            continue
+        entry = known.get(path.name) or old.get(path.name)
+        if entry is None or entry.get("bytes") != path.stat().st_size:
+            entry = manifest_entry(path)
+        entries.append(entry)
+    classes: dict[str, int] = {}
+    for e in entries:
+        for c, k in e["classes"].items():
+            classes[c] = classes.get(c, 0) + k
+    payload = {**old_extra, **(extra or {}), "schema_version": SCHEMA_VERSION, "shards": entries,
+               "frames": sum(e["frames"] for e in entries), "classes": dict(sorted(classes.items()))}
+    write_json_atomic(folder / MANIFEST, payload)
+    return payload
+
+
+def read_manifest(folder) -> dict:
+    path = Path(folder) / MANIFEST
+    try:
+        with open(path) as fh:
+            payload = json.load(fh)
+    except FileNotFoundError:
+        raise ShardError(f"{folder}: no {MANIFEST}") from None
+    except IsADirectoryError:
+        raise ShardError(f"{path} is a folder, not a manifest; move it away and run the command again") from None
+    except (OSError, ValueError) as exc:
+        raise ShardError(f"{path}: unreadable manifest ({getattr(exc, 'strerror', None) or exc})") from None
+    if not isinstance(payload, dict) or not isinstance(payload.get("shards"), list):
+        raise ShardError(f"{path}: manifest has no 'shards' list")
+    return payload
+
+
+def remove_partials(folder) -> list[Path]:
+    """Delete ``.*.partial`` leftovers of killed runs in ``folder``; returns them."""
+    folder = Path(folder)
+    stale = [p for p in folder.glob(PARTIAL_PREFIX + "*" + PARTIAL_SUFFIX)] if folder.is_dir() else []
+    for p in stale:
+        p.unlink(missing_ok=True)
+    return stale

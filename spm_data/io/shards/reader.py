@@ -1,0 +1,181 @@
+"""The one shard reader: every read verified.
+
+``read_attrs`` checks the attributes and each field's layout against their CRC-32s;
+HDF5 then checks the Fletcher-32 of every chunk a read touches; ``verify_shard``
+checks every stored chunk without decompressing. A mismatch is a one-line
+ShardError naming the shard and the field or attribute.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from spm_data.errors import ShardError
+from spm_data.io.shards.checksums import CHECKSUMS_ATTR, FLETCHER32, checksum_mismatch, dataset_layout, stored_chunk_ok
+from spm_data.io.shards.schema import SCHEMA_VERSION
+
+def open_h5(path):
+    import h5py
+
+    path = Path(path)
+    if not path.is_file():
+        raise ShardError(f"shard not found: {path}")
+    try:
+        return h5py.File(path, "r")
+    except OSError as exc:
+        raise ShardError(f"{path}: not a readable HDF5 shard ({exc})") from None
+
+
+# What h5py raises for a damaged file besides OSError (a bad object header is a KeyError).
+H5_ERRORS = (OSError, KeyError, ValueError, RuntimeError, TypeError, IndexError)
+
+
+def read_attrs(path) -> dict:
+    """A shard's file attributes as plain Python values, verified against its
+    checksums (with the layout of its fields); checks the schema version."""
+    with open_h5(path) as f:
+        return _verified_attrs(path, f)
+
+
+def _verified_attrs(path, f) -> dict:
+    """read_attrs on an open file."""
+    try:
+        attrs = {k: (v.item() if hasattr(v, "item") else v) for k, v in f.attrs.items()}
+        version = attrs.get("schema_version")
+        mismatch = checksum_mismatch(f) if version is not None and int(version) >= 2 else None
+    except H5_ERRORS as exc:
+        if isinstance(exc, ShardError):
+            raise
+        raise ShardError(f"{path}: corrupt shard attributes ({type(exc).__name__}: {exc})") from None
+    if version is None:
+        raise ShardError(f"{path}: not an spm shard (no schema_version attribute)")
+    if int(version) > SCHEMA_VERSION:
+        raise ShardError(f"{path}: schema version {version} is newer than this spm "
+                         f"({SCHEMA_VERSION}); upgrade spm to read it")
+    if int(version) < SCHEMA_VERSION:
+        raise ShardError(f"{path}: schema version {version} has no checksums, so it cannot be verified; "
+                         "make it again with this spm (render, import or occlude into a new --out)")
+    if mismatch:
+        raise ShardError(f"{path}: {mismatch}; the shard is corrupt")
+    attrs.pop(CHECKSUMS_ATTR, None)
+    return attrs
+
+
+def read_shard(path, fields=None, frames=slice(None)) -> dict:
+    """Read ``fields`` (default: all present) of a shard, for ``frames`` (a slice
+    or sorted index array). String fields come back as (n,) object arrays of str.
+    Verified: the attributes and layout first (read_attrs), then HDF5 checks the
+    Fletcher-32 of every chunk it reads; a mismatch is a ShardError naming the field."""
+    with ShardReader(path) as reader:
+        return reader.read(fields, frames)
+
+
+def shard_layout(path) -> dict:
+    """A shard's fields: name -> (shape, dtype name), its attributes verified first."""
+    with ShardReader(path) as reader:
+        return reader.layout()
+
+
+def h5_is_string(ds) -> bool:
+    import h5py
+
+    return h5py.check_string_dtype(ds.dtype) is not None
+
+
+class ShardReader:
+    """One shard held open for many small reads (a training loop reading a frame
+    at a time; spm_data.io.loaders). Opening verifies the attributes and layout once
+    (read_attrs); each ``read`` is then checked by HDF5's Fletcher-32 on every
+    chunk it touches, with read_shard's errors (read_shard is this, opened once).
+    An h5py handle is not safe across fork: open one per process.
+
+    with ShardReader(path) as r:
+        r.attrs["frames"], r.fields()
+        r.read(["rgb", "K"], frames=5)   # {"rgb": (H, W, 3) uint8, "K": (3, 3) float64}
+    """
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.pid = os.getpid()
+        self._file = open_h5(self.path)
+        try:
+            self.attrs = _verified_attrs(self.path, self._file)
+        except BaseException:
+            self._file.close()
+            raise
+
+    def fields(self) -> list[str]:
+        """The names of the fields this shard has, in file order."""
+        try:
+            return list(self._file.keys())
+        except H5_ERRORS as exc:
+            raise ShardError(f"{self.path}: corrupt shard index ({type(exc).__name__}: {exc})") from None
+
+    def layout(self) -> dict:
+        """Every field: name -> (shape, dtype name; "str" for strings), in file order."""
+        try:
+            return {name: (ds.shape, "str" if h5_is_string(ds) else str(ds.dtype)) for name, ds in self._file.items()}
+        except H5_ERRORS as exc:
+            raise ShardError(f"{self.path}: corrupt shard index ({type(exc).__name__}: {exc})") from None
+
+    def read(self, fields=None, frames=slice(None)) -> dict:
+        """``fields`` (default: all) for ``frames``: a slice or sorted index array
+        (first axis kept; strings as object arrays of str) or one int (that frame:
+        an array without the frame axis, a numpy scalar, or a str)."""
+        return {name: self._read_field(name, frames) for name in (self.fields() if fields is None else fields)}
+
+    def _read_field(self, name: str, frames):
+        try:
+            if name not in self._file:
+                raise ShardError(f"{self.path}: shard has no field {name!r}")
+            ds = self._file[name]
+            if h5_is_string(ds):
+                value = ds.asstr()[frames]
+                return value if isinstance(value, str) else np.asarray(value, dtype=object)
+            return ds[frames]
+        except ShardError:
+            raise
+        except (*H5_ERRORS, UnicodeDecodeError) as exc:
+            raise ShardError(f"{self.path}: field {name!r} fails its checksum or cannot be decoded; "
+                             "the shard is corrupt") from None
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
+def verify_stored_chunks(path, f, field: str) -> None:
+    """Check every stored chunk of ``f[field]`` against its Fletcher-32 without
+    decompressing it; a ShardError naming the shard and field on a mismatch."""
+    try:
+        ds = f[field]
+        if FLETCHER32 not in dataset_layout(ds)[3]:
+            raise ShardError(f"{path}: field {field!r} has no checksum; it cannot be verified")
+        for i in range(ds.id.get_num_chunks()):
+            info = ds.id.get_chunk_info(i)
+            if not stored_chunk_ok(ds.id.read_direct_chunk(info.chunk_offset)[1]):
+                raise ShardError(f"{path}: field {field!r} fails its checksum (frames from "
+                                 f"{info.chunk_offset[0]}); the shard is corrupt")
+    except ShardError:
+        raise
+    except (*H5_ERRORS, UnicodeDecodeError) as exc:
+        raise ShardError(f"{path}: field {field!r} is corrupt ({type(exc).__name__}: {exc})") from None
+
+
+def verify_shard(path) -> dict:
+    """Check a whole shard (attributes, layout, every chunk) without decoding it;
+    returns its attributes (read_attrs)."""
+    with open_h5(path) as f:
+        attrs = _verified_attrs(path, f)
+        for field in list(f.keys()):
+            verify_stored_chunks(path, f, field)
+    return attrs

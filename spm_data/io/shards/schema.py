@@ -1,0 +1,82 @@
+"""The shard schema: fields, their dtypes and per-frame shapes, required attributes (docs/shard-format.md)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from spm_data.errors import ShardError
+
+SCHEMA_VERSION = 2  # 2: every dataset checksummed (Fletcher-32), strings fixed-length
+
+
+SHARD_SUFFIX = ".h5"
+
+
+MANIFEST = "manifest.json"
+
+
+# name -> (dtype, per-frame shape; "H", "W" and "R" are filled in per shard)
+FIELDS: dict[str, tuple[str, tuple]] = {
+    "rgb": ("uint8", ("H", "W", 3)),
+    "depth": ("float32", ("H", "W")),
+    "mask": ("uint8", ("H", "W")),
+    "K": ("float64", (3, 3)),
+    "R": ("float64", (3, 3)),
+    "t": ("float64", (3,)),
+    "pose": ("float64", (6,)),
+    "azimuth": ("float64", ()),
+    "elevation": ("float64", ()),
+    "roll": ("float64", ()),
+    "distance": ("float64", ()),
+    "look_at": ("float64", (3,)),
+    "path_index": ("int64", ()),
+    "instance_id": ("int64", ()),
+    "instance_name": ("str", ()),
+    "class_name": ("str", ()),
+    "source": ("str", ()),
+    "label_measured": ("bool", (6,)),
+    "occlusion_fraction": ("float32", ()),
+    "occlusion_rects": ("int32", ("R", 4)),
+}
+
+
+OPTIONAL_FIELDS: dict[str, tuple[str, tuple]] = {
+    "visible_mask": ("uint8", ("H", "W")),   # object minus occluders (spm-data occlude)
+    "source_shard": ("str", ()),             # the shard a derived frame came from
+    "source_frame": ("int64", ()),           # its frame index there
+}
+
+
+IMAGE_FIELDS = ("rgb", "depth", "mask", "visible_mask")
+
+
+REQUIRED_ATTRS = ("schema_version", "frames", "renderer", "seed")
+
+
+SOURCES = ("synthetic", "coil100", "cvl", "folder", "bop")
+
+
+def expected_shape(field: str, n: int, h: int, w: int, r: int) -> tuple:
+    spec = {**FIELDS, **OPTIONAL_FIELDS}[field][1]
+    return (n,) + tuple({"H": h, "W": w, "R": r}.get(d, d) for d in spec)
+
+
+def check_arrays(arrays: dict) -> tuple[int, int, int]:
+    """Validate a shard's arrays against the schema; returns (N, H, W)."""
+    missing = [f for f in FIELDS if f not in arrays]
+    if missing:
+        raise ShardError(f"shard arrays are missing {', '.join(missing)}")
+    unknown = [f for f in arrays if f not in FIELDS and f not in OPTIONAL_FIELDS]
+    if unknown:
+        raise ShardError(f"shard arrays have unknown fields {', '.join(unknown)}")
+    n, h, w = np.asarray(arrays["rgb"]).shape[:3]
+    r = np.asarray(arrays["occlusion_rects"]).shape[1] if np.ndim(arrays["occlusion_rects"]) == 3 else 1
+    for field, value in arrays.items():
+        dtype = {**FIELDS, **OPTIONAL_FIELDS}[field][0]
+        shape = expected_shape(field, n, h, w, r)
+        got = np.shape(value)
+        if got != shape:
+            raise ShardError(f"shard field {field!r}: expected shape {shape}, got {got}")
+        if dtype != "str" and np.asarray(value).dtype != np.dtype(dtype):
+            raise ShardError(f"shard field {field!r}: expected dtype {dtype}, got {np.asarray(value).dtype}")
+    return n, h, w

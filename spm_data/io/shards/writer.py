@@ -1,0 +1,227 @@
+"""The one shard writer: streamed, checksummed, atomic.
+
+A shard is written to a hidden ``.NAME.partial`` file in the same folder and
+``os.replace``-d to ``NAME`` once complete, so a shard that exists is whole.
+Image chunks are compressed by our code on two threads and stored raw with
+their Fletcher-32; derived shards copy unchanged fields chunk for chunk, verified.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zlib
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from spm_data.errors import ShardError
+from spm_data.io.files import partial_path
+from spm_data.io.shards.checksums import CHECKSUMS_ATTR, file_checksums, with_fletcher32
+from spm_data.io.shards.reader import open_h5, read_shard, verify_stored_chunks
+from spm_data.io.shards.schema import (FIELDS, IMAGE_FIELDS, OPTIONAL_FIELDS, SCHEMA_VERSION, check_arrays,
+                                       expected_shape)
+
+GZIP_LEVEL = 1
+
+
+LABEL_CHUNK = 4096  # frames per chunk of a label field (read whole; verified per chunk)
+
+
+def encode_chunk(frame: np.ndarray) -> bytes:
+    """One frame as HDF5's filters store it: byte shuffle (multi-byte dtypes
+    only), deflate level 1 (zlib format), then the Fletcher-32 checksum
+    (checksums.py). Deterministic."""
+    a = np.ascontiguousarray(frame)
+    if a.dtype.itemsize > 1:
+        a = a.view(np.uint8).reshape(-1, a.dtype.itemsize).T  # HDF5 shuffle: byte planes
+    return with_fletcher32(zlib.compress(np.ascontiguousarray(a), GZIP_LEVEL))  # zlib reads the buffer: no copy
+
+
+def _chunked(n: int, shape: tuple, per: int) -> dict:
+    """create_dataset arguments for (n,) + shape in chunks of ``per`` frames; an
+    empty dataset must be resizable to be chunked at all."""
+    args = {"shape": (n,) + tuple(shape), "chunks": (max(1, min(n, per)),) + tuple(shape),
+            "fletcher32": True, "track_times": False}
+    if n == 0:
+        args["maxshape"] = (None,) + tuple(shape)
+    return args
+
+
+def _write_label_field(f, field: str, value) -> None:
+    """A small per-frame field: chunked, checksummed, uncompressed. Strings are
+    fixed-length UTF-8, so their bytes sit in the checksummed chunks (variable-
+    length strings live in HDF5's global heap, which has no checksum)."""
+    import h5py
+
+    if FIELDS.get(field, OPTIONAL_FIELDS.get(field))[0] == "str":
+        encoded = [str(v).encode("utf-8") for v in value]
+        length = max([len(e) for e in encoded] + [1])
+        dtype = h5py.string_dtype("utf-8", length)
+        value = np.asarray(encoded, dtype=f"S{length}").astype(dtype)
+    else:
+        value = np.ascontiguousarray(value)
+        dtype = value.dtype
+    ds = f.create_dataset(field, dtype=dtype, **_chunked(len(value), value.shape[1:], LABEL_CHUNK))
+    if len(value):
+        ds[...] = value
+
+
+class ShardWriter:
+    """Stream one shard to disk: image fields a block of frames at a time (a
+    worker holds one block, whatever the shard's length), the small per-frame
+    fields and attributes at the end; atomic (``.NAME.partial``, fsync,
+    ``os.replace``), and every dataset checksummed.
+
+    with ShardWriter(path, frames=n, height=h, width=w, images=("rgb", "depth", "mask")) as w:
+        w.write_images(0, {"rgb": (k, h, w, 3) uint8, "depth": (k, h, w) float32, "mask": (k, h, w) uint8})
+        ...
+        w.finish(labels, attrs)   # labels: every other field, first axis n
+
+    Leaving the block without ``finish`` (an exception, an interrupt) removes the
+    temporary file; nothing is left behind.
+    """
+
+    def __init__(self, path, *, frames: int, height: int, width: int, images):
+        self.path, self.frames, self.height, self.width = Path(path), int(frames), int(height), int(width)
+        self.images = tuple(images)
+        self.tmp = partial_path(self.path)
+        self._written = {f: 0 for f in self.images}
+        self._file = self._pool = None
+        self._done = False
+
+    def __enter__(self):
+        import h5py
+
+        try:
+            self._file = h5py.File(self.tmp, "w", track_order=True)
+            for field in self.images:
+                dtype = {**FIELDS, **OPTIONAL_FIELDS}[field][0]
+                frame_shape = expected_shape(field, 1, self.height, self.width, 1)[1:]
+                self._file.create_dataset(field, dtype=dtype, compression="gzip", compression_opts=GZIP_LEVEL,
+                                          shuffle=np.dtype(dtype).itemsize > 1,
+                                          **_chunked(self.frames, frame_shape, 1))
+        except BaseException as exc:  # no __exit__ after a failed __enter__: clean up here
+            self._abort()
+            if isinstance(exc, OSError):
+                raise self._os_error(exc) from None
+            raise
+        self._pool = ThreadPoolExecutor(max_workers=2)
+        return self
+
+    def write_images(self, start: int, block: dict) -> None:
+        """Frames ``start .. start + k`` of some image fields: {field: (k, ...) array}.
+        Compressed on two threads (zlib releases the GIL; h5py's filters do not)
+        and stored as raw chunks any HDF5 reader decodes and verifies."""
+        for field, frames in block.items():
+            ds = self._file[field]
+            if np.shape(frames)[1:] != ds.shape[1:] or np.asarray(frames).dtype != ds.dtype:
+                raise ShardError(f"shard field {field!r}: expected frames of {ds.shape[1:]} {ds.dtype}, "
+                                 f"got {np.shape(frames)[1:]} {np.asarray(frames).dtype}")
+        # Every (field, frame) on the pool at once, so a one-frame block keeps both threads busy;
+        # chunks come back, and are stored, in field-major order.
+        where = [(field, start + i) for field, frames in block.items() for i in range(len(frames))]
+        chunks = self._pool.map(encode_chunk, (frame for frames in block.values() for frame in frames))
+        try:
+            for (field, index), chunk in zip(where, chunks):
+                ds = self._file[field]
+                ds.id.write_direct_chunk((index,) + (0,) * (ds.ndim - 1), chunk)
+            for field, frames in block.items():
+                self._written[field] += len(frames)
+        except OSError as exc:
+            raise self._os_error(exc) from None
+
+    def finish(self, labels: dict, attrs: dict, copy_from=None, copied=None) -> Path:
+        """Write the other fields and the attributes, then move the shard into place.
+        copy_from: ``(shard path, fields)`` copied verbatim (chunks and checksums
+        as stored) after verifying those chunks; for derived shards. copied: their
+        stand-ins (_copy_placeholders), when the caller has them already."""
+        copied = _copy_placeholders(copy_from) if copied is None else copied
+        placeholders = {f: np.broadcast_to(np.zeros((), self._file[f].dtype), self._file[f].shape)
+                        for f in self.images}
+        n, h, w = check_arrays({**labels, **copied, **placeholders})
+        short = [f for f in self.images if self._written[f] != self.frames]
+        if short or (n, h, w) != (self.frames, self.height, self.width):
+            raise ShardError(f"{self.path.name}: incomplete shard ({', '.join(short) or 'shape'}); not written")
+        try:
+            if copy_from is not None:
+                _copy_verified(copy_from, self._file)
+            for field, value in labels.items():
+                _write_label_field(self._file, field, value)
+            for key, value in attrs.items():
+                self._file.attrs[key] = value
+            self._file.attrs.update({"schema_version": SCHEMA_VERSION, "frames": n, "height": h, "width": w})
+            self._file.attrs[CHECKSUMS_ATTR] = json.dumps(file_checksums(self._file), sort_keys=True)
+            self._file.close()
+            with open(self.tmp, "rb") as fh:
+                os.fsync(fh.fileno())
+            os.replace(self.tmp, self.path)
+        except OSError as exc:
+            raise self._os_error(exc) from None
+        self._done = True
+        return self.path
+
+    def _os_error(self, exc: OSError) -> ShardError:
+        """The one-line error for a failed write (read-only, disk full); __exit__ removes the file."""
+        return ShardError(f"could not write shard {self.path}: {exc.strerror or exc}")
+
+    def _abort(self):
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
+        if self._file is not None:
+            try:
+                self._file.close()
+            except Exception:  # noqa: BLE001 - a failed disk; the file is removed next
+                pass
+        self.tmp.unlink(missing_ok=True)
+
+    def __exit__(self, *exc):
+        if self._done:
+            self._pool.shutdown()
+        else:
+            self._abort()
+        return False
+
+
+def _copy_placeholders(copy_from) -> dict:
+    """Shape-and-dtype stand-ins for fields a derived shard copies (for check_arrays)."""
+    if copy_from is None:
+        return {}
+    source, names = copy_from
+    copied = read_shard(source, [f for f in names if f not in IMAGE_FIELDS])  # small; verified
+    with open_h5(source) as src:
+        for f in names:
+            if f in IMAGE_FIELDS:
+                copied[f] = np.broadcast_to(np.zeros((), src[f].dtype), src[f].shape)
+    return copied
+
+
+def _copy_verified(copy_from, dst) -> None:
+    """Copy fields verbatim, each chunk's checksum checked first: a derived shard
+    never carries data nobody verified."""
+    source, names = copy_from
+    with open_h5(source) as src:
+        for field in names:
+            verify_stored_chunks(source, src, field)
+            src.copy(src[field], dst, name=field)
+
+
+def write_shard(path, arrays: dict, attrs: dict, copy_from=None) -> Path:
+    """Write one whole shard atomically (ShardWriter with a single block).
+
+    arrays: every field of FIELDS (and any of OPTIONAL_FIELDS), first axis N
+    frames. attrs: file attributes (str, int, float); ``schema_version``,
+    ``frames``, ``height``, ``width`` and ``checksums`` are set here. Image
+    fields are chunked one frame per chunk, gzip level 1 after byte shuffling
+    (deterministic; LZF is not: liblzf leaves its hash table uninitialised).
+    copy_from: ``(shard path, fields)`` copied verbatim from that shard (HDF5
+    object copy, no codec work) after checking their checksums.
+    """
+    path = Path(path)
+    copied = _copy_placeholders(copy_from)
+    n, h, w = check_arrays({**arrays, **copied})
+    images = [f for f in IMAGE_FIELDS if f in arrays]
+    with ShardWriter(path, frames=n, height=h, width=w, images=images) as writer:
+        writer.write_images(0, {f: np.ascontiguousarray(arrays[f]) for f in images})
+        return writer.finish({f: v for f, v in arrays.items() if f not in images}, attrs, copy_from, copied)

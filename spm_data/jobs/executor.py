@@ -1,0 +1,232 @@
+"""Run shard-sized jobs in worker processes that may crash without taking the run down.
+
+Each worker has its own pipe, so the parent always knows which job a worker
+holds: a worker that dies (SIGKILL, out of memory, a segfault in a renderer)
+loses only that job, which is retried ``retries`` times and then reported;
+the other jobs go on. Workers retire after ``recycle_after`` jobs so a slow
+leak in a renderer cannot grow without bound. ``workers=0`` runs in-process.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import signal
+import sys
+from dataclasses import dataclass, field
+from multiprocessing.connection import wait
+
+from spm_data.errors import SpmError
+from spm_data.jobs.outcome import JobOutcome, deferred_interrupt, describe, is_blender_script_dir
+
+
+@dataclass
+class _Worker:
+    process: mp.Process
+    conn: object
+    job_id: int | None = None
+    done: int = 0
+    progress: dict = field(default_factory=dict)
+
+
+def _worker_main(fn, conn, recycle_after):
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent owns Ctrl-C and stops us
+    # A parent that imported bpy hands us Blender's script folders on sys.path;
+    # with them, `import bpy` here would find Blender's scripts/modules/bpy instead.
+    sys.path[:] = [p for p in sys.path if not is_blender_script_dir(p)]
+    done = 0
+    while True:
+        item = conn.recv()
+        if item is None:
+            return
+        job_id, job = item
+        try:
+            result = fn(job, lambda n, job_id=job_id: conn.send(("progress", job_id, n)))
+            conn.send(("done", job_id, result))
+        except BaseException as exc:  # noqa: BLE001 - reported to the parent, never swallowed
+            conn.send(("error", job_id, describe(exc)))
+        done += 1
+        if recycle_after and done >= recycle_after:
+            conn.send(("retire", None, None))
+            return
+
+
+def run_jobs(fn, jobs, *, workers=1, retries=1, recycle_after=0, on_progress=None, on_outcome=None,
+             on_worker_death=None):
+    """Run ``fn(job, report)`` for every job; ``report(n)`` advances progress by n.
+
+    Returns a list of :class:`JobOutcome` in job order. ``on_progress(n)`` gets
+    progress deltas (negative when a crashed job's frames are lost);
+    ``on_outcome(outcome)`` is called as each job finishes; ``on_worker_death(job)``
+    when a worker dies holding ``job`` (to clean up what it left).
+    """
+    with deferred_interrupt() as stop:
+        return _run_jobs(fn, list(jobs), workers, retries, recycle_after, on_progress, on_outcome,
+                         on_worker_death, stop)
+
+
+def _run_jobs(fn, jobs, workers, retries, recycle_after, on_progress, on_outcome, on_worker_death, stop):
+    if workers <= 0:
+        return _run_in_process(fn, jobs, on_progress, on_outcome, stop)
+    pool = _Pool(fn, jobs, workers, retries, recycle_after, on_progress, on_outcome, on_worker_death, stop)
+    try:
+        pool.run()
+    finally:
+        pool.shut_down()
+    return pool.outcomes
+
+
+def _checked_progress(on_progress, stop):
+    """``report(n)`` for jobs: passes progress on, then stops the run at a Ctrl-C."""
+    report = on_progress or (lambda n: None)
+
+    def progress(n):
+        report(n)
+        if stop.is_set():
+            raise KeyboardInterrupt
+    return progress
+
+
+def _run_in_process(fn, jobs, on_progress, on_outcome, stop) -> list:
+    progress = _checked_progress(on_progress, stop)
+    outcomes = []
+    for job in jobs:
+        try:
+            outcomes.append(JobOutcome(job, result=fn(job, progress)))
+        except SpmError as exc:
+            outcomes.append(JobOutcome(job, error=describe(exc)))
+        if on_outcome:
+            on_outcome(outcomes[-1])
+    return outcomes
+
+
+class _Pool:
+    """Spawned workers, one pipe each, running ``jobs`` to an outcome each: a job whose
+    worker dies goes back to the queue (``retries`` times), then fails."""
+
+    def __init__(self, fn, jobs, workers, retries, recycle_after, on_progress, on_outcome, on_worker_death, stop):
+        self.fn, self.jobs, self.workers, self.retries = fn, jobs, workers, retries
+        self.recycle_after, self.on_outcome, self.on_worker_death, self.stop = (recycle_after, on_outcome,
+                                                                               on_worker_death, stop)
+        self.progress = _checked_progress(on_progress, stop)
+        self.ctx = mp.get_context("spawn")  # never fork a process that may hold a GL or Blender context
+        self.outcomes: list[JobOutcome | None] = [None] * len(jobs)
+        self.queue = list(range(len(jobs)))
+        self.attempts = [0] * len(jobs)
+        self.pool: dict[int, _Worker] = {}
+        self.next_id = 0
+
+    def run(self) -> None:
+        for _ in range(min(self.workers, len(self.jobs))):
+            self.start_worker()
+        while any(o is None for o in self.outcomes):
+            self.hand_out_jobs()
+            if self.stop.is_set():
+                raise KeyboardInterrupt
+            conns = [w.conn for w in self.pool.values()] + [w.process.sentinel for w in self.pool.values()]
+            ready = wait(conns, timeout=0.5)
+            for wid, w in list(self.pool.items()):
+                retired = self.read_messages(w) if w.conn in ready else False
+                if retired or not w.process.is_alive():
+                    self.replace_worker(wid, w)
+            if not self.pool and self.queue:
+                self.start_worker()
+
+    def start_worker(self) -> None:
+        parent, child = self.ctx.Pipe()
+        proc = self.ctx.Process(target=_worker_main, args=(self.fn, child, self.recycle_after), daemon=True)
+        proc.start()
+        child.close()
+        self.pool[self.next_id] = _Worker(proc, parent)
+        self.next_id += 1
+
+    def hand_out_jobs(self) -> None:
+        for w in list(self.pool.values()):
+            if w.job_id is None and self.queue and w.process.is_alive():
+                w.job_id = self.queue.pop(0)
+                self.attempts[w.job_id] += 1
+                w.progress[w.job_id] = 0
+                try:
+                    w.conn.send((w.job_id, self.jobs[w.job_id]))
+                except (BrokenPipeError, OSError):
+                    pass  # its death is noticed by the main loop
+
+    def read_messages(self, w: _Worker) -> bool:
+        """Take everything ``w`` sent; True when it retired or its pipe broke."""
+        try:
+            while w.conn.poll():
+                kind, job_id, payload = w.conn.recv()
+                if kind == "progress":
+                    w.progress[job_id] = w.progress.get(job_id, 0) + payload
+                    self.progress(payload)
+                elif kind in ("done", "error"):
+                    w.job_id = None
+                    w.progress.pop(job_id, None)
+                    self.finish(job_id, **({"result": payload} if kind == "done" else {"error": payload}))
+                elif kind == "retire":
+                    return True
+        except (EOFError, OSError):
+            return True
+        return False
+
+    def replace_worker(self, wid: int, w: _Worker) -> None:
+        """Reap a worker that retired or died (its job back to the queue), and start
+        another while there is work for it."""
+        w.process.join(timeout=5)
+        code = w.process.exitcode
+        self.lost(w, f"signal {-code}" if code is not None and code < 0 else f"exit code {code}")
+        w.conn.close()
+        del self.pool[wid]
+        busy = sum(1 for x in self.pool.values() if x.job_id is not None)
+        if self.queue and len(self.pool) < self.workers and len(self.pool) < len(self.queue) + busy:
+            self.start_worker()
+
+    def finish(self, job_id, result=None, error=None) -> None:
+        self.outcomes[job_id] = JobOutcome(self.jobs[job_id], result=result, error=error,
+                                           attempts=self.attempts[job_id])
+        if self.on_outcome:
+            self.on_outcome(self.outcomes[job_id])
+
+    def lost(self, w: _Worker, why: str) -> None:
+        job_id, w.job_id = w.job_id, None
+        if job_id is None:
+            return
+        self.progress(-w.progress.pop(job_id, 0))
+        if self.on_worker_death:
+            self.on_worker_death(self.jobs[job_id])
+        if self.attempts[job_id] <= self.retries:
+            self.queue.insert(0, job_id)
+        else:
+            self.finish(job_id, error=f"worker died ({why}) after {self.attempts[job_id]} attempts")
+
+    def shut_down(self) -> None:
+        """Ask every worker to stop, then make sure it has; a job a worker still held
+        (an interrupted run) is cleaned up through on_worker_death."""
+        for w in self.pool.values():
+            try:
+                w.conn.send(None)
+            except (BrokenPipeError, OSError):
+                pass
+        for w in self.pool.values():
+            w.process.join(timeout=2)
+            if w.process.is_alive():
+                w.process.terminate()
+                w.process.join(timeout=5)
+            if w.job_id is not None and self.on_worker_death:
+                self.on_worker_death(self.jobs[w.job_id])
+
+
+class LocalExecutor:
+    """Worker processes on this machine (the default): ``run_jobs`` with ``workers``
+    processes; ``in_process`` runs in this process when workers <= 1 (not for Blender)."""
+
+    name = "local"
+
+    def __init__(self, workers: int = 1, retries: int = 1, recycle_after: int = 0):
+        self.workers = workers
+        self.retries = retries
+        self.recycle_after = recycle_after
+
+    def run(self, fn, jobs, *, in_process=True, on_progress=None, on_outcome=None, on_worker_death=None):
+        workers = 0 if (in_process and self.workers <= 1) else max(1, self.workers)
+        return run_jobs(fn, jobs, workers=workers, retries=self.retries, recycle_after=self.recycle_after,
+                        on_progress=on_progress, on_outcome=on_outcome, on_worker_death=on_worker_death)

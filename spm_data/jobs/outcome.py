@@ -1,0 +1,59 @@
+"""What local and Ray executors share: a job's outcome, error text, Ctrl-C handling."""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+from dataclasses import dataclass
+
+from spm_data.errors import SpmError
+
+
+@dataclass
+class JobOutcome:
+    job: object
+    result: object = None
+    error: str | None = None
+    attempts: int = 1
+
+
+@contextlib.contextmanager
+def deferred_interrupt():
+    """Turn the first Ctrl-C into a flag checked at safe points (after a frame, in
+    the pool loop), raised there as KeyboardInterrupt. A signal raised directly can
+    land inside a finaliser or a C callback, where Python prints "Exception ignored"
+    and the run goes on; a second Ctrl-C interrupts at once. Yields the flag."""
+    stop = threading.Event()
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        yield stop  # not ours to change (a thread, or a caller with its own handler)
+        return
+
+    def on_sigint(signum, frame):
+        if stop.is_set():
+            raise KeyboardInterrupt
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield stop
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def describe(exc: BaseException) -> str:
+    return str(exc) if isinstance(exc, SpmError) else f"{type(exc).__name__}: {exc}"
+
+
+def is_blender_script_dir(path: str) -> bool:
+    parts = path.replace("\\", "/").split("/")
+    return "scripts" in parts and ("bpy" in parts or "blender" in parts)
+
+
+def probe_job(job, report):
+    """A job that does nothing but say which process ran it (benchmarks, tests)."""
+    import os
+
+    report(1)
+    return {"job": job, "pid": os.getpid()}
