@@ -9,7 +9,7 @@ import numpy as np
 
 from spm_data.errors import ShardError, SpmError
 from spm_data.core.poses import project_points
-from spm_data.io.outputs import removing_created, space_fix, unwritable
+from spm_data.io.outputs import check_creatable, removing_created, space_fix
 from spm_data.io.files import atomic_file
 from spm_data.io.shards import read_attrs, read_shard
 
@@ -27,11 +27,7 @@ def check_image_path(path, example: str = "sheet.png") -> Path:
     if path.suffix.lower() not in IMAGE_TYPES:
         got = f"unsupported extension {path.suffix!r}" if path.suffix else "no extension"
         raise SpmError(f"{path}: {got}; give a file name ending in {', '.join(IMAGE_TYPES)}")
-    problem = unwritable(path.parent)
-    if problem and problem[1] == "file":
-        raise SpmError(f"cannot write {path}: {problem[0]} is a file, not a folder; give --out a path in a folder")
-    if problem:
-        raise SpmError(f"cannot write {path}: {problem[0]} is read-only; give --out a path in a writable folder")
+    check_creatable(path, "write", "give --out a path in a folder", "give --out a path in a writable folder")
     return path
 
 

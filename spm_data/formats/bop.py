@@ -31,7 +31,7 @@ from spm_data.errors import SpmError
 from spm_data.io.folders import open_folder
 from spm_data.formats.importing import FrameRecord, import_records, pose_problem
 from spm_data.core.instances import shard_mesh
-from spm_data.io.outputs import space_fix, top_created, unwritable
+from spm_data.io.outputs import check_creatable, space_fix, top_created
 from spm_data.core.poses import K_from_corner_origin, K_to_corner_origin
 from spm_data.io.shards import read_attrs, read_shard
 
@@ -201,11 +201,8 @@ def _check_out(out_dir: Path) -> None:
         raise SpmError(f"{out_dir} is a file; give --out a new folder to export into")
     if out_dir.exists() and any(out_dir.iterdir()):
         raise SpmError(f"{out_dir} exists and is not empty; export into a new folder")
-    problem = unwritable(out_dir.parent)
-    if problem and problem[1] == "file":
-        raise SpmError(f"cannot create {out_dir}: {problem[0]} is a file; give --out a new folder to export into")
-    if problem:
-        raise SpmError(f"cannot create {out_dir}: {problem[0]} is read-only; give --out a folder in a writable place")
+    check_creatable(out_dir, "create", "give --out a new folder to export into",
+                    "give --out a folder in a writable place")
 
 
 class _Export:

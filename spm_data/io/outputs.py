@@ -9,6 +9,8 @@ import os
 import shutil
 from pathlib import Path
 
+from spm_data.errors import SpmError
+
 
 def nearest_existing(path) -> Path:
     """``path`` itself if it exists, else its closest existing ancestor (the folder a
@@ -28,6 +30,15 @@ def unwritable(path) -> tuple[Path, str] | None:
     if not os.access(base, os.W_OK | os.X_OK):
         return base, "read-only"
     return None
+
+
+def check_creatable(path, verb: str, fix_file: str, fix_read_only: str) -> None:
+    """SpmError ``cannot VERB PATH: FOLDER is a file|is read-only; FIX`` unless ``path`` can be
+    made inside a writable folder (its nearest existing ancestor): checked before any work."""
+    problem = unwritable(Path(path).parent)
+    if problem:
+        state, fix = ("is a file", fix_file) if problem[1] == "file" else ("is read-only", fix_read_only)
+        raise SpmError(f"cannot {verb} {path}: {problem[0]} {state}; {fix}")
 
 
 def top_created(path) -> Path | None:

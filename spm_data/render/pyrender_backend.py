@@ -26,7 +26,7 @@ def _import_pyrender():
     # pyrender draws into a 4x multisampled buffer and resolves depth with a
     # NEAREST blit, which returns sample 0 (about 0.4 px off the pixel centre)
     # instead of the pixel centre K describes. One sample per pixel keeps depth,
-    # mask and the label exactly consistent (tests/test_render_pyrender.py).
+    # mask and the label exactly consistent (tests/render/test_pyrender_backend.py).
     if not getattr(gl_renderer, "_spm_single_sample", False):
         multisample = gl_renderer.glRenderbufferStorageMultisample
         gl_renderer.glRenderbufferStorageMultisample = (
@@ -44,7 +44,7 @@ def _ordered_scene_class(pr):
     nodes in sets, iterated in an order that follows object addresses and so
     varies between processes; the shader then sums the lights in another order
     and a pixel can come out one level apart. A fixed order makes renders
-    repeat bit for bit (tests/test_reliability.py)."""
+    repeat bit for bit (tests/system/test_reliability.py)."""
     global _SCENE_CLASS
     if _SCENE_CLASS is None:
         class OrderedLightScene(pr.Scene):

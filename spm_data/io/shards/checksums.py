@@ -25,11 +25,13 @@ def fletcher32(data: bytes) -> int:
     end-around carry (so a non-zero sum is in 1..65535, never 0)."""
     if len(data) % 2:
         data = bytes(data) + b"\0"
-    words = np.frombuffer(data, ">u2").astype(np.int64) % 65535
+    raw = np.frombuffer(data, ">u2")
+    nonzero = bool(raw.any())  # before reducing: a 0xFFFF word is 0 mod 65535 but makes the sums non-zero
+    words = raw.astype(np.int64) % 65535
     weights = np.arange(len(words), 0, -1, dtype=np.int64) % 65535  # word i counts in n - i running sums
     s1 = int(words.sum())
     s2 = int((words * weights % 65535).sum())  # reduced first: no int64 overflow on big chunks
-    return (_fold(s2, bool(words.any())) << 16) | _fold(s1, bool(words.any()))
+    return (_fold(s2, nonzero) << 16) | _fold(s1, nonzero)
 
 
 def _fold(total: int, nonzero: bool) -> int:

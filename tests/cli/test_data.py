@@ -1,0 +1,76 @@
+"""cli.data (spm-data): its commands end to end, errors in one line with exit status 1, the console
+scripts as processes (the coil_folder fixture: tests/conftest.py)."""
+
+import subprocess
+import sys
+
+from click.testing import CliRunner
+
+from cli import data_cli
+from spm_data.io.shards import read_manifest
+
+
+def run(*args):
+    return CliRunner().invoke(data_cli, [str(a) for a in args], catch_exceptions=False)
+
+
+def test_render_info_show(small_specs_dir, tmp_path):
+    out = tmp_path / "out"
+    r = run("render", "--class", "cup", "--specs-dir", small_specs_dir, "--out", out, "--limit", 10)
+    assert r.exit_code == 0, r.output
+    assert "rendered 2 shards (10 frames)" in r.output
+    r = run("render", "--class", "cup", "--specs-dir", small_specs_dir, "--out", out, "--limit", 10)
+    assert "2 already complete" in r.output
+    r = run("info", out)
+    assert r.exit_code == 0 and "cup" in r.output and "total: 10 frames" in r.output
+    r = run("info", out / "cup-00000.h5")
+    assert "rgb" in r.output and "(8, 64, 64, 3)" in r.output and "azimuth" in r.output
+    png = tmp_path / "sheet.png"
+    r = run("show", out / "cup-00000.h5", "--out", png)
+    assert r.exit_code == 0 and png.stat().st_size > 1000
+    import cv2
+
+    sheet = cv2.imread(str(png))
+    assert sheet.shape[0] >= 128 and sheet.std() > 10
+
+
+def test_errors_are_one_line_and_exit_1(small_specs_dir, tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('class = "cup"\n[camera]\nazimuth = [0, 355, 7]\n')
+    r = run("render", "--spec", bad, "--out", tmp_path / "o")
+    assert r.exit_code == 1
+    assert r.output.strip().count("\n") == 0 and r.output.startswith("error: ")
+    assert "camera.azimuth: step 7.0 does not divide" in r.output
+    assert not (tmp_path / "o").exists()
+    r = run("info", tmp_path / "nothing")
+    assert r.exit_code == 1 and "no such shard or folder" in r.output
+    (tmp_path / "junk.h5").write_bytes(b"junk")
+    r = run("show", tmp_path / "junk.h5")
+    assert r.exit_code == 1 and "not a readable HDF5 shard" in r.output
+
+
+def test_console_scripts_run_as_processes(small_specs_dir, tmp_path):
+    exe = [sys.executable, "-c", "import cli; cli.data_cli()"]
+    r = subprocess.run(exe + ["render", "--class", "box", "--specs-dir", str(small_specs_dir), "--out",
+                              str(tmp_path / "o"), "--limit", "4", "--workers", "2"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert read_manifest(tmp_path / "o")["frames"] == 4
+    r = subprocess.run([sys.executable, "-c", "import cli; cli.model_cli()", "--help"], capture_output=True, text=True)
+    assert r.returncode == 0 and "Sparse Pose Manifolds" in r.stdout
+
+
+def test_cli_import_reports_skips_and_resumes(coil_folder, tmp_path):
+    args = ["import", "coil100", str(coil_folder), "--out", str(tmp_path / "o")]
+    r = CliRunner().invoke(data_cli, args)
+    assert r.exit_code == 0, r.output
+    assert "imported 1 shards (142 frames)" in r.output
+    assert "skipped 3 images:" in r.output and "missing view" in r.output and "foreign file" in r.output
+    assert "truncated" in r.output
+    r = CliRunner().invoke(data_cli, args)
+    assert "1 already complete" in r.output
+    r = CliRunner().invoke(data_cli, ["export", "bop", str(tmp_path / "o"), "--out", str(tmp_path / "b")])
+    assert r.exit_code == 0 and "exported 142 frames of 2 objects in 2 scenes" in r.output
+    assert "no mesh for 2 objects" in r.output
+    r = CliRunner().invoke(data_cli, ["export", "bop", str(tmp_path / "o"), "--out", str(tmp_path / "b")])
+    assert r.exit_code == 1 and "not empty" in r.output

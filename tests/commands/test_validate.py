@@ -1,0 +1,104 @@
+import json
+import shutil
+
+import h5py
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from cli import data_cli
+from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.io.shards import SCHEMA_VERSION, read_attrs, read_shard, write_manifest, write_shard
+from spm_data.commands.validate import validate_folder
+
+
+@pytest.fixture(scope="module")
+def good(tmp_path_factory, small_specs_dir_module):
+    out = tmp_path_factory.mktemp("good")
+    render_dataset(load_run_specs(["cup"], specs_dir=small_specs_dir_module), out, limit=16)
+    return out
+
+
+@pytest.fixture(scope="module")
+def small_specs_dir_module(tmp_path_factory):
+    from tests.helpers import SMALL_SPEC
+
+    folder = tmp_path_factory.mktemp("specs")
+    (folder / "cup.toml").write_text(SMALL_SPEC.format(cls="cup", seed=3))
+    return folder
+
+
+def copy(good, tmp_path):
+    shutil.copytree(good, tmp_path / "d")
+    return tmp_path / "d"
+
+
+def messages(folder):
+    return [f"{where}: {msg}" for where, msg in validate_folder(folder)]
+
+
+def test_a_good_folder_is_valid(good):
+    assert validate_folder(good) == []
+    r = CliRunner().invoke(data_cli, ["validate", str(good)])
+    assert r.exit_code == 0 and "all shards valid" in r.output
+
+
+def test_flipped_byte_is_caught(good, tmp_path):
+    d = copy(good, tmp_path)
+    shard = d / "cup-00000.h5"
+    raw = bytearray(shard.read_bytes())
+    raw[len(raw) // 2] ^= 0xFF
+    shard.write_bytes(bytes(raw))
+    found = messages(d)
+    assert any("cup-00000.h5: checksum differs from the manifest" in m or "corrupt" in m for m in found), found
+    r = CliRunner().invoke(data_cli, ["validate", str(d)])
+    assert r.exit_code == 1 and "cup-00000.h5" in r.output
+
+
+def test_truncated_shard_is_caught(good, tmp_path):
+    d = copy(good, tmp_path)
+    shard = d / "cup-00001.h5"
+    shard.write_bytes(shard.read_bytes()[:5000])
+    found = messages(d)
+    assert any("cup-00001.h5: not a readable HDF5 shard" in m for m in found), found
+    assert any("cup-00001.h5: size 5000 bytes, manifest says" in m for m in found), found
+
+
+def test_newer_schema_is_caught(good, tmp_path):
+    d = copy(good, tmp_path)
+    with h5py.File(d / "cup-00000.h5", "a") as f:
+        f.attrs["schema_version"] = SCHEMA_VERSION + 1
+    assert any(f"schema version {SCHEMA_VERSION + 1} is newer than this spm" in m for m in messages(d))
+
+
+def test_manifest_disagreeing_with_files_is_caught(good, tmp_path):
+    d = copy(good, tmp_path)
+    m = json.loads((d / "manifest.json").read_text())
+    m["shards"][0]["frames"] += 1
+    m["shards"].append(dict(m["shards"][1], file="cup-00099.h5"))
+    (d / "manifest.json").write_text(json.dumps(m))
+    found = messages(d)
+    assert "manifest.json: lists cup-00099.h5, which is not in the folder" in found
+    assert "cup-00000.h5: manifest says 9 frames, the shard has 8" in found
+    assert any("is not the sum of its shards" in f for f in found)
+    (d / "manifest.json").unlink()
+    assert messages(d) == ["manifest.json: no manifest.json"]
+
+
+def test_bad_values_inside_a_shard_are_caught(good, tmp_path):
+    d = copy(good, tmp_path)
+    arrays = read_shard(d / "cup-00000.h5")   # written again with bad values: intact, but wrong
+    arrays["R"][2] *= 2.0
+    arrays["t"][3, 0] = np.nan
+    arrays["mask"][5] = 0
+    write_shard(d / "cup-00000.h5", arrays, read_attrs(d / "cup-00000.h5"))
+    write_manifest(d)
+    found = " | ".join(messages(d))
+    assert "R is not a rotation in frames [2]" in found
+    assert "non-finite t in frames [3]" in found
+    assert "empty mask in 1 frames (first: [5])" in found
+
+
+def test_folder_without_shards(tmp_path):
+    r = CliRunner().invoke(data_cli, ["validate", str(tmp_path)])
+    assert r.exit_code == 1 and "no shards (*.h5) in" in r.output and "nothing to validate" in r.output

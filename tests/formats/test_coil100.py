@@ -1,0 +1,63 @@
+"""spm_data.formats.coil100: COIL-100 folders and archives (zip, tar of 16-bit PPM) imported
+label by label, missing and unreadable views listed (the coil_folder fixture: tests/conftest.py)."""
+
+import io
+import tarfile
+import zipfile
+
+import numpy as np
+
+from spm_data.core.poses import wrap_degrees
+from spm_data.formats.coil100 import import_coil100
+from spm_data.io.shards import list_shards, read_manifest, read_shard
+from tests.helpers import coil_image, ppm16
+
+
+def test_coil100_folder_labels_value_by_value(coil_folder, tmp_path):
+    summary, problems = import_coil100(coil_folder, tmp_path / "out", elevation=10.0, distance=0.8)
+    assert ("obj12__45", "missing view") in problems
+    assert any("README.txt" in p and "foreign file" in why for p, why in problems)
+    skipped = [s for r in summary.results.values() for s in r["skipped"]]
+    assert len(skipped) == 1 and "obj12__40.png" in skipped[0][0] and "not a readable image" in skipped[0][1]
+    assert summary.frames == 72 + 70  # obj12: 71 files, one of them truncated (read, then skipped)
+    data = {k: np.concatenate([read_shard(p)[k] for p in list_shards(tmp_path / "out")])
+            for k in ("azimuth", "instance_id", "class_name", "pose", "label_measured", "mask", "rgb", "source",
+                      "elevation", "distance")}
+    assert len(data["azimuth"]) == 142
+    i = np.flatnonzero((data["instance_id"] == 7) & (data["azimuth"] == 35))
+    assert len(i) == 1
+    i = i[0]
+    assert data["class_name"][i] == "coil100-obj7" and data["source"][i] == "coil100"
+    assert data["elevation"][i] == 10.0 and data["distance"][i] == 0.8
+    np.testing.assert_allclose(data["pose"][i, 2], wrap_degrees(-(35 + 90)))
+    np.testing.assert_allclose(data["pose"][i, 3:], [0, 0, 0.8], atol=1e-12)
+    assert list(data["label_measured"][i]) == [False, False, True, False, False, False]
+    np.testing.assert_array_equal(data["rgb"][i], coil_image(7, 35))
+    np.testing.assert_array_equal(data["mask"][i], (coil_image(7, 35).max(axis=2) > 10).astype(np.uint8))
+
+
+def test_coil100_zip_and_class_map(coil_folder, tmp_path):
+    archive = tmp_path / "coil-100.zip"
+    with zipfile.ZipFile(archive, "w") as zf:
+        for p in sorted(coil_folder.iterdir()):
+            zf.write(p, f"coil-100/{p.name}")
+    (tmp_path / "map.csv").write_text("object,class\n7,cup\n12,car\n")
+    summary, problems = import_coil100(archive, tmp_path / "out", classes_csv=tmp_path / "map.csv")
+    assert read_manifest(tmp_path / "out")["classes"] == {"car": 70, "cup": 72}
+    assert ("obj12__45", "missing view") in problems
+
+
+def test_coil100_tar_of_16_bit_ppm(tmp_path):
+    archive = tmp_path / "coil-100.tar.gz"
+    with tarfile.open(archive, "w:gz") as tf:
+        for angle in (0, 5, 355):
+            data = ppm16(coil_image(3, angle))
+            info = tarfile.TarInfo(f"coil-100/obj3__{angle}.ppm")
+            info.size = len(data)
+            tf.addfile(info, io.BytesIO(data))
+    summary, problems = import_coil100(archive, tmp_path / "out")
+    assert summary.frames == 3
+    d = read_shard(list_shards(tmp_path / "out")[0])
+    np.testing.assert_array_equal(d["rgb"][0], coil_image(3, 0))   # 16 bit scaled back to 8 exactly
+    assert sorted(d["azimuth"]) == [0.0, 5.0, 355.0]
+    assert len([p for p in problems if p[1] == "missing view"]) == 69

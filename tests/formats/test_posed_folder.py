@@ -1,0 +1,64 @@
+"""spm_data.formats.posed_folder: a folder of images with a poses table (matrix, quaternion or
+Euler rotations; intrinsics or --fov), and the CVL preset."""
+
+import cv2
+import numpy as np
+from click.testing import CliRunner
+
+from cli import data_cli
+from spm_data.core.poses import camera_pose
+from spm_data.formats.posed_folder import import_cvl, import_folder
+from spm_data.io.shards import list_shards, read_manifest, read_shard
+
+
+def write_posed_folder(root, rows, header):
+    root.mkdir(parents=True, exist_ok=True)
+    lines = [",".join(header)]
+    for name, values in rows:
+        cv2.imwrite(str(root / name), np.full((32, 40, 3), 200, np.uint8))
+        lines.append(",".join([name] + [str(v) for v in values]))
+    (root / "poses.csv").write_text("\n".join(lines) + "\n")
+
+
+def test_posed_folder_matrix_quaternion_and_euler(tmp_path):
+    R, t = camera_pose(30, 20, 5, 0.5)
+    from scipy.spatial.transform import Rotation
+
+    q = Rotation.from_matrix(R).as_quat()  # x y z w
+    e = Rotation.from_matrix(R).as_euler("ZYX", degrees=True)
+    tm = t * 1000
+    write_posed_folder(tmp_path / "m", [("a.png", list(R.ravel()) + list(tm) + [50, 50, 19.5, 15.5])],
+                       ["image"] + [f"r{i}{j}" for i in (1, 2, 3) for j in (1, 2, 3)] + ["tx", "ty", "tz",
+                                                                                      "fx", "fy", "cx", "cy"])
+    write_posed_folder(tmp_path / "q", [("b.png", [q[3], q[0], q[1], q[2]] + list(tm))],
+                       ["image", "qw", "qx", "qy", "qz", "tx", "ty", "tz"])
+    write_posed_folder(tmp_path / "e", [("c.png", list(e) + list(tm))], ["image", "rx", "ry", "rz", "tx", "ty", "tz"])
+    import_folder(tmp_path / "m", tmp_path / "o1", unit="mm")
+    import_folder(tmp_path / "q", tmp_path / "o2", unit="mm", fov=40)
+    import_folder(tmp_path / "e", tmp_path / "o3", unit="mm", fov=40, euler="ZYX")
+    for out in ("o1", "o2", "o3"):
+        d = read_shard(list_shards(tmp_path / out)[0])
+        np.testing.assert_allclose(d["R"][0], R, atol=1e-9)
+        np.testing.assert_allclose(d["t"][0], t, atol=1e-12)
+        assert d["rgb"].shape == (1, 32, 40, 3) and d["source"][0] == "folder"
+    np.testing.assert_allclose(read_shard(list_shards(tmp_path / "o1")[0])["K"][0],
+                               [[50, 0, 19.5], [0, 50, 15.5], [0, 0, 1]])
+
+
+def test_posed_folder_errors(tmp_path):
+    write_posed_folder(tmp_path / "x", [("a.png", [1, 2, 3])], ["image", "tx", "ty", "tz"])
+    r = CliRunner().invoke(data_cli, ["import", "folder", str(tmp_path / "x"), "--out", str(tmp_path / "o"),
+                                      "--fov", "40"])
+    assert r.exit_code == 1 and "no rotation" in r.output and r.output.count("\n") == 1
+    assert not (tmp_path / "o").exists()
+
+
+def test_cvl_preset(tmp_path):
+    R, t = camera_pose(10, 10, 0, 0.6)
+    header = ["image"] + [f"r{i}{j}" for i in (1, 2, 3) for j in (1, 2, 3)] + ["tx", "ty", "tz"]
+    for obj in ("mug", "toy"):
+        write_posed_folder(tmp_path / "cvl" / obj, [(f"{k}.png", list(R.ravel()) + list(t * 1000))
+                                                    for k in range(3)], header)
+    summary, problems = import_cvl(tmp_path / "cvl", tmp_path / "out", fov=40)
+    assert summary.frames == 6 and not problems
+    assert read_manifest(tmp_path / "out")["classes"] == {"mug": 3, "toy": 3}

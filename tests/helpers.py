@@ -1,0 +1,200 @@
+"""What tests in several files share: waiting for a state, reaping processes, small
+specs, shard arrays, a flipped stored byte, COIL-100 images, ellipse points and
+estimator inputs. Fixtures are in tests/conftest.py; import these as
+``from tests.helpers import ...``."""
+
+import contextlib
+import time
+
+import cv2
+import h5py
+import numpy as np
+
+from spm_data.io.shards import FIELDS
+
+
+# --------------------------------------------------------------------------- processes
+
+def wait_for(predicate, what, *, timeout=120.0, interval=0.05, proc=None):
+    """Poll ``predicate()`` until it is truthy and return its value: tests wait for a
+    state (a shard on disk, a lock taken), never a fixed time, so a loaded machine only
+    makes them slower. AssertionError naming ``what`` after ``timeout`` seconds, or as
+    soon as ``proc`` (a Popen) exits without the state reached (with its output)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if proc is not None and proc.poll() is not None:
+            value = predicate()  # reached just before it exited
+            if value:
+                return value
+            output = proc.communicate()[0] if proc.stdout is not None else ""
+            raise AssertionError(f"the process exited with status {proc.returncode} before {what}:\n{output}")
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+        time.sleep(interval)
+
+
+@contextlib.contextmanager
+def reaped(proc, kill=None):
+    """Yield ``proc`` (a Popen); on the way out a run still alive (a test that failed
+    midway) is killed (``kill()``, default ``proc.kill``) and waited for, so no test
+    leaves a process behind."""
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            (kill or proc.kill)()
+            proc.communicate()
+
+
+# --------------------------------------------------------------------------- render specs
+
+SMALL_SPEC = """
+class = "{cls}"
+seed = {seed}
+[mesh]
+instances = 2
+[camera]
+azimuth = [0, 25, 5]
+elevation = [0, 10, 5]
+distances = [0.6, 0.7]
+[image]
+width = 64
+height = 64
+[render]
+renderer = "pyrender"
+frames_per_shard = 8
+"""
+
+
+# One instance at 128x128 over azimuth 0..AZ_STOP x two elevations (EL, EL + 5):
+# enough keypoints for the SPM pipeline (model tests) and quick to render (executor tests).
+PYRENDER_128_SPEC = """
+class = "{cls}"
+seed = {seed}
+[mesh]
+instances = {instances}
+[camera]
+azimuth = [0, {az_stop}, 5]
+elevation = [{el}, {el_stop}, 5]
+distances = [0.6]
+[image]
+width = 128
+height = 128
+[render]
+renderer = "pyrender"
+frames_per_shard = {per_shard}
+"""
+
+
+def write_pyrender_128_spec(folder, cls, *, seed, az_stop, el, per_shard, instances=1):
+    (folder / f"{cls}.toml").write_text(PYRENDER_128_SPEC.format(cls=cls, seed=seed, az_stop=az_stop, el=el,
+                                                                 el_stop=el + 5, per_shard=per_shard,
+                                                                 instances=instances))
+
+
+# --------------------------------------------------------------------------- shards
+
+def make_arrays(n=3, h=8, w=10, seed=0):
+    """Random arrays of every shard field (FIELDS) for ``n`` frames of ``h`` x ``w``;
+    string fields are ``"<field>-<i>"``."""
+    rng = np.random.default_rng(seed)
+    arrays = {}
+    for name, (dtype, shape) in FIELDS.items():
+        shape = (n,) + tuple({"H": h, "W": w, "R": 1}.get(d, d) for d in shape)
+        if dtype == "str":
+            arrays[name] = [f"{name}-{i}" for i in range(n)]
+        elif dtype == "bool":
+            arrays[name] = rng.random(shape) > 0.5
+        else:
+            arrays[name] = (rng.random(shape) * 100).astype(dtype)
+    return arrays
+
+
+def flip_stored_byte(path, field, chunk=0):
+    """Flip one bit in the middle of a stored chunk of ``field`` (file size unchanged)."""
+    with h5py.File(path, "r") as f:
+        info = f[field].id.get_chunk_info(chunk)
+    at = info.byte_offset + info.size // 2
+    with open(path, "r+b") as fh:
+        fh.seek(at)
+        byte = fh.read(1)[0]
+        fh.seek(at)
+        fh.write(bytes([byte ^ 0x10]))
+
+
+# --------------------------------------------------------------------------- COIL-100 images
+
+OBJECTS = (7, 12)  # the objects of the coil_folder fixture (tests/conftest.py)
+
+
+def coil_image(obj, angle):
+    img = np.zeros((128, 128, 3), np.uint8)
+    cv2.circle(img, (64, 64), 20 + obj % 10, (obj * 2 % 255, 100, angle % 255), -1)
+    return img
+
+
+def png_bytes(img):
+    return cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))[1].tobytes()
+
+
+def ppm16(img, comment=b"# converted by a scanner tool\n"):
+    """A 16-bit binary PPM with a comment and odd whitespace in its header."""
+    data = (img.astype(">u2") * 257).tobytes()
+    return b"P6\n" + comment + b"128  128\n\n65535\n" + data
+
+
+# --------------------------------------------------------------------------- ellipses
+
+def ellipse_points(centre=(40.0, 70.0), a=30.0, b=18.0, degrees=30.0, n=8, phase=0.3):
+    """``n`` points on a known ellipse, and that ellipse (spm_model.ellipse.Ellipse)."""
+    from spm_model.ellipse import Ellipse
+
+    u = np.array([np.cos(np.radians(degrees)), np.sin(np.radians(degrees))])
+    v = np.array([-u[1], u[0]])
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False) + phase
+    return np.asarray(centre) + a * np.cos(t)[:, None] * u + b * np.sin(t)[:, None] * v, Ellipse(
+        np.asarray(centre), a, b, u)
+
+
+# --------------------------------------------------------------------------- estimator inputs (no rendering)
+
+N = 24
+
+
+class CachedFrames(list):
+    """Frames whose features are all cached (as spm_model.frames.Frames serves them)."""
+
+    def __init__(self, columns: dict):
+        super().__init__({"K": k} for k in columns["K"])
+        self.columns = columns
+
+    def column(self, name):
+        return self.columns.get(name)
+
+
+def labels(n, seed):
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.uniform(-180, 180, (n, 3)), rng.normal(0, 0.05, (n, 2)), rng.uniform(0.5, 1, n)])
+
+
+def vectors(n, seed, d=16):
+    x = np.abs(np.random.default_rng(seed).normal(size=(n, d))) + 0.1
+    return x / np.linalg.norm(x, axis=1, keepdims=True)
+
+
+def frames(n, seed):
+    from spm_model.descriptors import HOG_SIZE
+
+    rng = np.random.default_rng(seed)
+    K = np.tile(np.array([[60.0, 0, 31.5], [0, 60, 31.5], [0, 0, 1]]), (n, 1, 1))
+    geometry = np.column_stack([rng.uniform(20, 40, (n, 2)), rng.uniform(10, 50, n), K[:, 0, 0], K[:, 1, 1],
+                                K[:, 0, 2], K[:, 1, 2]])
+    template = np.hstack([rng.uniform(0, 1, (n, HOG_SIZE)), geometry]).astype(np.float32)
+    return CachedFrames({"train_vector": vectors(n, seed), "query_vector": vectors(n, seed + 1),
+                         "raw": rng.integers(0, 255, (n, 64)).astype(np.uint8), "template": template, "K": K})
+
+
+FAST_SPM = {"projection_samples": 16, "projection": "knn", "neighbours": 8}

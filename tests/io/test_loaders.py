@@ -1,0 +1,209 @@
+"""spm_data.io.loaders.ShardDataset: a shard folder as a map-style dataset, read lazily
+per process (fork and spawn workers), verified like every other read."""
+
+import multiprocessing
+import os
+import pickle
+
+import h5py
+import numpy as np
+import pytest
+
+from spm_data.errors import ShardError
+from spm_data.io.loaders import ShardDataset
+from spm_data.io.shards import FIELDS, MANIFEST, read_shard, write_manifest, write_shard
+from tests.helpers import flip_stored_byte
+from tests.helpers import make_arrays as shard_arrays
+
+COUNTS = (3, 0, 4, 2)  # frames per shard; an empty shard in the middle
+
+
+def make_arrays(n, seed, h=6, w=5):
+    """tests.helpers.make_arrays, with strings that also name the shard (seed)."""
+    arrays = shard_arrays(n=n, h=h, w=w, seed=seed)
+    for name, (dtype, _) in FIELDS.items():
+        if dtype == "str":
+            arrays[name] = [f"{name}-{seed}-{i}" for i in range(n)]
+    return arrays
+
+
+@pytest.fixture
+def folder(tmp_path):
+    out = tmp_path / "shards"
+    out.mkdir()
+    for k, n in enumerate(COUNTS):
+        write_shard(out / f"cup-{k:05d}.h5", make_arrays(n, seed=k), {"renderer": "test", "seed": k})
+    write_manifest(out)
+    return out
+
+
+def direct_read(folder, fields=None):
+    """Every frame of the folder, straight from read_shard: [{field: value}]."""
+    frames = []
+    for path in sorted(folder.glob("*.h5")):
+        whole = read_shard(path, fields)
+        n = len(next(iter(whole.values())))
+        frames += [{f: v[j] for f, v in whole.items()} for j in range(n)]
+    return frames
+
+
+def assert_item_equal(got, want):
+    assert list(got) == list(want)
+    for field, value in want.items():
+        if isinstance(value, str):
+            assert type(got[field]) is str and got[field] == value, field
+        else:
+            np.testing.assert_array_equal(got[field], value, err_msg=field)
+            assert np.asarray(got[field]).dtype == np.asarray(value).dtype, field
+
+
+def open_files() -> int:
+    return len(h5py.h5f.get_obj_ids(types=h5py.h5f.OBJ_FILE))
+
+
+def test_length_and_items_equal_read_shard_across_shard_boundaries(folder):
+    before = open_files()
+    ds = ShardDataset(folder)
+    assert open_files() == before and ds._readers == {}  # nothing opened (or left open) in __init__
+    want = direct_read(folder)
+    assert len(ds) == sum(COUNTS) == len(want)
+    assert ds.fields == tuple(FIELDS)
+    for i in (0, 2, 3, 6, 7, 8, -1, -9, -3):  # 2|3 and 6|7 are shard boundaries (3 crosses the empty shard)
+        assert_item_equal(ds[i], want[i])
+    item = ds[0]
+    assert item["rgb"].shape == (6, 5, 3) and item["rgb"].dtype == np.uint8
+    assert item["K"].shape == (3, 3) and item["K"].dtype == np.float64
+    assert type(item["class_name"]) is str
+    assert ds.locate(3) == (2, 0) and ds.locate(-1) == (3, 1)
+
+
+@pytest.mark.parametrize("index", [9, 100, -10])
+def test_out_of_range_is_an_index_error(folder, index):
+    with pytest.raises(IndexError, match="out of range for 9 frames"):
+        ShardDataset(folder)[index]
+
+
+def test_iterating_stops_at_the_end(folder):
+    assert len(list(ShardDataset(folder, fields="pose"))) == 9  # the old __getitem__ protocol ends on IndexError
+
+
+def test_a_subset_of_fields(folder):
+    ds = ShardDataset(folder, fields=("rgb", "K", "class_name"))
+    want = direct_read(folder, ["rgb", "K", "class_name"])
+    for i in range(len(ds)):
+        assert_item_equal(ds[i], want[i])
+
+
+@pytest.mark.parametrize("fields, bad", [(("rgb", "colour"), "'colour'"), ([], "the empty list")])
+def test_an_unknown_field_is_a_one_line_error(folder, fields, bad):
+    with pytest.raises(ShardError) as info:
+        ShardDataset(folder, fields=fields)
+    message = str(info.value)
+    assert "\n" not in message
+    assert "expected names from spm_data.io.shards.FIELDS" in message and "visible_mask" in message
+    assert "got " in message and f"fix or drop {bad}" in message
+
+
+def test_an_optional_field_the_shards_lack_is_a_one_line_error(folder):
+    with pytest.raises(ShardError, match=r"cup-00000.h5: shard has no field 'visible_mask' .*leave it out"):
+        ShardDataset(folder, fields=["rgb", "visible_mask"])
+
+
+def add_one(item):
+    return {**item, "pose": item["pose"] + 1, "extra": np.int64(7)}
+
+
+def test_transform_is_applied_after_reading(folder):
+    ds = ShardDataset(folder, fields=["pose"], transform=add_one)
+    want = direct_read(folder, ["pose"])
+    for i in (0, 5, -1):
+        np.testing.assert_array_equal(ds[i]["pose"], want[i]["pose"] + 1)
+        assert ds[i]["extra"] == 7
+
+
+def test_pickles_without_handles_and_reads_the_same(folder):
+    ds = ShardDataset(folder, transform=add_one)
+    first = ds[4]
+    assert ds._readers  # a handle open here: pickling must drop it (h5py handles do not pickle)
+    back = pickle.loads(pickle.dumps(ds))
+    assert back._readers == {} and len(back) == len(ds) and back.fields == ds.fields
+    assert_item_equal(back[4], first)
+    ds.close()
+    assert ds._readers == {}
+    assert_item_equal(ds[4], first)  # reopens after close
+
+
+def test_close_closes_this_process_handles(folder):
+    before = open_files()
+    with ShardDataset(folder) as ds:
+        ds[0], ds[-1]
+        assert open_files() == before + 2
+    assert open_files() == before
+
+
+# Pool workers: top-level functions, so spawn can import them.
+_DATASET = None
+
+
+def _set_dataset(ds):
+    global _DATASET
+    _DATASET = ds
+
+
+def _read(i):
+    item = _DATASET[i]
+    return item, os.getpid(), {shard: reader.pid for shard, reader in _DATASET._readers.items()}
+
+
+@pytest.mark.parametrize("method", ["fork", "spawn"])
+def test_pool_workers_read_every_item(folder, method):
+    ds = ShardDataset(folder, transform=add_one)
+    want = [add_one(item) for item in direct_read(folder)]
+    with multiprocessing.get_context(method).Pool(2, initializer=_set_dataset, initargs=(ds,)) as pool:
+        results = pool.map(_read, range(len(ds)), chunksize=1)
+    assert len(results) == len(want)
+    for (item, pid, reader_pids), expected in zip(results, want):
+        assert_item_equal(item, expected)
+        assert pid != os.getpid() and set(reader_pids.values()) == {pid}
+
+
+def test_a_dataset_used_before_fork_reopens_in_the_children(folder):
+    ds = ShardDataset(folder)
+    want = direct_read(folder)
+    assert_item_equal(ds[0], want[0])
+    assert_item_equal(ds[-1], want[-1])
+    parent_readers = dict(ds._readers)
+    assert {r.pid for r in parent_readers.values()} == {os.getpid()}
+    with multiprocessing.get_context("fork").Pool(2, initializer=_set_dataset, initargs=(ds,)) as pool:
+        results = pool.map(_read, range(len(ds)), chunksize=1)
+    for i, (item, pid, reader_pids) in enumerate(results):
+        assert_item_equal(item, want[i])
+        assert pid != os.getpid() and set(reader_pids.values()) == {pid}  # its own handles, not the parent's
+    assert ds._readers == parent_readers  # the parent keeps (and uses) its own
+    assert all(ds._readers[k] is r for k, r in parent_readers.items())
+    assert_item_equal(ds[1], want[1])
+
+
+@pytest.mark.parametrize("field", ["rgb", "K", "class_name"])
+def test_a_corrupt_chunk_is_a_shard_error_naming_the_field(folder, field):
+    flip_stored_byte(folder / "cup-00002.h5", field)
+    ds = ShardDataset(folder)  # attributes and layout are intact: opening works
+    with pytest.raises(ShardError, match=rf"cup-00002.h5: field '{field}' fails its checksum"):
+        ds[3]  # frame 0 of cup-00002
+    if field == "rgb":  # one image frame per chunk: the other frames still read
+        np.testing.assert_array_equal(ds[4]["rgb"], read_shard(folder / "cup-00002.h5", ["rgb"], frames=[1])["rgb"][0])
+
+
+def test_manifest_rules_apply(folder):
+    (folder / MANIFEST).unlink()
+    with pytest.raises(ShardError, match="no manifest.json"):
+        ShardDataset(folder)
+    with pytest.warns(UserWarning, match="allow-partial"):
+        ds = ShardDataset(folder, allow_partial=True)
+    assert len(ds) == sum(COUNTS)
+
+
+def test_a_single_shard_file(folder):
+    ds = ShardDataset(folder / "cup-00002.h5", fields=["t"])
+    assert len(ds) == 4
+    np.testing.assert_array_equal(ds[-1]["t"], read_shard(folder / "cup-00002.h5", ["t"])["t"][3])

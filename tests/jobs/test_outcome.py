@@ -1,0 +1,77 @@
+"""spm_data.jobs.outcome: what local and Ray executors share: outcomes, error text, and the first
+Ctrl-C turned into a flag."""
+
+import os
+import signal
+import threading
+
+import pytest
+
+from spm_data.errors import ShardError, SpmError
+from spm_data.jobs.outcome import JobOutcome, deferred_interrupt, describe, is_blender_script_dir, probe_job
+
+
+def test_an_outcome_is_one_attempt_without_error_by_default():
+    outcome = JobOutcome(job=("a", 1))
+    assert (outcome.job, outcome.result, outcome.error, outcome.attempts) == (("a", 1), None, None, 1)
+
+
+def test_describe_gives_our_message_alone_and_names_other_exceptions():
+    assert describe(SpmError("cup-00001.h5: bad")) == "cup-00001.h5: bad"
+    assert describe(ShardError("shard not found: x.h5")) == "shard not found: x.h5"
+    assert describe(ValueError("math domain error")) == "ValueError: math domain error"
+    assert describe(KeyError("rgb")) == "KeyError: 'rgb'"
+
+
+@pytest.mark.parametrize("path, expected", [
+    ("/opt/blender/5.0/scripts/modules", True), ("C:\\Blender\\5.0\\scripts\\bpy", True),
+    ("/usr/lib/python3/site-packages", False), ("/home/me/scripts", False), ("/opt/blender/5.0/python", False),
+])
+def test_is_blender_script_dir(path, expected):
+    assert is_blender_script_dir(path) is expected
+
+
+def test_probe_job_reports_and_says_which_process_ran_it():
+    reported = []
+    assert probe_job(7, reported.append) == {"job": 7, "pid": os.getpid()}
+    assert reported == [1]
+
+
+@pytest.fixture
+def default_sigint():
+    """SIGINT handled as Python does by default (KeyboardInterrupt), restored after."""
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, before)
+
+
+def test_the_first_ctrl_c_sets_the_flag_and_the_second_interrupts(default_sigint):
+    with deferred_interrupt() as stop:
+        assert not stop.is_set() and signal.getsignal(signal.SIGINT) is not signal.default_int_handler
+        os.kill(os.getpid(), signal.SIGINT)
+        assert stop.wait(timeout=10)                   # a flag, no KeyboardInterrupt
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+            threading.Event().wait(timeout=10)         # the second one raises at once
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler   # restored
+
+
+def test_a_thread_or_a_caller_with_its_own_handler_keeps_its_handler(default_sigint):
+    seen = []
+
+    def in_thread():
+        with deferred_interrupt() as stop:
+            seen.append((stop.is_set(), signal.getsignal(signal.SIGINT)))
+
+    thread = threading.Thread(target=in_thread)
+    thread.start()
+    thread.join()
+    assert seen == [(False, signal.default_int_handler)]
+
+    def mine(signum, frame):
+        pass
+
+    signal.signal(signal.SIGINT, mine)
+    with deferred_interrupt() as stop:
+        assert signal.getsignal(signal.SIGINT) is mine and not stop.is_set()
+    assert signal.getsignal(signal.SIGINT) is mine
