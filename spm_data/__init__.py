@@ -1,8 +1,10 @@
 """spm_data: labelled 6-DoF pose datasets (meshes -> camera paths -> renders -> HDF5 shards).
 
-Layers (see docs/architecture.md): the pure-numpy core (``poses``, ``paths``,
-``meshes``, ``specs``, ``shards``) imports no ``bpy`` and no OpenGL; renderers
-live in ``spm_data.render`` and are imported lazily by name.
+One folder per layer, lowest first (docs/architecture.md; tests/system/test_layers.py
+keeps imports downward): ``io`` (shards, folders, locks, files, images), ``core``
+(conventions, camera paths, meshes, specs), ``render`` (the Renderer interface; bpy
+and OpenGL load only in its backends), ``jobs`` (executors, resumable runs),
+``formats`` (other datasets in and out), ``commands`` (what each spm-data command does).
 """
 
 __version__ = "0.1.0"

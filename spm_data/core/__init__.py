@@ -1,1 +1,2 @@
-"""The scene, in numpy: frame conventions, camera paths, meshes and their symmetries, specs, occlusion. No I/O of shards, no renderer."""
+"""The scene, in numpy: frame conventions, camera paths, meshes and their symmetries, specs,
+occlusion. No shard I/O, no renderer."""

@@ -1,1 +1,2 @@
-"""Storage: shards (the one reader and writer), folders by manifest, locks, atomic files, images, training-loop datasets."""
+"""Storage: shards (the one reader and writer), folders by manifest, locks, atomic files,
+images, training-loop datasets."""
