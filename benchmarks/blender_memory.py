@@ -32,7 +32,7 @@ def main(frames: int = 2000, samples: int = 4) -> None:
     spec = spec.replace(render=replace(spec.render, renderer="blender",
                                        blender=replace(spec.render.blender, samples=samples)))
     renderer = make_renderer(spec, "blender")
-    path = camera_path(spec.camera)
+    path = camera_path(spec.camera, spec.seed)
     R, t = path.poses()
     started = time.perf_counter()
     first = None

@@ -34,7 +34,7 @@ def bench(spec, frames: int, renderer_name: str, repeats: int = 3) -> tuple[floa
 
 def _bench_once(spec, frames: int, renderer_name: str) -> tuple[float, float]:
     jobs = plan_shards(spec, "unused", limit=frames)
-    path = camera_path(spec.camera)
+    path = camera_path(spec.camera, spec.seed)
     poses = [path.poses(job.path_indices) for job in jobs]  # outside the timed loop
     renderer = make_renderer(spec, renderer_name)
     # Warm up: GL context, shader compilation, mesh building (cached for both loops).
@@ -67,7 +67,7 @@ def bench_blender(base, engine: str, samples: int, frames: int) -> dict:
     spec = base.replace(render=replace(base.render, renderer="blender", blender=blender,
                                        frames_per_shard=max(1, frames // 4)))
     jobs = plan_shards(spec, "unused", limit=frames)
-    path = camera_path(spec.camera)
+    path = camera_path(spec.camera, spec.seed)
     R, t = path.poses(jobs[0].path_indices)
     renderer = make_renderer(spec, "blender")
     renderer.set_mesh(load_instance(spec, int(jobs[0].instances[0])))

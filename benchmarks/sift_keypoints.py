@@ -28,7 +28,7 @@ def main(stride: int = 13) -> None:
     for spec_path in all_spec_paths():
         spec = load_spec(spec_path)
         renderer = make_renderer(spec, "pyrender")
-        path = camera_path(spec.camera)
+        path = camera_path(spec.camera, spec.seed)
         R, t = path.poses()
         counts = []
         for inst in range(instance_count(spec)):

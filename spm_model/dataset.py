@@ -104,10 +104,21 @@ def cached(shard: Path, config: FeatureConfig) -> Path | None:
     return path if _whole(path, shard) else None
 
 
+def walks_in_steps(attrs: dict) -> bool:
+    """Whether a shard's consecutive path indices are neighbouring views (a rendered grid walk,
+    or an import); False for views a sampler drew at random (camera.sampler "sphere", "so3")."""
+    if not attrs.get("spec"):
+        return True
+    from spm_data.core.specs import parse_spec
+
+    return parse_spec(str(attrs["spec"])).camera.sampler == "grid"
+
+
 def extract_shard(job, report=lambda n: None) -> str:
     """Compute and cache one shard's features; job = (shard path, FeatureConfig)."""
     shard, config = Path(job[0]), job[1]
-    n = int(read_attrs(shard)["frames"])  # a missing or foreign file: a ShardError naming it
+    attrs = read_attrs(shard)  # a missing or foreign file: a ShardError naming it
+    n = int(attrs["frames"])
     identity = _identity(shard)
     labels = read_shard(shard, LABEL_FIELDS)
     if np.any(labels["class_name"].astype(str) == ""):
@@ -118,7 +129,8 @@ def extract_shard(job, report=lambda n: None) -> str:
         block = slice(start, min(n, start + READ_BLOCK))
         images = read_shard(shard, ("rgb", "mask"), frames=block)
         parts.append(frames_features(images["rgb"], images["mask"], labels["instance_id"][block],
-                                     labels["path_index"][block], config, report, K=labels["K"][block]))
+                                     labels["path_index"][block], config, report, K=labels["K"][block],
+                                     path_steps=walks_in_steps(attrs)))
         parts[-1]["width"] = np.full(block.stop - block.start, images["rgb"].shape[2], dtype=np.int64)
     features = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
     out = cache_path(shard, config)

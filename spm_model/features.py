@@ -140,9 +140,14 @@ def path_neighbours(instance_id: np.ndarray, path_index: np.ndarray) -> list[lis
 
 
 def frames_features(rgb: np.ndarray, mask: np.ndarray, instance_id: np.ndarray, path_index: np.ndarray,
-                    config: FeatureConfig, report=lambda n: None, K: np.ndarray | None = None) -> dict:
+                    config: FeatureConfig, report=lambda n: None, K: np.ndarray | None = None,
+                    path_steps: bool = True) -> dict:
     """Features of a run of frames (one shard): rgb (n, H, W, 3) uint8, mask (n, H, W),
     K (n, 3, 3) (for the template descriptors; omitted: none are computed).
+    path_steps: whether consecutive path indices are views a 5-degree step apart (a grid
+    walk, or an import of a turntable); for randomly sampled views (camera.sampler "sphere"
+    or "so3") they are not, so no frame has path neighbours and every training feature
+    uses the query rule (train_neighbours 0).
 
     Returns arrays over the n frames: train_vector / query_vector (n, config.dims)
     float64 (NaN where the frame has too few keypoints), train_eccentricity /
@@ -156,7 +161,7 @@ def frames_features(rgb: np.ndarray, mask: np.ndarray, instance_id: np.ndarray, 
     for i in range(n):
         small, small_mask = working_image(rgb[i], mask[i], config.max_side)
         sift.append(sift_keypoints(small, small_mask))
-    neighbours = path_neighbours(instance_id, path_index)
+    neighbours = path_neighbours(instance_id, path_index) if path_steps else [[] for _ in range(n)]
     out = {f"{kind}_{name}": np.full((n, config.dims) if name == "vector" else n,
                                      np.nan if name != "keypoints" else 0,
                                      dtype=np.float64 if name != "keypoints" else np.int32)

@@ -122,7 +122,7 @@ def plan_shards(spec: RenderSpec, out_dir, limit: int | None = None) -> list[Sha
 
     Memory is bounded by the jobs, not the frame list: without a limit a job is
     a range of frame numbers, with one only the picked frames are computed."""
-    n_path = camera_path(spec.camera).size
+    n_path = camera_path(spec.camera, spec.seed).size
     n_inst = instance_count(spec)
     total = n_path * n_inst
     if total > MAX_PLAN_FRAMES:
@@ -177,7 +177,7 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
     block whatever the shard's length; returns its manifest entry."""
     spec = job.spec
     renderer = _renderer_for(spec)
-    path = camera_path(spec.camera)
+    path = camera_path(spec.camera, spec.seed)
     instances, path_indices = job.frame_ids()
     points = path.at(path_indices)
     R, t = points.poses()

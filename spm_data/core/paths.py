@@ -1,8 +1,16 @@
-"""Camera paths: an ordered walk over an azimuth x elevation (x roll) x distance grid.
+"""Camera paths: the views a spec renders, computed per frame index, never materialised.
 
-The walk is serpentine (a reflected mixed-radix Gray code): consecutive frames
-differ by exactly one step on exactly one angle axis, so a path is a camera
-moving in 5 degree steps, as in the paper. The pose convention is in poses.py.
+``sampler = "grid"`` (the default, the paper's): an ordered walk over an azimuth x
+elevation (x roll) x distance grid. The walk is serpentine (a reflected mixed-radix
+Gray code): consecutive frames differ by exactly one step on exactly one angle axis,
+so a path is a camera moving in 5 degree steps, as in the paper.
+
+``sampler = "sphere"`` or ``"so3"``: ``views`` random views, view ``i`` drawn from
+its own counter-based stream (seed, i), so any view is computed alone, the same on
+every machine, in any order, resumed or not. ``sphere``: viewing directions uniform
+on the sphere's zone between two elevations, roll uniform in a range; ``so3``:
+uniform random rotations (directions over the whole sphere, roll over the full
+circle). Distances uniform in a range. The pose convention is in poses.py.
 """
 
 from __future__ import annotations
@@ -64,6 +72,14 @@ class CameraGrid:
     distances: tuple[float, ...] = (0.6, 0.7, 0.8)
     distance_mode: str = "cycle"
     look_at: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    sampler: str = "grid"                                # "grid" | "sphere" | "so3"
+    views: int = 0                                       # sphere, so3: views per instance
+    elevation_range: tuple[float, ...] = (0.0, 60.0)     # sphere: degrees, lowest and highest
+    roll_range: tuple[float, ...] = (0.0, 0.0)           # sphere: degrees
+    distance_range: tuple[float, ...] = ()               # sphere, so3: metres; default min..max of distances
+
+SAMPLERS = ("grid", "sphere", "so3")
+SAMPLER_KEYS = ("sampler", "views", "elevation_range", "roll_range", "distance_range")  # unused by "grid"
 
 
 @dataclass(frozen=True)
@@ -82,8 +98,58 @@ class PathPoints:
         return camera_poses(self.azimuth, self.elevation, self.roll, self.distance, self.look_at)
 
 
+class _Path:
+    """What every path offers: ``len``, ``indices``, ``at`` (by subclasses: grid or sampled),
+    ``poses``; a subclass has ``size`` and ``look_at``."""
+
+    def __len__(self) -> int:
+        return self.size
+
+    def indices(self, index=slice(None)) -> np.ndarray:
+        """``index`` (a slice, an int or int array, negatives from the end, or a
+        boolean mask) as int64 positions, checked against the path's length."""
+        n = self.size
+        if isinstance(index, slice):
+            return np.arange(*index.indices(n), dtype=np.int64)
+        idx = np.asarray(index)
+        if idx.dtype == bool:
+            if idx.shape != (n,):
+                raise IndexError(f"boolean index of shape {idx.shape} does not match a path of {n} points")
+            return np.flatnonzero(idx).astype(np.int64)
+        if idx.size and not np.issubdtype(idx.dtype, np.integer):
+            raise IndexError(f"path indices must be integers, got {idx.dtype}")
+        idx = idx.astype(np.int64)
+        if idx.size and (idx.min() < -n or idx.max() >= n):
+            bad = idx.min() if idx.min() < -n else idx.max()
+            raise IndexError(f"index {bad} is out of bounds for a path of {n} points")
+        return np.where(idx < 0, idx + n, idx)
+
+    def at(self, index=slice(None)) -> PathPoints:
+        raise NotImplementedError
+
+    def poses(self, index=slice(None)):
+        """Object->camera ``R`` (n, 3, 3), ``t`` (n, 3) for ``index`` (OpenCV camera)."""
+        return self.at(index).poses()
+
+    @property
+    def azimuth(self) -> np.ndarray:
+        return self.at().azimuth
+
+    @property
+    def elevation(self) -> np.ndarray:
+        return self.at().elevation
+
+    @property
+    def roll(self) -> np.ndarray:
+        return self.at().roll
+
+    @property
+    def distance(self) -> np.ndarray:
+        return self.at().distance
+
+
 @dataclass(frozen=True)
-class CameraPath:
+class CameraPath(_Path):
     """An ordered path, computed on demand: nothing of size ``len(path)`` is held.
 
     ``at(index)`` gives the points at an index array (or slice) by computing each
@@ -111,28 +177,6 @@ class CameraPath:
         """Number of points (a Python int, however large; ``len`` needs it to fit an index)."""
         return math.prod(self.sizes)
 
-    def __len__(self) -> int:
-        return self.size
-
-    def indices(self, index=slice(None)) -> np.ndarray:
-        """``index`` (a slice, an int or int array, negatives from the end, or a
-        boolean mask) as int64 positions, checked against the path's length."""
-        n = self.size
-        if isinstance(index, slice):
-            return np.arange(*index.indices(n), dtype=np.int64)
-        idx = np.asarray(index)
-        if idx.dtype == bool:
-            if idx.shape != (n,):
-                raise IndexError(f"boolean index of shape {idx.shape} does not match a path of {n} points")
-            return np.flatnonzero(idx).astype(np.int64)
-        if idx.size and not np.issubdtype(idx.dtype, np.integer):
-            raise IndexError(f"path indices must be integers, got {idx.dtype}")
-        idx = idx.astype(np.int64)
-        if idx.size and (idx.min() < -n or idx.max() >= n):
-            bad = idx.min() if idx.min() < -n else idx.max()
-            raise IndexError(f"index {bad} is out of bounds for a path of {n} points")
-        return np.where(idx < 0, idx + n, idx)
-
     def at(self, index=slice(None)) -> PathPoints:
         """The points at ``index`` (see :meth:`indices`)."""
         idx = self.indices(index)
@@ -145,25 +189,61 @@ class CameraPath:
         return PathPoints(azimuth=self.azimuths.value_at(digits[2]), elevation=self.elevations.value_at(digits[1]),
                           roll=self.rolls.value_at(digits[0]), distance=dist, look_at=self.look_at)
 
-    def poses(self, index=slice(None)):
-        """Object->camera ``R`` (n, 3, 3), ``t`` (n, 3) for ``index`` (OpenCV camera)."""
-        return self.at(index).poses()
+
+@dataclass(frozen=True)
+class SampledPath(_Path):
+    """``views`` random views (sampler ``"sphere"`` or ``"so3"``), view ``i`` computed from
+    (seed, i) alone. Angles in degrees, distances in metres (see the module docstring)."""
+
+    sampler: str
+    views: int
+    seed: int
+    elevation_range: tuple[float, float]
+    roll_range: tuple[float, float]
+    distance_range: tuple[float, float]
+    look_at: np.ndarray  # (3,) metres, object frame
 
     @property
-    def azimuth(self) -> np.ndarray:
-        return self.at().azimuth
+    def size(self) -> int:
+        return self.views
 
-    @property
-    def elevation(self) -> np.ndarray:
-        return self.at().elevation
+    def at(self, index=slice(None)) -> PathPoints:
+        """The views at ``index`` (see :meth:`indices`)."""
+        idx = self.indices(index)
+        u = view_uniforms(self.seed, idx, 4)
+        if self.sampler == "so3":  # a uniform rotation: direction uniform on the sphere, roll on the circle
+            sin_el = 2.0 * u[:, 1] - 1.0
+            roll = 360.0 * u[:, 2] - 180.0
+        else:  # uniform on the sphere's zone between two elevations: uniform in sin(elevation)
+            lo, hi = np.sin(np.radians(self.elevation_range))
+            sin_el = lo + (hi - lo) * u[:, 1]
+            roll = self.roll_range[0] + (self.roll_range[1] - self.roll_range[0]) * u[:, 2]
+        d_lo, d_hi = self.distance_range
+        return PathPoints(azimuth=360.0 * u[:, 0], elevation=np.degrees(np.arcsin(np.clip(sin_el, -1.0, 1.0))),
+                          roll=roll, distance=d_lo + (d_hi - d_lo) * u[:, 3], look_at=self.look_at)
 
-    @property
-    def roll(self) -> np.ndarray:
-        return self.at().roll
 
-    @property
-    def distance(self) -> np.ndarray:
-        return self.at().distance
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+
+
+def _splitmix64(x: np.ndarray) -> np.ndarray:
+    """SplitMix64's output function, elementwise on uint64 (wrapping arithmetic)."""
+    with np.errstate(over="ignore"):
+        z = x + _GOLDEN
+        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        return z ^ (z >> np.uint64(31))
+
+
+def view_uniforms(seed: int, index, k: int) -> np.ndarray:
+    """(n, k) float64 in [0, 1): ``k`` numbers for each view of ``index`` (n,), a pure
+    function of (seed, view, j): the same numbers whichever views are asked for together."""
+    idx = np.asarray(index, dtype=np.int64).reshape(-1).astype(np.uint64)
+    with np.errstate(over="ignore"):
+        key = _splitmix64(np.asarray([seed], dtype=np.uint64))[0]
+        counters = idx[:, None] * np.uint64(k) + np.arange(k, dtype=np.uint64)[None, :]
+        bits = _splitmix64(counters ^ key)
+    return (bits >> np.uint64(11)).astype(np.float64) * 2.0 ** -53
 
 
 def snake_order(sizes: list[int]) -> np.ndarray:
@@ -197,9 +277,52 @@ def snake_digits(index, sizes) -> list[np.ndarray]:
     return digits
 
 
-def camera_path(grid: CameraGrid) -> CameraPath:
-    """Walk ``grid`` into an ordered :class:`CameraPath` (validated; holds no
-    per-point arrays, so any grid is instant)."""
+def _check_range(values, key: str, lo=None, hi=None, positive=False) -> tuple[float, float]:
+    """A [low, high] pair from a spec, checked: SpecError naming ``key``."""
+    values = tuple(float(v) for v in values)
+    if len(values) != 2 or not all(np.isfinite(values)) or values[0] > values[1]:
+        raise SpecError(f"camera.{key}: expected [low, high] with low <= high, got {list(values)}")
+    if (lo is not None and values[0] < lo - _EPS) or (hi is not None and values[1] > hi + _EPS) \
+            or (positive and values[0] <= 0):
+        bound = "> 0 metres" if positive else f"within [{lo:g}, {hi:g}] degrees"
+        raise SpecError(f"camera.{key}: values must be {bound}, got {list(values)}")
+    return values
+
+
+def _check_distances(grid: CameraGrid) -> None:
+    distances = np.asarray(grid.distances, dtype=np.float64)
+    if distances.size == 0:
+        raise SpecError("camera.distances: empty list; give at least one distance in metres")
+    if np.any(~np.isfinite(distances)) or np.any(distances <= 0):
+        raise SpecError(f"camera.distances: every distance must be a finite number > 0 metres, got {list(grid.distances)}")
+
+
+def sampled_path(grid: CameraGrid, seed: int = 0) -> SampledPath:
+    """The random views of a ``"sphere"`` or ``"so3"`` spec (validated)."""
+    if grid.views < 1:
+        raise SpecError(f"camera.views: sampler {grid.sampler!r} needs views = N >= 1 (views per instance), "
+                        f"got {grid.views}")
+    _check_distances(grid)
+    distance_range = grid.distance_range or (min(grid.distances), max(grid.distances))
+    return SampledPath(sampler=grid.sampler, views=int(grid.views), seed=int(seed),
+                       elevation_range=_check_range(grid.elevation_range, "elevation_range", -90.0, 90.0),
+                       roll_range=_check_range(grid.roll_range, "roll_range", -180.0, 180.0),
+                       distance_range=_check_range(distance_range, "distance_range", positive=True),
+                       look_at=np.asarray(grid.look_at, dtype=np.float64))
+
+
+def camera_path(grid: CameraGrid, seed: int = 0) -> CameraPath | SampledPath:
+    """The spec's views: the serpentine walk of ``grid`` (sampler ``"grid"``), or its random
+    views drawn with ``seed`` (validated; holds no per-point arrays, so any path is instant)."""
+    if grid.sampler not in SAMPLERS:
+        raise SpecError(f"camera.sampler: expected one of {', '.join(SAMPLERS)}, got {grid.sampler!r}")
+    if grid.sampler != "grid":
+        return sampled_path(grid, seed)
+    defaults = CameraGrid()
+    for key in SAMPLER_KEYS[1:]:
+        if getattr(grid, key) != getattr(defaults, key):
+            raise SpecError(f"camera.{key}: only for sampler = \"sphere\" or \"so3\" (this spec walks the grid); "
+                            "set camera.sampler or remove the key")
     grid.azimuth.count("camera.azimuth")
     n_el = grid.elevation.count("camera.elevation")
     grid.roll.count("camera.roll")
@@ -207,11 +330,7 @@ def camera_path(grid: CameraGrid) -> CameraPath:
     lo, hi = grid.elevation.value_at(0), grid.elevation.value_at(n_el - 1)
     if max(abs(lo), abs(hi)) > 90 + _EPS:
         raise SpecError(f"camera.elevation: values must lie in [-90, 90] degrees, got {lo}..{hi}")
-    distances = np.asarray(grid.distances, dtype=np.float64)
-    if distances.size == 0:
-        raise SpecError("camera.distances: empty list; give at least one distance in metres")
-    if np.any(~np.isfinite(distances)) or np.any(distances <= 0):
-        raise SpecError(f"camera.distances: every distance must be a finite number > 0 metres, got {list(grid.distances)}")
+    _check_distances(grid)
     if grid.distance_mode not in ("cycle", "grid"):
         raise SpecError(f"camera.distance_mode: expected 'cycle' or 'grid', got {grid.distance_mode!r}")
     return CameraPath(azimuths=grid.azimuth, elevations=grid.elevation, rolls=grid.roll,

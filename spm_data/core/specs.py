@@ -16,7 +16,7 @@ from pathlib import Path
 from spm_data.errors import MeshError, SpecError
 from spm_data.core.meshes import CLASSES
 from spm_data.core.symmetries import parse_symmetry
-from spm_data.core.paths import AngleRange, CameraGrid, camera_path
+from spm_data.core.paths import SAMPLER_KEYS, AngleRange, CameraGrid, camera_path
 
 RENDERERS = ("pyrender", "blender")
 BACKGROUNDS = ("black", "color", "images")
@@ -92,6 +92,9 @@ class RenderSpec:
         payload = dataclasses.asdict(self)
         payload.pop("text"), payload.pop("base_dir")
         payload["mesh"].pop("symmetries")  # metadata for the BOP export: the pixels do not change
+        if self.camera.sampler == "grid":  # keys the grid does not use: a grid spec's fingerprint stays as it was
+            for key in SAMPLER_KEYS:
+                payload["camera"].pop(key)
         return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()
 
 

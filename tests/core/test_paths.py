@@ -147,3 +147,62 @@ def test_a_huge_grid_is_a_path_without_arrays():
     np.testing.assert_array_equal(last.azimuth, [0.0, 0.0001, 0.0001 * 3_599_999])
     np.testing.assert_array_equal(last.elevation, [0.0, 0.0, 60.0])
     np.testing.assert_array_equal(last.roll, [-1.0, -1.0, 1.0])
+
+
+# --------------------------------------------------------------------------- samplers
+
+def sampled(**keys):
+    return camera_path(CameraGrid(**keys), seed=11)
+
+
+def test_sphere_views_stay_in_their_zone_uniform_over_its_area():
+    path = sampled(sampler="sphere", views=20_000, elevation_range=(10.0, 50.0), roll_range=(-20.0, 20.0),
+                   distance_range=(0.5, 0.9))
+    p = path.at()
+    assert len(path) == 20_000
+    assert 10.0 <= p.elevation.min() < 10.5 and 49.5 < p.elevation.max() <= 50.0
+    assert -20.0 <= p.roll.min() < -19.5 and 19.5 < p.roll.max() <= 20.0
+    assert 0.0 <= p.azimuth.min() < 1.0 and 359.0 < p.azimuth.max() < 360.0
+    assert 0.5 <= p.distance.min() and p.distance.max() <= 0.9
+    # Uniform on the sphere's zone: sin(elevation) uniform between sin 10 and sin 50, so the
+    # median elevation is the one halfway in sin (28.6 degrees), not halfway in angle (30).
+    halfway = np.degrees(np.arcsin((np.sin(np.radians(10)) + np.sin(np.radians(50))) / 2))
+    assert abs(np.median(p.elevation) - halfway) < 0.6 and abs(halfway - 30.0) > 1.0
+
+
+def test_so3_views_are_uniform_rotations_with_roll_over_the_full_circle():
+    path = sampled(sampler="so3", views=20_000, distance_range=(0.7, 0.7))
+    p = path.at()
+    assert p.roll.min() < -179.0 and p.roll.max() > 179.0
+    assert abs(np.std(p.roll) - 360 / np.sqrt(12)) < 2.0        # uniform over 360 degrees: std 103.9
+    assert p.elevation.min() < -85.0 and p.elevation.max() > 85.0
+    R, t = path.poses()
+    # The mean of Haar-uniform rotations is the zero matrix; a grid walk's is not.
+    assert np.abs(R.mean(axis=0)).max() < 0.02
+    assert np.abs(camera_path(CameraGrid()).poses()[0].mean(axis=0)).max() > 0.3
+    np.testing.assert_allclose(np.linalg.norm(t, axis=1), 0.7)
+
+
+def test_sampled_views_depend_on_seed_and_index_only():
+    path = sampled(sampler="so3", views=1000)
+    whole = path.at()
+    some = path.at(np.array([999, 3, 500]))
+    np.testing.assert_array_equal(some.azimuth, whole.azimuth[[999, 3, 500]])
+    np.testing.assert_array_equal(some.roll, whole.roll[[999, 3, 500]])
+    other = camera_path(CameraGrid(sampler="so3", views=1000), seed=12).at()
+    assert not np.allclose(other.azimuth, whole.azimuth)
+    longer = sampled(sampler="so3", views=5000).at(slice(0, 1000))   # more views: the first ones stay
+    np.testing.assert_array_equal(longer.elevation, whole.elevation)
+
+
+@pytest.mark.parametrize("keys, message", [
+    (dict(sampler="cube"), "camera.sampler: expected one of grid, sphere, so3"),
+    (dict(sampler="sphere"), "camera.views: sampler 'sphere' needs views = N >= 1"),
+    (dict(sampler="sphere", views=4, elevation_range=(50.0, 10.0)), "camera.elevation_range: expected [low, high]"),
+    (dict(sampler="sphere", views=4, elevation_range=(0.0, 95.0)), "within [-90, 90] degrees"),
+    (dict(sampler="so3", views=4, distance_range=(0.0, 1.0)), "camera.distance_range: values must be > 0 metres"),
+    (dict(views=10), "camera.views: only for sampler = \"sphere\" or \"so3\""),
+])
+def test_bad_sampler_keys_name_the_key(keys, message):
+    with pytest.raises(SpecError, match=message.replace("[", r"\[").replace("]", r"\]")):
+        camera_path(CameraGrid(**keys))

@@ -30,6 +30,9 @@ def test_fingerprint_changes_with_what_changes_pixels():
     # Declared symmetries go to the BOP export only: the pixels, so the fingerprint, stay.
     files = 'class = "u"\n[mesh]\nsource = "files"\nfiles = ["a.ply"]\n'
     assert parse_spec(files).fingerprint() == parse_spec(files + 'symmetries = ["z"]\n').fingerprint()
+    # A sampler's keys change the views, so the fingerprint.
+    so3 = 'class = "cup"\n[camera]\nsampler = "so3"\nviews = 10\n'
+    assert parse_spec(so3).fingerprint() != parse_spec(so3.replace("10", "11")).fingerprint() != a.fingerprint()
 
 
 @pytest.mark.parametrize("text, message", [
@@ -51,6 +54,10 @@ def test_fingerprint_changes_with_what_changes_pixels():
     ('class = "cup"\n[mesh', "not valid TOML"),
     ('class = "cup"\nmesh = 3', "mesh: expected a table"),
     ('class = "cup"\n[mesh]\nsymmetries = ["z"]', "mesh.symmetries: built-in classes know their own"),
+    ('class = "cup"\n[camera]\nsampler = "so3"', "camera.views: sampler 'so3' needs views = N >= 1"),
+    ('class = "cup"\n[camera]\nsampler = "so3"\nviews = "ten"', "camera.views: expected int, got string"),
+    ('class = "cup"\n[camera]\nsampler = "sphere"\nviews = 3\nroll_range = [10]', "camera.roll_range: expected [low, high]"),
+    ('class = "cup"\n[camera]\nroll_range = [0, 10]', "camera.roll_range: only for sampler"),
     ('class = "u"\n[mesh]\nsource = "files"\nfiles = ["a.ply"]\nsymmetries = ["q/90"]',
      "mesh.symmetries[0]: symmetry 'q/90': expected an axis x, y or z"),
     ('class = "u"\n[mesh]\nsource = "files"\nfiles = ["a.ply"]\nsymmetries = ["z", "z/7"]',

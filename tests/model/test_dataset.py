@@ -78,3 +78,10 @@ def test_half_written_cache_files_of_dead_processes_are_removed(tmp_path):
         p.write_bytes(b"half")
     assert remove_stale_partials([shard]) == [stale]
     assert not stale.exists() and live.exists() and other.exists()
+
+
+def test_only_grid_walks_give_path_neighbours(tmp_path):
+    spec = 'class = "cup"\n[camera]\nsampler = "sphere"\nviews = 5\n'
+    assert dataset.walks_in_steps({"spec": 'class = "cup"\n'}) is True            # the grid walk
+    assert dataset.walks_in_steps({"source": "coil100"}) is True                  # an import: its own order
+    assert dataset.walks_in_steps({"spec": spec}) is False                        # random views
