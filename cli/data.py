@@ -171,18 +171,19 @@ def export_group():
 @click.option("--out", "out_dir", required=True, type=click.Path(), help="BOP dataset folder to create.")
 @click.option("--split", default="train", show_default=True,
               help="Split folder name; rgb is JPEG in *_pbr splits (as BOP's), PNG otherwise.")
-@click.option("--spec-dir", type=click.Path(file_okay=False), default=None,
-              help="Folder of the spec whose mesh files were rendered, if not where the shards recorded it.")
+@click.option("--meshes-from", "meshes_from", type=click.Path(), default=None,
+              help="The folder the rendered spec's mesh paths start from (the spec's folder), if it has "
+                   "moved since the render.")
 @ALLOW_PARTIAL
 @handle_errors
-def export_bop_cmd(folder, out_dir, split, spec_dir, allow_partial):
+def export_bop_cmd(folder, out_dir, split, meshes_from, allow_partial):
     """Write a shard folder as a BOP dataset (one scene per object instance)."""
     from spm_data.formats.bop import export_bop
 
     bar = Progress()
     try:
         counts = export_bop(folder, out_dir, split=split, progress=bar, allow_partial=allow_partial,
-                            spec_dir=spec_dir)
+                            meshes_from=meshes_from)
     finally:
         bar.close()
     click.echo(f"exported {counts['frames']} frames of {counts['objects']} objects in {counts['scenes']} scenes "

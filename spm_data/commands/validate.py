@@ -15,8 +15,8 @@ import numpy as np
 from spm_data.errors import ShardError
 from spm_data.core.poses import pose_to_label
 from spm_data.io.files import file_sha256
-from spm_data.io.shards import (FIELDS, MANIFEST, OPTIONAL_FIELDS, check_arrays, list_shards, no_shards, read_attrs,
-                                 read_manifest, read_shard)
+from spm_data.io.shards import (FIELDS, MANIFEST, MISSING, OPTIONAL_FIELDS, check_arrays, list_shards, no_shards,
+                                 read_attrs, read_manifest, read_shard)
 
 
 def _angle_difference(a, b):
@@ -82,6 +82,9 @@ def validate_folder(folder) -> list[tuple[str, str]]:
         return problems + [(MANIFEST, str(exc).replace(f"{folder}/", "").replace(f"{folder}: ", ""))]
     if manifest is None:
         return problems
+    for name in manifest.get(MISSING) or []:
+        problems.append((MANIFEST, f"the run that wrote it did not make {name} (failed or interrupted); "
+                                   "run it again to finish"))
     listed = {e.get("file"): e for e in manifest["shards"]}
     on_disk = {p.name: p for p in shards}
     for name in sorted(set(listed) - set(on_disk)):

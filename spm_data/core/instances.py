@@ -104,7 +104,7 @@ def shard_mesh(attrs: dict, instance_id: int, spec_dir=None):
     where = f"{record['path']!r} relative to the spec folder {folder}"
     if not path.is_file():
         raise MeshError(f"mesh file {path} not found ({where}, as rendered); put the meshes back "
-                        "or give the spec's folder (--spec-dir)")
+                        "or give the spec's folder (export bop --meshes-from)")
     actual = content_hash(path)
     if actual != record["sha256"]:
         raise MeshError(f"mesh file {path} ({where}) has changed since it was rendered "

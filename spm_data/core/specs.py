@@ -15,7 +15,7 @@ from pathlib import Path
 
 from spm_data.errors import MeshError, SpecError
 from spm_data.core.meshes import CLASSES
-from spm_data.core.symmetries import parse_symmetry
+from spm_data.core.symmetries import declared_symmetries, parse_symmetry
 from spm_data.core.paths import SAMPLER_KEYS, AngleRange, CameraGrid, camera_path
 
 RENDERERS = ("pyrender", "blender")
@@ -208,6 +208,10 @@ def _validate(spec: RenderSpec) -> RenderSpec:
             parse_symmetry(entry)
         except MeshError as exc:
             raise SpecError(f"mesh.symmetries[{i}]: {exc}") from None
+    try:
+        declared_symmetries(m.symmetries)
+    except MeshError as exc:
+        raise SpecError(f"mesh.symmetries: {exc}") from None
     _check(m.size > 0, f"mesh.size: expected metres > 0, got {m.size}")
     _check(m.texture in ("auto", "procedural"), f"mesh.texture: expected 'auto' or 'procedural', got {m.texture!r}")
     im = spec.image

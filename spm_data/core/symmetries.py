@@ -50,19 +50,48 @@ def parse_symmetry(text: str) -> tuple[str, float | None]:
     except ValueError:
         value = float("nan")
     if not (0 < value < 360) or abs(360 / value - round(360 / value)) > 1e-9:
-        raise MeshError(f"symmetry {text!r}: the turn must divide 360 degrees (such as 180, 120, 90), got {degrees}")
+        raise MeshError(f"symmetry {text!r}: the turn must be less than 360 degrees and divide it "
+                        f"(such as 180, 120, 90), got {degrees}")
     return axis, value
 
 
+MAX_GROUP = 120  # rotations a declared set may generate (the icosahedral group has 60)
+
+
+def _group(generators: list) -> list:
+    """Every rotation the ``generators`` (3, 3) make by composition, the identity first:
+    BOP lists each symmetry, and bop_toolkit does not compose them (x/180 with y/180
+    is also z/180). MeshError when they make no finite group (at most MAX_GROUP)."""
+    found = [np.eye(3)]
+    frontier = list(generators)
+    while frontier:
+        R = frontier.pop()
+        if any(np.allclose(R, F, atol=1e-9) for F in found):
+            continue
+        found.append(R)
+        if len(found) > MAX_GROUP:
+            raise MeshError(f"the declared symmetries generate more than {MAX_GROUP} rotations; "
+                            "declare the turns of one finite symmetry group (for example z/90 and x/180)")
+        frontier += [R @ G for G in generators]
+    return found
+
+
 def declared_symmetries(entries) -> Symmetries:
-    """Symmetries from a spec's ``mesh.symmetries`` strings (parse_symmetry): an
-    n-fold turn contributes all n - 1 of its rotations."""
+    """Symmetries from a spec's ``mesh.symmetries`` strings (parse_symmetry): every rotation
+    the declared turns generate, each once; a continuous axis absorbs the turns about it."""
     unit = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
-    discrete, continuous = [], []
+    turns, continuous = [], []
     for text in entries:
         axis, degrees = parse_symmetry(text)
         if degrees is None:
-            continuous.append(np.array(unit[axis]))
+            if not any(np.array_equal(unit[axis], c) for c in continuous):
+                continuous.append(np.array(unit[axis]))
         else:
-            discrete += [rotation(unit[axis], k * degrees) for k in range(1, int(round(360 / degrees)))]
+            turns.append(rotation(unit[axis], degrees))
+    discrete = [R for R in _group(turns)[1:] if not any(_about(R, c) for c in continuous)]
     return Symmetries(tuple(discrete), tuple(continuous))
+
+
+def _about(R: np.ndarray, axis: np.ndarray) -> bool:
+    """Whether the rotation ``R`` turns about ``axis`` (leaves it where it is)."""
+    return bool(np.allclose(R @ axis, axis, atol=1e-9))

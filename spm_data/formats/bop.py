@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -157,6 +158,7 @@ def import_bop(path, out_dir, *, split="train_pbr", crop=None, classes_csv=None,
 
 # --------------------------------------------------------------------------- export
 
+SPLIT_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")  # one folder inside the dataset, never a path
 RGB_SUFFIX = {True: ".jpg", False: ".png"}  # keyed by "a PBR split": BOP stores PBR renders as JPEG
 JPEG_QUALITY = 95  # BlenderProc's BOP writer's setting
 # An occluder's depth, as a fraction of the object's nearest point: far enough in front (20 %,
@@ -208,8 +210,8 @@ def _check_out(out_dir: Path) -> None:
 class _Export:
     """The BOP dataset being written into ``root`` (OUT.partial): one scene per object."""
 
-    def __init__(self, root: Path, split: str, spec_dir=None):
-        self.root, self.split, self.spec_dir = root, split, spec_dir
+    def __init__(self, root: Path, split: str, meshes_from=None):
+        self.root, self.split, self.meshes_from = root, split, meshes_from
         self.rgb_suffix = RGB_SUFFIX[split.endswith("_pbr")]
         self.objects: dict[tuple, int] = {}
         self.scenes: dict[int, dict] = {}
@@ -220,7 +222,7 @@ class _Export:
     def object_id(self, key: tuple, attrs: dict, instance_id: int) -> int:
         if key not in self.objects:
             self.objects[key] = obj_id = len(self.objects) + 1
-            mesh = shard_mesh(attrs, instance_id, spec_dir=self.spec_dir)
+            mesh = shard_mesh(attrs, instance_id, spec_dir=self.meshes_from)
             if mesh is None:
                 self.no_model.add(key)
             else:
@@ -282,11 +284,17 @@ class _Export:
         save_models_info(self.root / "models_eval" / "models_info.json", self.models_info)
 
 
-def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=False, spec_dir=None) -> dict:
+def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=False, meshes_from=None) -> dict:
     """Write the shards of ``in_dir`` as a BOP dataset at ``out_dir``. Returns counts.
-    spec_dir: the folder a mesh-file spec's meshes are resolved against, when not the
-    one its shards recorded (spm_data.core.instances.shard_mesh)."""
+    split: one folder name (BOP's: train, train_pbr, val, test...). meshes_from: the folder
+    a mesh-file spec's paths start from, when not the spec folder its shards recorded
+    (spm_data.core.instances.shard_mesh)."""
     out_dir = Path(out_dir)
+    if not SPLIT_NAME.fullmatch(str(split)):
+        raise SpmError(f"--split {split!r}: expected one folder name of letters, digits, '_' or '-' "
+                       "(BOP's are train, train_pbr, val, test)")
+    if meshes_from is not None and not Path(meshes_from).is_dir():
+        raise SpmError(f"--meshes-from {meshes_from}: no such folder; give the folder the spec file is in")
     _check_out(out_dir)
     # Every shard read below is verified as it is read; the export is built in OUT.partial, so a
     # corrupt shard (or a full disk) leaves nothing behind.
@@ -295,7 +303,7 @@ def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=F
     shutil.rmtree(tmp, ignore_errors=True)
     made = top_created(tmp / "models")  # what this export creates: removed on failure
     try:
-        export = _Export(tmp, split, spec_dir)
+        export = _Export(tmp, split, meshes_from)
         for path in shards:
             attrs, data = read_attrs(path), read_shard(path)
             for i in range(len(data["pose"])):

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from spm_data.errors import ShardError, SpmWarning
 from spm_data.io.locking import lock_owner
-from spm_data.io.shards import MANIFEST, SHARD_SUFFIX, list_shards, no_shards, read_manifest
+from spm_data.io.shards import MANIFEST, MISSING, SHARD_SUFFIX, list_shards, no_shards, read_manifest
 
 
 @dataclass(frozen=True)
@@ -64,6 +64,7 @@ def open_folder(folder, *, allow_partial: bool = False) -> ShardFolder:
                              "finish it, or pass --allow-partial")
         _warn(f"{folder}: no {MANIFEST}; reading the {len(on_disk)} complete shards on disk (--allow-partial)")
         return ShardFolder(folder, tuple(on_disk))
+    _check_finished(folder, manifest, allow_partial)
     shards, problems = _listed_shards(folder, manifest)
     if problems and not allow_partial:
         raise ShardError(problems[0] + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else "")
@@ -76,6 +77,21 @@ def open_folder(folder, *, allow_partial: bool = False) -> ShardFolder:
         names = ", ".join(p.name for p in ignored[:3]) + (" ..." if len(ignored) > 3 else "")
         _warn(f"{folder}: ignoring {len(ignored)} shard(s) {MANIFEST} does not list ({names})")
     return ShardFolder(folder, tuple(shards), ignored, manifest)
+
+
+def _check_finished(folder: Path, manifest: dict, allow_partial: bool) -> None:
+    """A manifest names the planned shards its run did not make (failed, or interrupted):
+    such a folder is refused, or read with a warning under ``allow_partial``."""
+    missing = manifest.get(MISSING) or []
+    if not missing:
+        return
+    names = ", ".join(str(m) for m in missing[:3]) + (" ..." if len(missing) > 3 else "")
+    message = (f"{folder}: the run that wrote it did not finish: {len(missing)} planned shard(s) are missing "
+               f"({names})")
+    if not allow_partial:
+        raise ShardError(message + "; run the same command again to make them, or pass --allow-partial "
+                         "to read the complete ones")
+    _warn(message + "; reading the complete ones (--allow-partial)")
 
 
 def _listed_shards(folder: Path, manifest: dict) -> tuple[list, list]:

@@ -20,7 +20,7 @@ from spm_data.errors import ShardError
 from spm_data.jobs.executor import LocalExecutor
 from spm_data.io.locking import GUARD_NAME, OutputLock
 from spm_data.io.files import partial_path
-from spm_data.io.shards import MANIFEST, remove_partials, verify_shard, write_manifest
+from spm_data.io.shards import MANIFEST, MISSING, remove_partials, verify_shard, write_manifest
 
 
 @dataclass
@@ -153,8 +153,12 @@ def _run_locked(fn, jobs, out, summary, started, executor, in_process, progress,
         finally:
             remove_partials(out)
             # No shard at all (say, every job failed on a broken mesh): no manifest either.
-            if (out / MANIFEST).exists() or any((out / job.name).exists() for job in jobs):
-                write_manifest(out, known=entries, extra=manifest_extra, names=[job.name for job in jobs])
+            # Planned shards that failed or were never made are named in the manifest, so readers
+            # know the folder is incomplete (io/folders.open_folder refuses it without --allow-partial).
+            missing = [job.name for job in jobs if not (out / job.name).exists()]
+            if (out / MANIFEST).exists() or len(missing) < len(jobs):
+                write_manifest(out, known=entries, extra={**(manifest_extra or {}), MISSING: missing},
+                               names=[job.name for job in jobs])
             summary.complete = sum((out / job.name).exists() for job in jobs)
     summary.seconds = time.perf_counter() - started
     return summary

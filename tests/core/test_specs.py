@@ -61,7 +61,7 @@ def test_fingerprint_changes_with_what_changes_pixels():
     ('class = "u"\n[mesh]\nsource = "files"\nfiles = ["a.ply"]\nsymmetries = ["q/90"]',
      "mesh.symmetries[0]: symmetry 'q/90': expected an axis x, y or z"),
     ('class = "u"\n[mesh]\nsource = "files"\nfiles = ["a.ply"]\nsymmetries = ["z", "z/7"]',
-     "mesh.symmetries[1]: symmetry 'z/7': the turn must divide 360 degrees"),
+     "mesh.symmetries[1]: symmetry 'z/7': the turn must be less than 360 degrees and divide it"),
 ])
 def test_bad_specs_name_the_key(text, message):
     with pytest.raises(SpecError) as err:

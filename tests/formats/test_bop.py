@@ -223,7 +223,7 @@ def test_export_spec_dir_points_at_moved_meshes(tmp_path):
     (tmp_path / "project").rename(tmp_path / "moved")
     with pytest.raises(MeshError, match="not found .*'meshes/a.glb' relative to the spec folder"):
         export_bop(tmp_path / "r", tmp_path / "bop")
-    export_bop(tmp_path / "r", tmp_path / "bop", spec_dir=tmp_path / "moved")
+    export_bop(tmp_path / "r", tmp_path / "bop", meshes_from=tmp_path / "moved")
     assert (tmp_path / "bop" / "models" / "obj_000001.ply").is_file()
 
 
@@ -306,3 +306,16 @@ def test_bop_poses_survive_import_then_export_exactly(tmp_path):
     np.testing.assert_allclose(cams["0"]["cam_K"], [500.0, 0, 79.5, 0, 500.0, 59.5, 0, 0, 1])
     info = json.loads((tmp_path / "again" / "train" / "000000" / "scene_gt_info.json").read_text())
     assert info["0"][0]["visib_fract"] == 0.5
+
+
+def test_split_must_be_one_folder_name_and_meshes_from_a_folder(small_specs_dir, tmp_path):
+    render_dataset(load_run_specs(["cup"], specs_dir=small_specs_dir), tmp_path / "r", limit=2)
+    for split in ("../evil", "", "a/b", ".hidden"):
+        r = CliRunner().invoke(data_cli, ["export", "bop", str(tmp_path / "r"), "--out", str(tmp_path / "bop"),
+                                          "--split", split])
+        assert r.exit_code == 1 and "expected one folder name" in r.output, (split, r.output)
+        assert len(r.output.strip().splitlines()) == 1
+    r = CliRunner().invoke(data_cli, ["export", "bop", str(tmp_path / "r"), "--out", str(tmp_path / "bop"),
+                                      "--meshes-from", str(tmp_path / "nowhere")])
+    assert r.exit_code == 1 and "--meshes-from" in r.output and "no such folder" in r.output
+    assert not (tmp_path / "evil").exists() and not (tmp_path / "bop").exists()

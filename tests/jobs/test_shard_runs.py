@@ -1,9 +1,11 @@
 """Resume verifies what it finds; a run that makes nothing leaves nothing; a folder in the manifest's place."""
 
 import numpy as np
+import pytest
 from click.testing import CliRunner
 
 from cli import data_cli
+from spm_data.errors import ShardError, SpmWarning
 from tests.helpers import flip_stored_byte
 from spm_data.commands.render_jobs import load_run_specs, render_dataset
 from spm_data.io.shards import list_shards, read_manifest, read_shard, verify_shard
@@ -64,3 +66,33 @@ def test_a_folder_where_the_manifest_goes_is_one_line(tmp_path):
     assert r.exit_code == 1 and r.output.startswith("error: ") and r.output.count("\n") == 1
     assert "manifest.json is a folder, not a manifest; move it away" in r.output
     assert list_shards(out) == []
+
+
+def test_a_run_with_failed_shards_names_them_and_readers_refuse_the_folder(tmp_path):
+    import trimesh
+
+    from spm_data.io.folders import open_folder
+
+    folder = tmp_path / "specs"
+    folder.mkdir()
+    trimesh.creation.box(extents=(1, 2, 3)).export(folder / "a-good.obj")
+    (folder / "b-broken.obj").write_text("v 0 0 0\nv 1 0 0\nthis is not a mesh\n")
+    spec = SPEC.replace("[mesh]\ninstances = 1", '[mesh]\nsource = "files"\nfiles = ["*.obj"]')
+    spec = spec.replace("frames_per_shard = 4", "frames_per_shard = 12")   # one shard per mesh
+    (folder / "cup.toml").write_text(spec)
+    out = tmp_path / "out"
+    r = CliRunner().invoke(data_cli, ["render", "--spec", str(folder / "cup.toml"), "--out", str(out)])
+    assert r.exit_code == 1 and "failed cup-00001.h5" in r.output
+    assert read_manifest(out)["missing"] == ["cup-00001.h5"] and read_manifest(out)["frames"] == 12
+    with pytest.raises(ShardError, match=r"did not finish: 1 planned shard\(s\) are missing \(cup-00001.h5\)"):
+        open_folder(out)
+    with pytest.warns(SpmWarning, match="reading the complete ones"):
+        assert [p.name for p in open_folder(out, allow_partial=True).shards] == ["cup-00000.h5"]
+    r = CliRunner().invoke(data_cli, ["export", "bop", str(out), "--out", str(tmp_path / "bop")])
+    assert r.exit_code == 1 and "did not finish" in r.output and not (tmp_path / "bop").exists()
+    r = CliRunner().invoke(data_cli, ["validate", str(out)])
+    assert r.exit_code == 1 and "did not make cup-00001.h5" in r.output
+    # Fixed and run again: the manifest no longer names anything missing.
+    trimesh.creation.box(extents=(3, 2, 1)).export(folder / "b-broken.obj")
+    r = CliRunner().invoke(data_cli, ["render", "--spec", str(folder / "cup.toml"), "--out", str(out)])
+    assert r.exit_code == 0 and read_manifest(out)["missing"] == [] and len(open_folder(out).shards) == 2

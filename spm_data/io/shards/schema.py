@@ -13,6 +13,7 @@ SHARD_SUFFIX = ".h5"
 
 
 MANIFEST = "manifest.json"
+MISSING = "missing"  # manifest key: the planned shards the run that wrote it did not make
 
 
 # name -> (dtype, per-frame shape; "H", "W" and "R" are filled in per shard)
