@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import warnings
 from pathlib import Path
 
@@ -12,11 +13,20 @@ from spm_data.io.folders import open_folder
 from spm_data.io.shards import MANIFEST, read_attrs, read_manifest, read_shard, shard_layout
 
 
+def _device(attrs: dict) -> str:
+    """", on DEVICE" for a shard whose renderer recorded where it rendered (Blender's Cycles)."""
+    try:
+        device = json.loads(str(attrs.get("renderer_settings") or "{}")).get("device")
+    except (ValueError, AttributeError):
+        device = None
+    return f", on {device}" if device else ""
+
+
 def describe_shard(path) -> str:
     attrs = read_attrs(path)
     lines = [f"shard {path}", f"  schema v{attrs['schema_version']}, {attrs['frames']} frames, "
              f"{attrs.get('width')}x{attrs.get('height')}, renderer {attrs.get('renderer')} "
-             f"({attrs.get('renderer_version', '')}), seed {attrs.get('seed')}"]
+             f"({attrs.get('renderer_version', '')}{_device(attrs)}), seed {attrs.get('seed')}"]
     for name, (shape, dtype) in shard_layout(path).items():
         lines.append(f"  {name:<20} {str(shape):<22} {dtype}")
     meta = read_shard(path, ["class_name", "instance_name", "source", "azimuth", "elevation", "distance",

@@ -21,6 +21,7 @@ from spm_data.core.paths import SAMPLER_KEYS, AngleRange, CameraGrid, camera_pat
 RENDERERS = ("pyrender", "blender")
 BACKGROUNDS = ("black", "color", "images")
 BLENDER_ENGINES = ("cycles", "workbench", "eevee")
+BLENDER_DEVICES = ("cpu", "gpu", "auto")
 
 
 @dataclass(frozen=True)
@@ -62,6 +63,7 @@ class BlenderSpec:
     denoise: bool = False
     film_transparent: bool = True
     threads: int = 0                # 0: Blender's default (all cores)
+    device: str = "cpu"             # Cycles: "cpu" | "gpu" | "auto" (a GPU if Blender finds one, else the CPU)
 
 
 @dataclass(frozen=True)
@@ -92,6 +94,8 @@ class RenderSpec:
         payload = dataclasses.asdict(self)
         payload.pop("text"), payload.pop("base_dir")
         payload["mesh"].pop("symmetries")  # metadata for the BOP export: the pixels do not change
+        if self.render.blender.device == "cpu":  # the default: a CPU spec's fingerprint stays as it was
+            payload["render"]["blender"].pop("device")
         if self.camera.sampler == "grid":  # keys the grid does not use: a grid spec's fingerprint stays as it was
             for key in SAMPLER_KEYS:
                 payload["camera"].pop(key)
@@ -234,6 +238,8 @@ def _validate(spec: RenderSpec) -> RenderSpec:
     _check(b.engine in BLENDER_ENGINES, f"render.blender.engine: expected cycles or workbench, got {b.engine!r}")
     _check(1 <= b.samples <= 65536, f"render.blender.samples: expected 1..65536, got {b.samples}")
     _check(b.threads >= 0, f"render.blender.threads: expected >= 0, got {b.threads}")
+    _check(b.device in BLENDER_DEVICES, f"render.blender.device: expected one of {', '.join(BLENDER_DEVICES)}, "
+                                        f"got {b.device!r}")
     return spec
 
 

@@ -81,6 +81,8 @@ def _tail(path: str, lines: int = 3) -> str:
         return ""
 
 
+GPU_BACKENDS = ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL")  # in the order "auto" and "gpu" try them
+
 class BlenderRenderer(Renderer):
     """bpy renderer for one spec (engine, samples, image size, intrinsics, lights)."""
 
@@ -103,6 +105,8 @@ class BlenderRenderer(Renderer):
         try:
             with _captured_output(self._log):
                 self._build_scene()
+        except RenderError:
+            raise
         except Exception as exc:  # bpy raises RuntimeError/TypeError for scene setup problems
             raise RenderError(f"Blender could not set up the scene ({exc}) {_tail(self._log)}".strip()) from None
 
@@ -111,6 +115,7 @@ class BlenderRenderer(Renderer):
         self._bpy.ops.wm.read_factory_settings(use_empty=True)
         sc = self._bpy.context.scene
         self._set_engine(sc)
+        self.device = self._set_device(sc)
         self._set_output(sc)
         self._add_camera(sc)
         self._add_lights(sc)
@@ -138,6 +143,32 @@ class BlenderRenderer(Renderer):
             sc.display.shading.color_type = "TEXTURE"
             sc.display.render_aa = "OFF"  # pixel-centre samples, as for Cycles
         sc.view_settings.view_transform = "Standard"
+
+    def _set_device(self, sc) -> str:
+        """Where Cycles renders, as the spec's ``device`` asks: ``"CPU"`` or the GPU backend
+        used (OPTIX, CUDA, HIP, ONEAPI, METAL; the first with a device). ``"auto"`` falls
+        back to the CPU; ``"gpu"`` without one is a RenderError."""
+        wanted = self.spec.render.blender.device
+        if self.engine != "cycles" or wanted == "cpu":
+            sc.cycles.device = "CPU"
+            return "CPU"
+        prefs = self._bpy.context.preferences.addons["cycles"].preferences
+        for backend in GPU_BACKENDS:
+            try:
+                prefs.compute_device_type = backend  # a TypeError where this Blender has no such backend
+                found = [d for d in prefs.get_devices_for_type(backend) if d.type == backend]
+            except (TypeError, AttributeError, RuntimeError):
+                continue
+            if found:
+                for d in prefs.devices:
+                    d.use = d.type == backend
+                sc.cycles.device = "GPU"
+                return backend
+        if wanted == "gpu":
+            raise RenderError("render.blender.device = \"gpu\": Blender finds no GPU here (tried "
+                              f"{', '.join(GPU_BACKENDS)}); use \"auto\" to fall back to the CPU, or \"cpu\"")
+        sc.cycles.device = "CPU"
+        return "CPU"
 
     def _set_output(self, sc) -> None:
         """One multi-layer EXR a frame: Combined, Depth and Object Index, 32-bit, uncompressed."""
@@ -199,7 +230,7 @@ class BlenderRenderer(Renderer):
                "ambient": self.spec.lighting.ambient, "lights": self.spec.lighting.lights,
                "strength": self.spec.lighting.strength}
         if self.engine == "cycles":
-            out.update(samples=s.samples, denoise=s.denoise, filter_width=0.01, device="CPU")
+            out.update(samples=s.samples, denoise=s.denoise, filter_width=0.01, device=self.device)
         return out
 
     # ------------------------------------------------------------------ mesh

@@ -56,3 +56,11 @@ def test_a_folder_without_manifest_is_described_with_its_gaps(folder):
 def test_nothing_there(tmp_path):
     with pytest.raises(ShardError, match="^no such shard or folder: "):
         describe(tmp_path / "nothing")
+
+
+def test_a_shard_rendered_by_cycles_says_on_which_device(tmp_path):
+    a = make_arrays(n=1, h=4, w=4)
+    write_shard(tmp_path / "b.h5", a, {"renderer": "blender", "seed": 0, "renderer_version": "Blender 5.0.1",
+                                       "renderer_settings": '{"device": "OPTIX", "samples": 16}'})
+    assert describe(tmp_path / "b.h5").splitlines()[1] == ("  schema v2, 1 frames, 4x4, renderer blender "
+                                                           "(Blender 5.0.1, on OPTIX), seed 0")

@@ -30,6 +30,9 @@ def test_fingerprint_changes_with_what_changes_pixels():
     # Declared symmetries go to the BOP export only: the pixels, so the fingerprint, stay.
     files = 'class = "u"\n[mesh]\nsource = "files"\nfiles = ["a.ply"]\n'
     assert parse_spec(files).fingerprint() == parse_spec(files + 'symmetries = ["z"]\n').fingerprint()
+    # device = "cpu" is the default: written out or not, the same fingerprint; "auto" is another.
+    assert a.fingerprint() == parse_spec('class = "cup"\nseed = 1\n[render.blender]\ndevice = "cpu"').fingerprint()
+    assert a.fingerprint() != parse_spec('class = "cup"\nseed = 1\n[render.blender]\ndevice = "auto"').fingerprint()
     # A sampler's keys change the views, so the fingerprint.
     so3 = 'class = "cup"\n[camera]\nsampler = "so3"\nviews = 10\n'
     assert parse_spec(so3).fingerprint() != parse_spec(so3.replace("10", "11")).fingerprint() != a.fingerprint()
@@ -58,6 +61,7 @@ def test_fingerprint_changes_with_what_changes_pixels():
     ('class = "cup"\n[camera]\nsampler = "so3"\nviews = "ten"', "camera.views: expected int, got string"),
     ('class = "cup"\n[camera]\nsampler = "sphere"\nviews = 3\nroll_range = [10]', "camera.roll_range: expected [low, high]"),
     ('class = "cup"\n[camera]\nroll_range = [0, 10]', "camera.roll_range: only for sampler"),
+    ('class = "cup"\n[render.blender]\ndevice = "tpu"', "render.blender.device: expected one of cpu, gpu, auto, got 'tpu'"),
     ('class = "u"\n[mesh]\nsource = "files"\nfiles = ["a.ply"]\nsymmetries = ["q/90"]',
      "mesh.symmetries[0]: symmetry 'q/90': expected an axis x, y or z"),
     ('class = "u"\n[mesh]\nsource = "files"\nfiles = ["a.ply"]\nsymmetries = ["z", "z/7"]',

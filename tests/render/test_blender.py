@@ -122,3 +122,20 @@ def test_a_blender_worker_killed_mid_shard_loses_nothing(tmp_path):
         data = read_shard(out / f, ["mask", "azimuth"])
         assert data["mask"].shape == (12, 48, 48) and data["mask"].sum(axis=(1, 2)).min() > 0
     assert not list(out.glob(".*.partial"))
+
+
+def test_device_auto_falls_back_to_the_cpu_and_gpu_without_one_is_one_line(tmp_path):
+    from spm_data.errors import RenderError
+
+    base = ('class = "cup"\n[image]\nwidth = 32\nheight = 32\n[render]\nrenderer = "blender"\n'
+            '[render.blender]\nsamples = 1\ndevice = "{}"\n')
+    renderer = make_renderer(parse_spec(base.format("auto")))
+    try:
+        renderer.set_mesh(procedural_mesh("cup", 0))
+        R, t = camera_path(CameraGrid()).poses([0])
+        assert renderer.render(R[0], t[0])["mask"].any()
+        assert renderer.settings()["device"] == "CPU"     # no GPU on this machine: the CPU, recorded
+    finally:
+        renderer.close()
+    with pytest.raises(RenderError, match=r'device = "gpu": Blender finds no GPU here \(tried OPTIX, CUDA'):
+        make_renderer(parse_spec(base.format("gpu")))
