@@ -15,6 +15,7 @@ circle). Distances uniform in a range. The pose convention is in poses.py.
 
 from __future__ import annotations
 
+import abc
 import math
 from dataclasses import dataclass
 
@@ -98,9 +99,14 @@ class PathPoints:
         return camera_poses(self.azimuth, self.elevation, self.roll, self.distance, self.look_at)
 
 
-class _Path:
+class _Path(abc.ABC):
     """What every path offers: ``len``, ``indices``, ``at`` (by subclasses: grid or sampled),
     ``poses``; a subclass has ``size`` and ``look_at``."""
+
+    @property
+    @abc.abstractmethod
+    def size(self) -> int:
+        """Number of points (a Python int)."""
 
     def __len__(self) -> int:
         return self.size
@@ -124,8 +130,9 @@ class _Path:
             raise IndexError(f"index {bad} is out of bounds for a path of {n} points")
         return np.where(idx < 0, idx + n, idx)
 
+    @abc.abstractmethod
     def at(self, index=slice(None)) -> PathPoints:
-        raise NotImplementedError
+        """The points at ``index`` (see :meth:`indices`)."""
 
     def poses(self, index=slice(None)):
         """Object->camera ``R`` (n, 3, 3), ``t`` (n, 3) for ``index`` (OpenCV camera)."""
