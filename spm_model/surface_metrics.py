@@ -31,6 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spm_data.core.meshes import diameter
+
 POINTS = 256
 SYMMETRY_TOLERANCE = 0.01
 ADD_THRESHOLD = 0.1
@@ -76,8 +78,7 @@ def object_model(mesh, seed: int = 0) -> ObjectModel:
     import trimesh
     from scipy.spatial import cKDTree
 
-    hull = np.asarray(mesh.convex_hull.vertices) if len(mesh.vertices) > 3 else np.asarray(mesh.vertices)
-    diameter = float(np.max(np.linalg.norm(hull[:, None] - hull[None], axis=2)))
+    size = diameter(mesh.vertices)
     points, _ = trimesh.sample.sample_surface(mesh, POINTS, seed=seed)
     points = np.asarray(points, dtype=np.float64)
     # The surface, densely: samples with their face normals; a point's distance to
@@ -94,10 +95,10 @@ def object_model(mesh, seed: int = 0) -> ObjectModel:
         plane = np.abs(np.einsum("nki,nki->nk", moved[:, None] - dense[nearest], normals[nearest]))
         # Near an edge the nearest sample may lie on the other face: take the best of 8,
         # but never a plane whose sample is itself farther than the tolerance allows.
-        distance = np.where(gap <= 5 * SYMMETRY_TOLERANCE * diameter, plane, np.inf).min(axis=1)
-        if distance.max() <= SYMMETRY_TOLERANCE * diameter:
+        distance = np.where(gap <= 5 * SYMMETRY_TOLERANCE * size, plane, np.inf).min(axis=1)
+        if distance.max() <= SYMMETRY_TOLERANCE * size:
             found.append(S)
-    return ObjectModel(points=points, diameter=diameter, symmetries=np.array(found))
+    return ObjectModel(points=points, diameter=size, symmetries=np.array(found))
 
 
 def _project(K, cam):

@@ -227,6 +227,13 @@ def normalise(mesh: trimesh.Trimesh, size: float) -> trimesh.Trimesh:
     return mesh
 
 
+def diameter(points) -> float:
+    """Largest distance between two of ``points`` (N, 3), in their units (over the convex hull)."""
+    points = np.asarray(points, dtype=np.float64)
+    hull = trimesh.Trimesh(points, process=False).convex_hull.vertices if len(points) > 3 else points
+    return float(np.max(np.linalg.norm(hull[:, None] - hull[None], axis=2)))
+
+
 def _corner_normals(mesh: trimesh.Trimesh) -> np.ndarray:
     """(F*3, 3) normals per face corner: averaged over neighbouring faces that
     bend less than _SMOOTH_ANGLE_DEG, so spheres look round and boxes keep edges."""

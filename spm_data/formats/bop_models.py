@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from spm_data.errors import SpmError
-from spm_data.core.meshes import TexturedMesh
+from spm_data.core.meshes import TexturedMesh, diameter
 from spm_data.core.symmetries import Symmetries
 from spm_data.formats.ply import save_ply
 
@@ -39,14 +39,6 @@ def texture_colors(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
     col = np.clip(np.rint(uv[:, 0] * (w - 1)), 0, w - 1).astype(np.int64)
     row = np.clip(np.rint((1.0 - uv[:, 1]) * (h - 1)), 0, h - 1).astype(np.int64)
     return texture[row, col]
-
-
-def diameter(points: np.ndarray) -> float:
-    """Largest distance between two of ``points`` (N, 3), in their units (over the convex hull)."""
-    import trimesh
-
-    hull = trimesh.Trimesh(points, process=False).convex_hull.vertices if len(points) > 3 else points
-    return float(np.max(np.linalg.norm(hull[:, None] - hull[None], axis=2)))
 
 
 def eval_resample(vertices: np.ndarray, faces: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

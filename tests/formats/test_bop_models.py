@@ -3,8 +3,9 @@
 import numpy as np
 import trimesh
 
-from spm_data.formats.bop_models import (diameter, eval_resample, load_models_info, model_info, save_models_info,
-                                 symmetry_info, texture_colors)
+from spm_data.core.meshes import diameter
+from spm_data.formats.bop_models import (eval_resample, load_models_info, model_info, save_models_info,
+                                         symmetry_info, texture_colors)
 from spm_data.core.symmetries import NO_SYMMETRY, Symmetries, rotation
 
 
