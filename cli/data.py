@@ -241,12 +241,15 @@ def info_cmd(path):
 @click.option("--out", "out_png", default="sheet.png", show_default=True, type=click.Path(),
               help="Image to write: .png, .jpg, .jpeg, .pdf or .svg.")
 @click.option("--frames", default=24, show_default=True, type=click.IntRange(min=1), help="Frames on the sheet.")
+@click.option("--field", default="rgb", show_default=True,
+              type=click.Choice(["rgb", "normals", "instances", "coords", "depth"]),
+              help="What the tiles show: the image, or an [outputs] field in false colour.")
 @handle_errors
-def show_cmd(shard, out_png, frames):
+def show_cmd(shard, out_png, frames, field):
     """Write a contact sheet of a shard's frames with their pose axes drawn."""
     from spm_data.commands.sheet import contact_sheet
 
-    click.echo(f"wrote {contact_sheet(shard, out_png, frames=frames)}")
+    click.echo(f"wrote {contact_sheet(shard, out_png, frames=frames, field=field)}")
 
 
 @data_cli.command("hist")

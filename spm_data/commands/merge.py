@@ -14,8 +14,8 @@ from spm_data.errors import SpmError
 from spm_data.io.folders import open_folder
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
 from spm_data.io.files import file_sha256
-from spm_data.io.shards import (FIELDS, OPTIONAL_FIELDS, manifest_entry, read_shard, shard_layout, verify_shard,
-                                 write_shard)
+from spm_data.io.shards import (FIELDS, OPTIONAL_FIELDS, SIZED_FIELDS, manifest_entry, read_attrs, read_shard,
+                                shard_layout, verify_shard, write_shard)
 
 
 @dataclass(frozen=True)
@@ -80,6 +80,8 @@ def plan_merge(inputs, out_dir, *, sources=None, renames=None, frames_per_shard=
             frames_from = tuple((p, tuple(ix)) for p, ix in by_shard.items())
             optional = tuple(f for f in OPTIONAL_FIELDS
                              if all(f in info[Path(p)]["fields"] for p, _ in frames_from))
+            if len({info[Path(p)]["distractor_meshes"] for p, _ in frames_from}) > 1:
+                optional = tuple(f for f in optional if f != "distractor_mesh")  # indices into different lists
             stamp = [(p, info[Path(p)]["sha256"]) for p, _ in frames_from]
             key = hashlib.sha256(json.dumps([stamp, frames_from, sorted(renames.items()), optional]).encode())
             jobs.append(MergeJob(f"merged-{tag}-{k:05d}.h5", key.hexdigest(), str(out_dir), frames_from,
@@ -92,7 +94,8 @@ def _shard_info(path) -> dict:
     fields = set(shard_layout(path))
     return {"schema_version": int(attrs["schema_version"]), "frames": int(attrs["frames"]),
             "height": int(attrs["height"]), "width": int(attrs["width"]), "fields": fields,
-            "source": read_shard(path, ["source"])["source"].astype(str), "sha256": file_sha256(path)}
+            "source": read_shard(path, ["source"])["source"].astype(str), "sha256": file_sha256(path),
+            "distractor_meshes": attrs.get("distractor_meshes", "")}
 
 
 def merge_shard(job: MergeJob, report=lambda n: None) -> dict:
@@ -102,15 +105,19 @@ def merge_shard(job: MergeJob, report=lambda n: None) -> dict:
         parts.append(read_shard(path, fields, frames=np.asarray(frames)))
         report(len(frames))
     arrays = {}
-    rects = max(p["occlusion_rects"].shape[1] for p in parts)
     for f in fields:
         values = [p[f] for p in parts]
-        if f == "occlusion_rects":  # pad to the widest rectangle count
-            values = [np.pad(v, ((0, 0), (0, rects - v.shape[1]), (0, 0))) for v in values]
+        if f in SIZED_FIELDS:  # per-frame lists (rectangles, distractors, lights): pad to the longest
+            width = max(v.shape[1] for v in values)
+            fill = -1 if f == "distractor_mesh" else 0
+            values = [np.pad(v, [(0, 0), (0, width - v.shape[1])] + [(0, 0)] * (v.ndim - 2), constant_values=fill)
+                      for v in values]
         arrays[f] = np.concatenate(values)
     renames = dict(job.renames)
     arrays["class_name"] = np.asarray([renames.get(c, c) for c in arrays["class_name"]], dtype=object)
     attrs = {"plan_key": job.plan_key, "renderer": "merged", "seed": 0, "source": "merged",
+             **({"distractor_meshes": read_attrs(job.frames_from[0][0])["distractor_meshes"]}
+                if "distractor_mesh" in job.optional else {}),
              "merged_from": json.dumps([[Path(p).parent.name + "/" + Path(p).name, len(ix)]
                                         for p, ix in job.frames_from])}
     target = write_shard(Path(job.out_dir) / job.name, arrays, attrs)

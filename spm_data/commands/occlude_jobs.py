@@ -63,6 +63,9 @@ def check_inputs(in_dir, out_dir, allow_partial=False) -> list[Path]:
             raise ShardError(f"{path}: every mask is empty, so there is no object to occlude")
         if data["occlusion_rects"].any():
             raise ShardError(f"{path}: already occluded; occlude the unoccluded shards instead")
+        if "visible_mask" in shard_layout(path):
+            raise ShardError(f"{path}: already occluded (it has a visible_mask, e.g. from [distractors]); "
+                             "occlude shards rendered without distractors")
     return shards
 
 

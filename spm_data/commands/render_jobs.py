@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import zlib
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
@@ -19,12 +18,13 @@ from pathlib import Path
 import numpy as np
 
 from spm_data import __version__
-from spm_data.core.backgrounds import background_image, composite
 from spm_data.errors import SpecError
 from spm_data.core.instances import instance_count, load_instance, mesh_attrs, mesh_record
 from spm_data.core.paths import camera_path
 from spm_data.core.poses import pose_to_label
-from spm_data.render import make_renderer, spec_intrinsics
+from spm_data.render import make_renderer
+from spm_data.commands.render_frames import FrameMaker
+from spm_data.core.distractors import pool_names
 from spm_data.jobs.executor import LocalExecutor
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
 from spm_data.io.shards import SCHEMA_VERSION, ShardWriter, manifest_entry
@@ -152,23 +152,18 @@ def _renderer_for(spec: RenderSpec):
     return make_renderer(spec)
 
 
-def frame_rng(spec: RenderSpec, instance: int, path_index: int) -> np.random.Generator:
-    """Per-frame randomness (backgrounds): independent of shard layout and worker."""
-    return np.random.default_rng([spec.seed, zlib.crc32(spec.class_name.encode()), instance, path_index, 1])
-
-
 # A render worker is replaced after this many shards, so a leak in a renderer (Blender's
 # grows over long runs) cannot grow without bound; the CLI's --recycle-after default.
 RECYCLE_AFTER = 16
 BLOCK_BYTES = 64 << 20  # raw image bytes a worker holds while writing a shard (at least one frame)
 
 
-def block_frames(height: int, width: int) -> int:
+def block_frames(height: int, width: int, bytes_per_pixel: int = 8) -> int:
     """Frames per block of a shard being written: as many as fit BLOCK_BYTES of
-    rgb + depth + mask (8 bytes a pixel), at least one. A function of the image
-    size only, so a spec's shards are the same bytes on every machine; a shard
-    that fits one block is byte for byte what ``shards.write_shard`` writes."""
-    return max(1, BLOCK_BYTES // (height * width * 8))
+    image fields (rgb + depth + mask: 8 bytes a pixel), at least one. A function
+    of the spec only, so a spec's shards are the same bytes on every machine; a
+    shard that fits one block is byte for byte what ``shards.write_shard`` writes."""
+    return max(1, BLOCK_BYTES // (height * width * bytes_per_pixel))
 
 
 def render_shard(job: ShardJob, report=lambda n: None) -> dict:
@@ -177,14 +172,15 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
     block whatever the shard's length; returns its manifest entry."""
     spec = job.spec
     renderer = _renderer_for(spec)
+    maker = FrameMaker(spec, renderer)
     path = camera_path(spec.camera, spec.seed)
     instances, path_indices = job.frame_ids()
     points = path.at(path_indices)
     R, t = points.poses()
     n, h, w = job.frames, spec.image.height, spec.image.width
-    per = max(1, min(n, block_frames(h, w)))
-    block = {"rgb": np.zeros((per, h, w, 3), np.uint8), "depth": np.zeros((per, h, w), np.float32),
-             "mask": np.zeros((per, h, w), np.uint8)}
+    per = max(1, min(n, block_frames(h, w, maker.bytes_per_pixel())))
+    block = maker.buffers(per)
+    frame_labels = []
     with ShardWriter(Path(job.out_dir) / job.name, frames=n, height=h, width=w, images=tuple(block)) as writer:
         current, names, records = None, {}, {}
         for start in range(0, n, per):
@@ -197,27 +193,23 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
                     renderer.set_mesh(mesh)
                     current, names[int(inst)] = inst, mesh.name
                     records[int(inst)] = mesh_record(spec, int(inst))
-                out = renderer.render(R[i], t[i])
-                if spec.background.kind == "black":
-                    block["rgb"][j] = out["rgb"]
-                else:
-                    background = background_image(spec, frame_rng(spec, int(inst), int(pidx)))
-                    block["rgb"][j] = composite(out["rgb"], out["alpha"], background)
-                block["depth"][j] = out["depth"]
-                block["mask"][j] = out["mask"]
-                del out
+                images, labels = maker.make(mesh, int(inst), int(pidx), R[i], t[i])
+                for field, image in images.items():
+                    block[field][j] = image
+                frame_labels.append(labels)
                 report(1)
             writer.write_images(start, {f: a[:k] for f, a in block.items()})
         del block
+        per_frame = {f: np.stack([fl[f] for fl in frame_labels]) for f in (frame_labels[0] if frame_labels else {})}
         labels = {
-            "K": np.broadcast_to(spec_intrinsics(spec), (n, 3, 3)).copy(), "R": R, "t": t,
-            "pose": pose_to_label(R, t).reshape(n, 6),
+            "K": per_frame.pop("K", np.zeros((0, 3, 3))), "R": R, "t": t, "pose": pose_to_label(R, t).reshape(n, 6),
             "azimuth": points.azimuth, "elevation": points.elevation, "roll": points.roll,
             "distance": points.distance, "look_at": np.broadcast_to(path.look_at, (n, 3)).copy(),
             "path_index": path_indices.astype(np.int64), "instance_id": instances.astype(np.int64),
             "instance_name": [names[int(i)] for i in instances], "class_name": [spec.class_name] * n,
             "source": ["synthetic"] * n, "label_measured": np.ones((n, 6), bool),
             "occlusion_fraction": np.zeros(n, np.float32), "occlusion_rects": np.zeros((n, 1, 4), np.int32),
+            **per_frame,
         }
         attrs = {"spec": spec.text, "spec_fingerprint": spec.fingerprint(), "plan_key": job.plan_key,
                  "seed": spec.seed, "class_name": spec.class_name, "shard_index": job.shard_index,
@@ -225,6 +217,8 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
                  "renderer_settings": json.dumps(renderer.settings(), sort_keys=True),
                  "spm_version": __version__, "source": "synthetic", "object_size": spec.mesh.size,
                  **mesh_attrs(spec, records)}
+        if maker.distractors:
+            attrs["distractor_meshes"] = json.dumps(pool_names(spec))
         target = writer.finish(labels, attrs)
     return {"entry": manifest_entry(target)}
 

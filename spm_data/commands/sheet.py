@@ -11,7 +11,7 @@ from spm_data.errors import ShardError, SpmError
 from spm_data.core.poses import project_points
 from spm_data.io.outputs import check_creatable, removing_created, space_fix
 from spm_data.io.files import atomic_file
-from spm_data.io.shards import read_attrs, read_shard
+from spm_data.io.shards import read_attrs, read_shard, shard_layout
 
 AXIS_COLOURS = ((255, 40, 40), (40, 255, 40), (60, 120, 255))  # x red, y green, z blue (RGB)
 IMAGE_TYPES = {".png": "png", ".jpg": "jpeg", ".jpeg": "jpeg", ".pdf": "pdf", ".svg": "svg"}  # extension: format
@@ -64,33 +64,69 @@ def draw_pose(image: np.ndarray, K, R, t, length: float, scale: int = 1) -> np.n
     return image
 
 
-def contact_sheet(shard, out_png, frames: int = 24, columns: int = 6, scale: int = 2) -> Path:
+SHEET_FIELDS = ("rgb", "normals", "instances", "coords", "depth")
+INSTANCE_COLOURS = np.array([[0, 0, 0], [255, 220, 0], [60, 140, 255], [255, 80, 160], [80, 230, 120],
+                             [200, 120, 255], [255, 150, 60], [120, 230, 230]], np.uint8)
+
+
+def false_colour(field: str, frame: np.ndarray, size: float) -> np.ndarray:
+    """(H, W, 3) uint8 picture of one frame of an image field: normals as (n + 1) / 2,
+    instance ids in fixed colours, object coordinates (metres, object of ``size``)
+    as NOCS colours, depth as grey (near light)."""
+    if field == "normals":
+        return np.round((frame.astype(np.float32) + 1) * 127.5).astype(np.uint8) * np.any(frame != 0, -1)[..., None]
+    if field == "instances":
+        return INSTANCE_COLOURS[np.minimum(frame, len(INSTANCE_COLOURS) - 1)]
+    if field == "coords":
+        seen = np.any(frame != 0, -1)[..., None]
+        return (np.clip(frame.astype(np.float32) / size + 0.5, 0, 1) * 255).astype(np.uint8) * seen
+    hit = frame > 0
+    if not hit.any():
+        return np.zeros(frame.shape + (3,), np.uint8)
+    lo, hi = frame[hit].min(), frame[hit].max()
+    grey = np.where(hit, 255 - 200 * (frame - lo) / max(hi - lo, 1e-9), 0).astype(np.uint8)
+    return np.repeat(grey[..., None], 3, axis=-1)
+
+
+def contact_sheet(shard, out_png, frames: int = 24, columns: int = 6, scale: int = 2, field: str = "rgb") -> Path:
     """Write an image (PNG, JPEG, PDF or SVG, by ``out_png``'s extension) of a grid of
-    ``frames`` evenly spaced frames of ``shard``; returns its path."""
+    ``frames`` evenly spaced frames of ``shard``; returns its path. ``field``: what the
+    tiles show (SHEET_FIELDS): the rgb image, or a field in false colour. The target's
+    outline is yellow, its visible part's (distractors, occlusion) green."""
     import cv2
 
     out_png = check_image_path(out_png, "sheet.png")
+    if field not in SHEET_FIELDS:
+        raise SpmError(f"field {field!r}: expected one of {', '.join(SHEET_FIELDS)}")
     attrs = read_attrs(shard)
     n = int(attrs["frames"])
     if n == 0:
         raise ShardError(f"{shard}: shard has no frames")
+    layout = shard_layout(shard)
+    if field not in layout:
+        raise ShardError(f"{shard}: has no {field} field; render it with [outputs] {field} = true")
     pick = np.unique(np.round(np.linspace(0, n - 1, min(frames, n))).astype(int))
-    data = read_shard(shard, ["rgb", "mask", "K", "R", "t", "azimuth", "elevation", "distance",
-                              "occlusion_rects"], frames=pick)
+    extra = [f for f in ("visible_mask", "occlusion_fraction") if f in layout and f != field]
+    data = read_shard(shard, list(dict.fromkeys(["rgb", "mask", "K", "R", "t", "azimuth", "elevation", "distance",
+                                                 "occlusion_rects", field, *extra])), frames=pick)
     length = 0.5 * float(attrs.get("object_size", 0.2))
     tiles = []
     for i in range(len(pick)):
-        img = cv2.resize(data["rgb"][i], None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
-        img = np.ascontiguousarray(img)
-        mask = cv2.resize(data["mask"][i], None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
-        contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-        cv2.drawContours(img, contours, -1, (255, 220, 0), 1)
+        tile = data["rgb"][i] if field == "rgb" else false_colour(field, data[field][i], 2 * length)
+        img = np.ascontiguousarray(cv2.resize(tile, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST))
+        outlines = [("mask", (255, 220, 0))] + ([("visible_mask", (60, 255, 60))] if "visible_mask" in data else [])
+        for key, colour in outlines:
+            mask = cv2.resize(data[key][i], None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+            contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+            cv2.drawContours(img, contours, -1, colour, 1)
         for x0, y0, x1, y1 in data["occlusion_rects"][i]:
             if x1 > x0 and y1 > y0:
                 cv2.rectangle(img, (int(x0) * scale, int(y0) * scale), (int(x1) * scale - 1, int(y1) * scale - 1),
                               (255, 0, 255), 1)
         draw_pose(img, data["K"][i], data["R"][i], data["t"][i], length, scale)
         caption = f"#{pick[i]} az{data['azimuth'][i]:.0f} el{data['elevation'][i]:.0f} d{data['distance'][i]:.2f}"
+        if "visible_mask" in data:
+            caption += f" v{1 - data['occlusion_fraction'][i]:.2f}"
         cv2.putText(img, caption, (3, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (255, 255, 255), 1, cv2.LINE_AA)
         tiles.append(img)
     h, w = tiles[0].shape[:2]

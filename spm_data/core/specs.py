@@ -17,6 +17,8 @@ from spm_data.errors import MeshError, SpecError
 from spm_data.core.meshes import CLASSES
 from spm_data.core.symmetries import declared_symmetries, parse_symmetry
 from spm_data.core.paths import SAMPLER_KEYS, AngleRange, CameraGrid, camera_path
+from spm_data.core.distractors import DistractorSpec, validate_distractors
+from spm_data.core.randomize import RandomizeSpec, validate_randomize
 
 RENDERERS = ("pyrender", "blender")
 BACKGROUNDS = ("black", "color", "images")
@@ -74,6 +76,19 @@ class RenderSettings:
 
 
 @dataclass(frozen=True)
+class OutputsSpec:
+    """Opt-in per-pixel outputs besides rgb, depth and mask (docs/shard-format.md)."""
+
+    normals: bool = False           # camera-frame unit normals
+    instances: bool = False         # per-pixel instance id: 0 none, 1 the target, 2.. the distractors
+    coords: bool = False            # object-frame coordinates of each visible target pixel (NOCS-style)
+
+
+# Tables whose defaults change nothing: a spec without them keeps the fingerprint it had before they existed.
+OPTIONAL_TABLES = {"randomize": RandomizeSpec(), "distractors": DistractorSpec(), "outputs": OutputsSpec()}
+
+
+@dataclass(frozen=True)
 class RenderSpec:
     class_name: str
     seed: int = 0
@@ -83,6 +98,9 @@ class RenderSpec:
     lighting: LightingSpec = LightingSpec()
     background: BackgroundSpec = BackgroundSpec()
     render: RenderSettings = RenderSettings()
+    randomize: RandomizeSpec = RandomizeSpec()
+    distractors: DistractorSpec = DistractorSpec()
+    outputs: OutputsSpec = OutputsSpec()
     base_dir: str = field(default=".", compare=False)  # where relative paths in the spec start
     text: str = field(default="", compare=False, repr=False)  # the TOML as written
 
@@ -96,6 +114,9 @@ class RenderSpec:
         payload["mesh"].pop("symmetries")  # metadata for the BOP export: the pixels do not change
         if self.render.blender.device == "cpu":  # the default: a CPU spec's fingerprint stays as it was
             payload["render"]["blender"].pop("device")
+        for key, default in OPTIONAL_TABLES.items():
+            if getattr(self, key) == default:
+                payload.pop(key)
         if self.camera.sampler == "grid":  # keys the grid does not use: a grid spec's fingerprint stays as it was
             for key in SAMPLER_KEYS:
                 payload["camera"].pop(key)
@@ -159,7 +180,8 @@ def _build(cls, table: dict, prefix: str):
 
 
 _SECTIONS = {"mesh": MeshSpec, "camera": CameraGrid, "image": ImageSpec, "lighting": LightingSpec,
-             "background": BackgroundSpec, "render": RenderSettings}
+             "background": BackgroundSpec, "render": RenderSettings, "randomize": RandomizeSpec,
+             "distractors": DistractorSpec, "outputs": OutputsSpec}
 
 
 def parse_spec(text: str, name: str = "<spec>", base_dir: str = ".") -> RenderSpec:
@@ -240,6 +262,15 @@ def _validate(spec: RenderSpec) -> RenderSpec:
     _check(b.threads >= 0, f"render.blender.threads: expected >= 0, got {b.threads}")
     _check(b.device in BLENDER_DEVICES, f"render.blender.device: expected one of {', '.join(BLENDER_DEVICES)}, "
                                         f"got {b.device!r}")
+    validate_randomize(spec.randomize, bg.folder)
+    validate_distractors(spec.distractors, spec.base_dir)
+    lit = [k for k in ("lights", "light_strength", "light_color", "ambient", "roughness", "metallic")
+           if getattr(spec.randomize, k)]
+    _check(not (lit and r.renderer == "blender" and b.engine == "workbench"),
+           f"randomize.{lit[0] if lit else ''}: Workbench lights with its own studio light and no materials; "
+           "use engine = \"cycles\" or the pyrender renderer")
+    _check(not (spec.outputs.normals and r.renderer == "blender" and b.engine == "workbench"),
+           "outputs.normals: Blender's Workbench has no normal pass; use engine = \"cycles\" or the pyrender renderer")
     return spec
 
 

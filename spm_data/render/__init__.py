@@ -11,6 +11,7 @@ import numpy as np
 
 from spm_data.errors import RenderError
 from spm_data.core.poses import intrinsics_from_fov
+from spm_data.core.randomize import fixed_light_rotations, max_lights
 
 # name -> (module, class): imported only when asked for
 BACKENDS = {"pyrender": ("spm_data.render.pyrender_backend", "PyrenderRenderer"),
@@ -49,6 +50,8 @@ class Renderer(abc.ABC):
         self.spec = spec
         self.width, self.height = spec.image.width, spec.image.height
         self.K = spec_intrinsics(spec)
+        self.outputs = spec.outputs
+        self.max_lights = max_lights(spec)
 
     @abc.abstractmethod
     def version(self) -> str:
@@ -63,7 +66,7 @@ class Renderer(abc.ABC):
         """Build the scene around ``mesh`` (a TexturedMesh), replacing the previous one."""
 
     @abc.abstractmethod
-    def render(self, R, t) -> dict:
+    def render(self, R, t, draws=None, distractors=()) -> dict:
         """One frame from the camera at ``R``, ``t``: the arrays listed in the class docstring."""
 
     def close(self) -> None:
@@ -86,20 +89,29 @@ def make_renderer(spec, name: str | None = None) -> Renderer:
     return getattr(importlib.import_module(module), cls)(spec)
 
 
-def light_rotations(count: int) -> list[np.ndarray]:
-    """(3, 3) rotations, in the camera's GL frame, of ``count`` lights that move
-    with the camera: a head light, the others on a 40-degree cone around it."""
-    rots = []
-    for i in range(count):
-        if i == 0:
-            rots.append(np.eye(3))
-            continue
-        phi = 2 * np.pi * (i - 1) / max(count - 1, 1)
-        axis = np.array([np.cos(phi), np.sin(phi), 0.0])
-        angle = np.radians(40.0)
-        k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-        rots.append(np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k)
-    return rots
+def light_rotations(count: int) -> np.ndarray:
+    """(count, 3, 3) rotations, in the camera's GL frame, of the spec's ``count`` lights
+    that move with the camera (spm_data.core.randomize.fixed_light_rotations)."""
+    return fixed_light_rotations(count)
+
+
+def decode_normals(coded: np.ndarray, instances: np.ndarray, rotations: np.ndarray) -> np.ndarray:
+    """Normals drawn as colours -> (H, W, 3) float32 unit normals, camera frame (OpenCV).
+
+    coded: (H, W, 3) uint8, each object's own-frame normal n as (n + 1) / 2 * 255;
+    instances (H, W) uint8 ids; rotations (I, 3, 3) float64, each id's frame ->
+    camera (row 0 unused). Pixels with id 0 come out 0."""
+    return rotate_normals(coded.astype(np.float32) * (2.0 / 255.0) - 1.0, instances, rotations)
+
+
+def rotate_normals(normals: np.ndarray, instances: np.ndarray, rotations: np.ndarray) -> np.ndarray:
+    """(H, W, 3) normals, each in the frame of its pixel's instance id (instances (H, W)
+    uint8) -> (H, W, 3) float32 unit normals in the camera frame, by ``rotations``
+    (I, 3, 3) (row 0 unused); pixels with id 0 come out 0."""
+    n = np.einsum("hwij,hwj->hwi", rotations[instances].astype(np.float32), normals.astype(np.float32))
+    length = np.linalg.norm(n, axis=-1, keepdims=True)
+    n = n / np.maximum(length, 1e-12)
+    return np.where((instances[..., None] > 0) & (length > 0), n, 0.0).astype(np.float32)
 
 
 def mask_from_depth(depth: np.ndarray) -> np.ndarray:

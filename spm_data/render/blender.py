@@ -12,7 +12,6 @@ leak in Blender takes down a worker, never the run.
 
 from __future__ import annotations
 
-import contextlib
 import os
 import shutil
 import tempfile
@@ -22,7 +21,8 @@ import numpy as np
 
 from spm_data.errors import RenderError
 from spm_data.core.poses import K_to_corner_origin, cv_to_gl_camera_to_world
-from spm_data.render import Renderer, light_rotations
+from spm_data.render import Renderer, light_rotations, rotate_normals
+from spm_data.render.blender_scene import captured_output, mesh_data, remove_mesh_data, srgb_encode, tail
 
 NO_HIT_DEPTH = 1e9  # Blender writes 1e10 where no surface was hit
 INSTALL_HINT = "install it with: pip install 'spm[blender]' (bpy 5.0.x, Python 3.11)"
@@ -43,42 +43,6 @@ def _import_openexr():
     except ImportError as exc:
         raise RenderError(f"the OpenEXR package is not installed ({exc}); {INSTALL_HINT}") from None
     return OpenEXR
-
-
-def srgb_encode(linear: np.ndarray) -> np.ndarray:
-    """Linear float RGB (any shape) -> sRGB uint8 (IEC 61966-2-1 transfer curve)."""
-    c = np.clip(linear, 0.0, 1.0)
-    s = np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.power(c, 1 / 2.4) - 0.055)
-    return np.round(s * 255.0).astype(np.uint8)
-
-
-@contextlib.contextmanager
-def _captured_output(log_path: str):
-    """Send the C-level stdout and stderr to ``log_path`` while Blender works.
-
-    Blender prints a line per saved frame, and Workbench on Mesa's EGL an
-    EGL_BAD_MATCH line per frame although its output is right (the agreement
-    test checks it); a failing render quotes the log's tail instead.
-    """
-    saved = [os.dup(1), os.dup(2)]
-    log = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-    try:
-        os.dup2(log, 1)
-        os.dup2(log, 2)
-        yield
-    finally:
-        os.dup2(saved[0], 1)
-        os.dup2(saved[1], 2)
-        for fd in (*saved, log):
-            os.close(fd)
-
-
-def _tail(path: str, lines: int = 3) -> str:
-    try:
-        with open(path, errors="replace") as fh:
-            return " | ".join(line.strip() for line in fh.readlines()[-lines:] if line.strip())
-    except OSError:
-        return ""
 
 
 GPU_BACKENDS = ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL")  # in the order "auto" and "gpu" try them
@@ -102,13 +66,14 @@ class BlenderRenderer(Renderer):
         self._exr_path = os.path.join(self._tmp, "frame.exr")
         self._log = os.path.join(self._tmp, "blender.log")
         self._object = None
+        self._slots, self._distractor_data = [], {}  # distractor objects, and their meshes by id(mesh)
         try:
-            with _captured_output(self._log):
+            with captured_output(self._log):
                 self._build_scene()
         except RenderError:
             raise
         except Exception as exc:  # bpy raises RuntimeError/TypeError for scene setup problems
-            raise RenderError(f"Blender could not set up the scene ({exc}) {_tail(self._log)}".strip()) from None
+            raise RenderError(f"Blender could not set up the scene ({exc}) {tail(self._log)}".strip()) from None
 
     # ------------------------------------------------------------------ scene
     def _build_scene(self) -> None:
@@ -175,6 +140,7 @@ class BlenderRenderer(Renderer):
         layer = sc.view_layers[0]
         layer.use_pass_z = True
         layer.use_pass_object_index = True
+        layer.use_pass_normal = self.outputs.normals
         r = sc.render
         img = r.image_settings
         img.media_type = "MULTI_LAYER_IMAGE"
@@ -186,40 +152,68 @@ class BlenderRenderer(Renderer):
 
     def _add_camera(self, sc) -> None:
         cam = self._bpy.data.cameras.new("spm-camera")
-        K, W, H = self.K, self.width, self.height
         cam.sensor_fit = "HORIZONTAL"
         cam.sensor_width = 36.0
-        cam.lens = K[0, 0] * cam.sensor_width / W
-        # Blender's principal point sits at the image centre plus shift (in units of the larger side).
-        cx, cy = K_to_corner_origin(K)[:2, 2]
-        cam.shift_x = (W / 2.0 - cx) / max(W, H)
-        cam.shift_y = (cy - H / 2.0) / max(W, H)
+        self._set_intrinsics(cam, self.K)
         cam.clip_start, cam.clip_end = 0.01, 100.0
         self._camera = self._bpy.data.objects.new("spm-camera", cam)
         sc.collection.objects.link(self._camera)
         sc.camera = self._camera
 
+    def _set_intrinsics(self, cam, K) -> None:
+        """Blender's lens and shift for the OpenCV ``K`` (3, 3); square pixels (fx is used)."""
+        W, H = self.width, self.height
+        cam.lens = K[0, 0] * cam.sensor_width / W
+        # Blender's principal point sits at the image centre plus shift (in units of the larger side).
+        cx, cy = K_to_corner_origin(K)[:2, 2]
+        cam.shift_x = (W / 2.0 - cx) / max(W, H)
+        cam.shift_y = (cy - H / 2.0) / max(W, H)
+
     def _add_lights(self, sc) -> None:
         """Suns parented to the camera (as the pyrender backend's lights move with it), and
         the ambient term as the world's colour."""
         bpy, lighting = self._bpy, self.spec.lighting
-        for i, rot in enumerate(light_rotations(lighting.lights)):
+        rotations = light_rotations(lighting.lights)
+        self._suns = []
+        for i in range(self.max_lights):
             sun = bpy.data.lights.new(f"spm-sun-{i}", "SUN")
             sun.energy = lighting.strength
             obj = bpy.data.objects.new(f"spm-sun-{i}", sun)
             sc.collection.objects.link(obj)
             obj.parent = self._camera
-            local = np.eye(4)
-            local[:3, :3] = rot
-            obj.matrix_basis = self._mathutils.Matrix(local.tolist())
+            self._set_rotation(obj, rotations[i] if i < len(rotations) else np.eye(3))
+            self._suns.append(obj)
         world = bpy.data.worlds.new("spm-world")
         sc.world = world
         if world.node_tree is None:  # Blender < 5 needs asking; 5.x always has nodes
             world.use_nodes = True
-        background = world.node_tree.nodes.get("Background")
+        self._background = world.node_tree.nodes.get("Background")
         a = lighting.ambient
-        background.inputs["Color"].default_value = (a, a, a, 1.0)
-        background.inputs["Strength"].default_value = 1.0
+        self._background.inputs["Color"].default_value = (a, a, a, 1.0)
+        self._background.inputs["Strength"].default_value = 1.0
+
+    def _set_rotation(self, obj, rotation) -> None:
+        local = np.eye(4)
+        local[:3, :3] = rotation
+        obj.matrix_basis = self._mathutils.Matrix(local.tolist())
+
+    def _apply_draws(self, draws) -> None:
+        """Set the frame's intrinsics, lights, ambient light and material (FrameDraws)."""
+        self._set_intrinsics(self._camera.data, draws.K)
+        for i, sun in enumerate(self._suns):
+            lit = i < len(draws.light_strengths)
+            if lit:
+                self._set_rotation(sun, draws.light_rotations[i])
+            sun.data.energy = float(draws.light_strengths[i]) if lit else 0.0
+            sun.data.color = tuple(draws.light_colors[i]) if lit else (1.0, 1.0, 1.0)
+        a = draws.ambient
+        self._background.inputs["Color"].default_value = (a, a, a, 1.0)
+        bsdf = self._object.active_material.node_tree.nodes["Principled BSDF"]
+        bsdf.inputs["Roughness"].default_value = draws.roughness
+        bsdf.inputs["Metallic"].default_value = draws.metallic
+        factor = self._object.active_material.node_tree.nodes.get("spm-base-color")
+        if factor is not None:
+            factor.inputs["B"].default_value = (*draws.base_color, 1.0)
 
     def version(self) -> str:
         return f"Blender {self._bpy.app.version_string}"
@@ -235,62 +229,60 @@ class BlenderRenderer(Renderer):
 
     # ------------------------------------------------------------------ mesh
     def set_mesh(self, mesh) -> None:
-        """Replace the object with ``mesh`` (a TexturedMesh): mesh data, UVs, normals, texture."""
+        """Replace the target with ``mesh`` (a TexturedMesh): mesh data, UVs, normals, texture."""
         bpy = self._bpy
         if self._object is not None:
-            old_mesh, old_mat = self._object.data, self._object.active_material
-            old_image = old_mat.node_tree.nodes["spm-texture"].image if old_mat else None
+            old = self._object.data
             bpy.data.objects.remove(self._object)
-            bpy.data.meshes.remove(old_mesh)
-            if old_mat:
-                bpy.data.materials.remove(old_mat)
-            if old_image:
-                bpy.data.images.remove(old_image)
-        me = bpy.data.meshes.new(mesh.name)
-        me.from_pydata(mesh.vertices.tolist(), [], mesh.faces.tolist())
-        # Vertices are per face corner (meshes.py), so loop i is vertex i.
-        uv_layer = me.uv_layers.new(name="UVMap")
-        uv_layer.data.foreach_set("uv", mesh.uv.astype(np.float32).ravel())
-        me.polygons.foreach_set("use_smooth", np.ones(len(mesh.faces), dtype=bool))
-        me.normals_split_custom_set_from_vertices(mesh.normals.tolist())
-        me.update()
-
-        h, w = mesh.texture.shape[:2]
-        image = bpy.data.images.new(f"{mesh.name}-texture", width=w, height=h, alpha=False)
-        rgba = np.ones((h, w, 4), dtype=np.float32)
-        rgba[..., :3] = mesh.texture[::-1] / 255.0  # Blender's pixel rows start at the bottom
-        image.pixels.foreach_set(rgba.ravel())
-        image.pack()
-
-        mat = bpy.data.materials.new(f"{mesh.name}-material")
-        if mat.node_tree is None:
-            mat.use_nodes = True
-        nodes = mat.node_tree.nodes
-        bsdf = nodes.get("Principled BSDF")
-        tex = nodes.new("ShaderNodeTexImage")
-        tex.name = "spm-texture"
-        tex.image = image
-        mat.node_tree.links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
-        bsdf.inputs["Roughness"].default_value = 0.9
-        bsdf.inputs["Metallic"].default_value = 0.0
-        me.materials.append(mat)
-
-        obj = bpy.data.objects.new(mesh.name, me)
+            remove_mesh_data(bpy, old)
+        obj = bpy.data.objects.new(mesh.name, mesh_data(bpy, mesh, base_color=bool(self.spec.randomize.base_color)))
         obj.pass_index = 1
         bpy.context.scene.collection.objects.link(obj)
         self._object = obj
 
+    def _place_distractors(self, R, t, distractors) -> None:
+        """Show one object per PlacedDistractor (slot k: pass index 2 + k), posed in
+        the target's (the world's) frame; hide the slots not used."""
+        bpy = self._bpy
+        world_from_camera = np.eye(4)
+        world_from_camera[:3, :3], world_from_camera[:3, 3] = R.T, -R.T @ t
+        for k, d in enumerate(distractors):
+            if id(d.mesh) not in self._distractor_data:  # the mesh is kept, so its id stays its own
+                self._distractor_data[id(d.mesh)] = (d.mesh, mesh_data(bpy, d.mesh))
+            data = self._distractor_data[id(d.mesh)][1]
+            if k == len(self._slots):
+                slot = bpy.data.objects.new(f"spm-distractor-{k}", data)
+                slot.pass_index = 2 + k
+                bpy.context.scene.collection.objects.link(slot)
+                self._slots.append(slot)
+            slot = self._slots[k]
+            slot.data = data
+            slot.matrix_world = self._mathutils.Matrix((world_from_camera @ d.matrix()).tolist())
+            slot.hide_render = False
+        for slot in self._slots[len(distractors):]:
+            slot.hide_render = True
+
     # ------------------------------------------------------------------ frames
-    def render(self, R, t) -> dict:
+    def render(self, R, t, draws=None, distractors=()) -> dict:
         if self._object is None:
             raise RenderError("set_mesh must be called before render")
+        if draws is not None:
+            self._apply_draws(draws)
+        if distractors or self._slots:
+            self._place_distractors(R, t, distractors)
         self._camera.matrix_world = self._mathutils.Matrix(cv_to_gl_camera_to_world(R, t).tolist())
         try:
-            with _captured_output(self._log):
+            with captured_output(self._log):
                 self._bpy.ops.render.render(write_still=True)
         except RuntimeError as exc:
-            raise RenderError(f"Blender failed to render a frame ({exc}) {_tail(self._log)}".strip()) from None
-        return self._read_exr()
+            raise RenderError(f"Blender failed to render a frame ({exc}) {tail(self._log)}".strip()) from None
+        out = self._read_exr()
+        if distractors or self.outputs.instances or self.outputs.normals:
+            out["instances"] = self._instances
+        if self.outputs.normals:
+            world_to_camera = np.stack([np.eye(3), *([R] * (1 + len(distractors)))])  # Blender's normals are in the world
+            out["normals"] = rotate_normals(self._normals, self._instances, world_to_camera)
+        return out
 
     def _read_exr(self) -> dict:
         try:
@@ -301,11 +293,16 @@ class BlenderRenderer(Renderer):
                 z = np.asarray(channels["ViewLayer.Depth.Z"].pixels, dtype=np.float32)
                 index = channels.get("ViewLayer.Object Index.X")
                 index = None if index is None else np.asarray(index.pixels)
+                if self.outputs.normals:
+                    self._normals = np.stack([np.asarray(channels[f"ViewLayer.Normal.{c}"].pixels, np.float32)
+                                              for c in "XYZ"], axis=-1)
         except (OSError, KeyError, RuntimeError) as exc:
             raise RenderError(f"could not read Blender's EXR output ({type(exc).__name__}: {exc})") from None
         hit = z < NO_HIT_DEPTH
-        mask = (index > 0.5) & hit if index is not None else hit
-        depth = np.where(mask, z, 0.0).astype(np.float32)
+        ids = np.where(hit, np.rint(index), 0).astype(np.uint8) if index is not None else hit.astype(np.uint8)
+        self._instances = ids
+        mask = ids == 1 if index is not None else hit
+        depth = np.where(hit if self._slots else mask, z, 0.0).astype(np.float32)
         alpha = np.clip(combined[..., 3], 0.0, 1.0)
         return {"rgb": srgb_encode(combined[..., :3]), "alpha": alpha.astype(np.float32),
                 "depth": depth, "mask": mask.astype(np.uint8)}

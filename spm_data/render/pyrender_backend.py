@@ -11,7 +11,7 @@ import numpy as np
 
 from spm_data.errors import RenderError
 from spm_data.core.poses import K_to_corner_origin, cv_to_gl_camera_to_world
-from spm_data.render import Renderer, light_rotations, mask_from_depth
+from spm_data.render import Renderer, decode_normals, light_rotations, mask_from_depth
 
 # EGL needs no display; it must be chosen before OpenGL is first imported.
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
@@ -104,6 +104,8 @@ class PyrenderRenderer(Renderer):
             raise RenderError(f"pyrender: image {self.width}x{self.height} is larger than this OpenGL renders "
                               f"({side} pixels a side at most); use a smaller image or the blender renderer")
         self._scene = None
+        self._distractor_meshes = {}  # id(mesh) -> (mesh, its pyrender meshes), built once per distractor mesh
+        self._target = ()
 
     def version(self) -> str:
         return f"pyrender {self._pr.__version__ if hasattr(self._pr, '__version__') else ''}".strip()
@@ -112,42 +114,119 @@ class PyrenderRenderer(Renderer):
         return {"ambient": self.lighting.ambient, "lights": self.lighting.lights,
                 "strength": self.lighting.strength}
 
-    def set_mesh(self, mesh) -> None:
-        """Build the scene for ``mesh`` (a TexturedMesh); later frames only move the camera."""
+    def _pyrender_meshes(self, mesh):
+        """(lit, normals) pyrender meshes of ``mesh``: the textured one, and, when the spec
+        asks for normals, one whose vertex colours are its object-frame normals (n + 1) / 2."""
         pr = self._pr
+        positions, indices = mesh.vertices.astype(np.float32), mesh.faces.astype(np.uint32)
+        normals = mesh.normals.astype(np.float32)
         texture = pr.Texture(source=mesh.texture, source_channels="RGB")
         material = pr.MetallicRoughnessMaterial(baseColorTexture=texture, metallicFactor=0.0,
                                                 roughnessFactor=0.9, doubleSided=True)
-        primitive = pr.Primitive(positions=mesh.vertices.astype(np.float32), normals=mesh.normals.astype(np.float32),
-                                 texcoord_0=mesh.uv.astype(np.float32), indices=mesh.faces.astype(np.uint32),
-                                 material=material)
+        lit = pr.Mesh(primitives=[pr.Primitive(positions=positions, normals=normals, texcoord_0=mesh.uv.astype(np.float32),
+                                               indices=indices, material=material)])
+        if not self.outputs.normals:
+            return (lit,)
+        plain = pr.MetallicRoughnessMaterial(baseColorFactor=[1.0, 1.0, 1.0, 1.0], doubleSided=True)
+        coded = pr.Mesh(primitives=[pr.Primitive(positions=positions, normals=normals, indices=indices,
+                                                 color_0=(normals + 1.0) / 2.0, material=plain)], is_visible=False)
+        return lit, coded
+
+    def _distractor(self, mesh):
+        if id(mesh) not in self._distractor_meshes:  # the mesh is kept, so its id stays its own
+            self._distractor_meshes[id(mesh)] = (mesh, self._pyrender_meshes(mesh))
+        return self._distractor_meshes[id(mesh)][1]
+
+    def set_mesh(self, mesh) -> None:
+        """Build the scene for ``mesh`` (a TexturedMesh); later frames only move the camera."""
+        pr = self._pr
+        self._target = self._pyrender_meshes(mesh)
         a = self.lighting.ambient
         scene = _ordered_scene_class(pr)(bg_color=[0.0, 0.0, 0.0, 0.0], ambient_light=[a, a, a])
-        scene.add(pr.Mesh(primitives=[primitive]))
+        self._target_nodes = [scene.add(m) for m in self._target]
+        self._material = self._target[0].primitives[0].material
         K = K_to_corner_origin(self.K)  # pyrender counts the principal point from the pixel corner
-        camera = pr.IntrinsicsCamera(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2],
-                                     znear=0.01, zfar=100.0)
-        self._camera_node = scene.add(camera, pose=np.eye(4))
+        self._camera = pr.IntrinsicsCamera(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2], znear=0.01, zfar=100.0)
+        self._camera_node = scene.add(self._camera, pose=np.eye(4))
         self._light_nodes = [scene.add(pr.DirectionalLight(color=np.ones(3), intensity=self.lighting.strength),
-                                       name=f"spm-light-{i}", pose=np.eye(4)) for i in range(self.lighting.lights)]
+                                       name=f"spm-light-{i}", pose=np.eye(4)) for i in range(self.max_lights)]
         self._light_rots = light_rotations(self.lighting.lights)
         self._scene = scene
 
-    def render(self, R, t) -> dict:
+    def _apply_draws(self, draws) -> None:
+        """Set the frame's intrinsics, lights, ambient light and material (FrameDraws)."""
+        K = K_to_corner_origin(draws.K)
+        self._camera.fx, self._camera.fy, self._camera.cx, self._camera.cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+        for i, node in enumerate(self._light_nodes):
+            lit = i < len(draws.light_strengths)
+            node.light.color = draws.light_colors[i] if lit else np.ones(3)
+            node.light.intensity = float(draws.light_strengths[i]) if lit else 0.0
+        self._scene.ambient_light = np.full(3, draws.ambient)
+        self._material.baseColorFactor = np.array([*draws.base_color, 1.0])
+        self._material.roughnessFactor, self._material.metallicFactor = draws.roughness, draws.metallic
+
+    def render(self, R, t, draws=None, distractors=()) -> dict:
         if self._scene is None:
             raise RenderError("set_mesh must be called before render")
+        if draws is not None:
+            self._apply_draws(draws)
         pose = cv_to_gl_camera_to_world(R, t)
         self._scene.set_pose(self._camera_node, pose)
-        for node, rot in zip(self._light_nodes, self._light_rots):
+        rotations = draws.light_rotations if draws is not None else self._light_rots
+        for node, rot in zip(self._light_nodes, rotations):
             light_pose = pose.copy()
             light_pose[:3, :3] = pose[:3, :3] @ rot
             self._scene.set_pose(node, light_pose)
-        flags = self._pr.RenderFlags.SKIP_CULL_FACES
+        added = self._add_distractors(R, t, distractors)
+        try:
+            return self._render_passes(R, distractors, added)
+        finally:
+            for nodes in added:
+                for node in nodes:
+                    self._scene.remove_node(node)
+
+    def _add_distractors(self, R, t, distractors) -> list:
+        """Add each PlacedDistractor's nodes, posed in the target's (the world's) frame."""
+        world_from_camera = np.eye(4)
+        world_from_camera[:3, :3], world_from_camera[:3, 3] = R.T, -R.T @ t
+        added = []
+        for d in distractors:
+            pose = world_from_camera @ d.matrix()
+            added.append([self._scene.add(m, pose=pose) for m in self._distractor(d.mesh)])
+        return added
+
+    def _render_passes(self, R, distractors, added) -> dict:
+        pr, flags = self._pr, self._pr.RenderFlags.SKIP_CULL_FACES
         color, depth = self._renderer.render(self._scene, flags=flags)
         depth = np.asarray(depth, dtype=np.float32)
-        mask = mask_from_depth(depth)
-        return {"rgb": np.ascontiguousarray(color[..., :3], dtype=np.uint8), "alpha": mask.astype(np.float32),
-                "depth": depth, "mask": mask}
+        out = {"rgb": np.ascontiguousarray(color[..., :3], dtype=np.uint8), "depth": depth}
+        if distractors or self.outputs.instances or self.outputs.normals:
+            ids = {node: k + 1 for k, nodes in enumerate([self._target_nodes, *added]) for node in nodes}
+            seg, _ = self._renderer.render(self._scene, flags=flags | pr.RenderFlags.SEG,
+                                           seg_node_map={node: [k, k, k] for node, k in ids.items()})
+            instances = np.where(depth > 0, seg[..., 0], 0).astype(np.uint8)
+            out["instances"] = instances
+            mask = (instances == 1).astype(np.uint8)
+        else:
+            mask = mask_from_depth(depth)
+        out["alpha"], out["mask"] = (depth > 0).astype(np.float32), mask
+        if self.outputs.normals:
+            out["normals"] = self._normals_pass(R, distractors, out["instances"])
+        return out
+
+    def _normals_pass(self, R, distractors, instances) -> np.ndarray:
+        """(H, W, 3) float32 camera-frame unit normals: the normal-coloured meshes drawn flat."""
+        pr = self._pr
+        pairs = [self._target] + [meshes for _, meshes in self._distractor_meshes.values()]
+        for lit, coded in pairs:
+            lit.is_visible, coded.is_visible = False, True
+        try:
+            coded_rgb, _ = self._renderer.render(self._scene, flags=pr.RenderFlags.SKIP_CULL_FACES | pr.RenderFlags.FLAT)
+        finally:
+            for lit, coded in pairs:
+                lit.is_visible, coded.is_visible = True, False
+        rotations = np.stack([np.eye(3), R, *[d.R for d in distractors]])  # by instance id; 0: nothing
+        return decode_normals(coded_rgb[..., :3], instances, rotations)
 
     def close(self) -> None:
         """Drop the scene; the shared GL context lives until the process exits."""

@@ -92,3 +92,23 @@ def test_a_shard_without_frames(tmp_path):
     with pytest.raises(ShardError, match="empty.h5: shard has no frames"):
         contact_sheet(tmp_path / "empty.h5", tmp_path / "s.png")
     assert not (tmp_path / "s.png").exists()
+
+
+def test_a_sheet_of_an_outputs_field_in_false_colour(tmp_path):
+    from spm_data.commands.sheet import INSTANCE_COLOURS, false_colour
+
+    a = make_arrays(n=2, h=16, w=20)
+    a["t"][:] = (0.0, 0.0, -1.0)
+    a["mask"][:] = 0
+    a["instances"] = np.zeros((2, 16, 20), np.uint8)
+    a["instances"][:, 10:14, 5:9] = 2
+    path = write_shard(tmp_path / "x.h5", a, {"renderer": "test", "seed": 0})
+    sheet = cv2.cvtColor(cv2.imread(str(contact_sheet(path, tmp_path / "ids.png", field="instances"))), cv2.COLOR_BGR2RGB)
+    assert (sheet[21:27, 11:17] == INSTANCE_COLOURS[2]).all() and (sheet[20:32, 0:8] == 0).all()
+    with pytest.raises(ShardError, match="has no normals field; render it with \\[outputs\\] normals = true"):
+        contact_sheet(path, tmp_path / "n.png", field="normals")
+    n = np.zeros((2, 2, 3), np.float16)
+    n[0, 0] = (0, 0, -1)
+    np.testing.assert_array_equal(false_colour("normals", n, 0.25)[0], [[128, 128, 0], [0, 0, 0]])
+    depth = false_colour("depth", np.array([[0.0, 1.0], [2.0, 3.0]], np.float32), 0.25)
+    assert depth[0, 0, 0] == 0 and depth[0, 1, 0] == 255 and depth[1, 1, 0] == 55

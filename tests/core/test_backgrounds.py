@@ -63,3 +63,19 @@ def test_composite_puts_the_premultiplied_render_over_the_background():
     assert composite(rgb, alpha, None) is rgb                                    # black: the render as it is
     bright = composite(np.full((1, 1, 3), 250, np.uint8), np.array([[0.5]], np.float32), background[:, :1])
     assert bright.tolist() == [[[255, 255, 255]]]                                # clipped, not wrapped
+
+
+def test_procedural_backgrounds_are_seeded_patterns():
+    from spm_data.core.backgrounds import procedural_background
+
+    for kind in ("color", "gradient", "checker", "noise"):
+        a = procedural_background(kind, np.random.default_rng(3), 32, 48)
+        assert a.shape == (32, 48, 3) and a.dtype == np.uint8
+        np.testing.assert_array_equal(a, procedural_background(kind, np.random.default_rng(3), 32, 48))
+        assert not np.array_equal(a, procedural_background(kind, np.random.default_rng(4), 32, 48))
+    assert len(np.unique(procedural_background("color", np.random.default_rng(1), 8, 8).reshape(-1, 3), axis=0)) == 1
+    assert len(np.unique(procedural_background("checker", np.random.default_rng(1), 64, 64).reshape(-1, 3), axis=0)) == 2
+    noise = procedural_background("noise", np.random.default_rng(1), 64, 64).astype(int)
+    assert np.abs(np.diff(noise, axis=1)).mean() < 20 < noise.std()  # smooth, yet varied
+    with pytest.raises(SpecError, match="unknown background kind"):
+        procedural_background("plasma", np.random.default_rng(1), 8, 8)

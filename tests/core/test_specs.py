@@ -78,3 +78,15 @@ def test_bad_specs_name_the_key(text, message):
 def test_missing_spec_file(tmp_path):
     with pytest.raises(SpecError, match="spec not found"):
         load_spec(tmp_path / "nope.toml")
+
+
+def test_the_example_specs_load():
+    from pathlib import Path
+
+    from spm_data.core.specs import load_spec
+
+    examples = sorted((Path(__file__).resolve().parents[2] / "examples" / "specs").glob("*.toml"))
+    assert examples
+    for path in examples:
+        spec = load_spec(path)
+        assert spec.randomize.enabled and spec.distractors.count == 2 and spec.outputs.coords

@@ -146,3 +146,17 @@ def test_cli_occlude_with_the_ray_executor(specs, tmp_path):
     r = runner.invoke(data_cli, args + ["--out", str(tmp_path / "local")])
     assert r.exit_code == 0, r.output
     assert_same_arrays(tmp_path / "local", tmp_path / "ray")
+
+
+def test_ray_renders_a_randomised_cluttered_spec_to_the_same_bytes(tmp_path):
+    from tests.commands.test_render_frames import CLUTTERED
+
+    folder = tmp_path / "specs"
+    folder.mkdir()
+    (folder / "c.toml").write_text(CLUTTERED.format(cls="c"))
+    specs = load_run_specs(all_classes=True, specs_dir=folder)
+    render_dataset(specs, tmp_path / "local", limit=16)
+    remote = render_dataset(specs, tmp_path / "ray", limit=16, executor=make_executor("ray", workers=2))
+    assert remote.failed == [] and remote.frames == 16
+    assert [e["sha256"] for e in read_manifest(tmp_path / "ray")["shards"]] == \
+           [e["sha256"] for e in read_manifest(tmp_path / "local")["shards"]]

@@ -16,7 +16,8 @@ MANIFEST = "manifest.json"
 MISSING = "missing"  # manifest key: the planned shards the run that wrote it did not make
 
 
-# name -> (dtype, per-frame shape; "H", "W" and "R" are filled in per shard)
+# name -> (dtype, per-frame shape; "H", "W", "R" (rectangles), "D" (distractors) and "L" (lights)
+# are filled in per shard)
 FIELDS: dict[str, tuple[str, tuple]] = {
     "rgb": ("uint8", ("H", "W", 3)),
     "depth": ("float32", ("H", "W")),
@@ -45,10 +46,26 @@ OPTIONAL_FIELDS: dict[str, tuple[str, tuple]] = {
     "visible_mask": ("uint8", ("H", "W")),   # object minus occluders (spm-data occlude)
     "source_shard": ("str", ()),             # the shard a derived frame came from
     "source_frame": ("int64", ()),           # its frame index there
+    # [outputs] (opt-in)
+    "instances": ("uint8", ("H", "W")),      # 0 nothing, 1 the target, 2 + k distractor k
+    "normals": ("float16", ("H", "W", 3)),   # camera frame (OpenCV), unit; 0 where nothing was hit
+    "coords": ("float16", ("H", "W", 3)),    # object-frame metres of each visible target pixel; else 0
+    # [distractors]
+    "visible_target": ("float32", ()),       # the drawn visible fraction of the target
+    "distractor_mesh": ("int64", ("D",)),    # index into the attribute distractor_meshes; -1: none
+    "distractor_R": ("float64", ("D", 3, 3)),  # distractor -> camera rotation (OpenCV)
+    "distractor_t": ("float64", ("D", 3)),   # metres
+    "distractor_size": ("float64", ("D",)),  # its longest bounding-box side, metres
+    # [randomize]
+    "lights": ("float32", ("L", 7)),         # direction (camera frame) 3, colour 3, strength; zero rows unused
+    "material": ("float32", (5,)),           # base-colour factor 3, roughness, metallic
+    "ambient": ("float32", ()),              # 0..1 of white
 }
 
 
-IMAGE_FIELDS = ("rgb", "depth", "mask", "visible_mask")
+IMAGE_FIELDS = ("rgb", "depth", "mask", "visible_mask", "instances", "normals", "coords")
+SIZED_DIMS = {"R": "occlusion_rects", "D": "distractor_mesh", "L": "lights"}  # dimension -> field it is read from
+SIZED_FIELDS = tuple(f for f, (_, shape) in {**FIELDS, **OPTIONAL_FIELDS}.items() if set(shape) & set(SIZED_DIMS))
 
 
 REQUIRED_ATTRS = ("schema_version", "frames", "renderer", "seed")
@@ -57,9 +74,11 @@ REQUIRED_ATTRS = ("schema_version", "frames", "renderer", "seed")
 SOURCES = ("synthetic", "coil100", "cvl", "folder", "bop")
 
 
-def expected_shape(field: str, n: int, h: int, w: int, r: int) -> tuple:
+def expected_shape(field: str, n: int, h: int, w: int, dims=None) -> tuple:
+    """(n,) + the per-frame shape of ``field``; ``dims``: the sizes of "R", "D", "L" (default 1)."""
     spec = {**FIELDS, **OPTIONAL_FIELDS}[field][1]
-    return (n,) + tuple({"H": h, "W": w, "R": r}.get(d, d) for d in spec)
+    sizes = {"H": h, "W": w, **{d: 1 for d in SIZED_DIMS}, **(dims or {})}
+    return (n,) + tuple(sizes.get(d, d) for d in spec)
 
 
 def check_arrays(arrays: dict) -> tuple[int, int, int]:
@@ -71,10 +90,10 @@ def check_arrays(arrays: dict) -> tuple[int, int, int]:
     if unknown:
         raise ShardError(f"shard arrays have unknown fields {', '.join(unknown)}")
     n, h, w = np.asarray(arrays["rgb"]).shape[:3]
-    r = np.asarray(arrays["occlusion_rects"]).shape[1] if np.ndim(arrays["occlusion_rects"]) == 3 else 1
+    dims = {d: np.shape(arrays[f])[1] for d, f in SIZED_DIMS.items() if f in arrays and np.ndim(arrays[f]) > 1}
     for field, value in arrays.items():
         dtype = {**FIELDS, **OPTIONAL_FIELDS}[field][0]
-        shape = expected_shape(field, n, h, w, r)
+        shape = expected_shape(field, n, h, w, dims)
         got = np.shape(value)
         if got != shape:
             raise ShardError(f"shard field {field!r}: expected shape {shape}, got {got}")

@@ -98,7 +98,7 @@ class ShardWriter:
             self._file = h5py.File(self.tmp, "w", track_order=True)
             for field in self.images:
                 dtype = {**FIELDS, **OPTIONAL_FIELDS}[field][0]
-                frame_shape = expected_shape(field, 1, self.height, self.width, 1)[1:]
+                frame_shape = expected_shape(field, 1, self.height, self.width)[1:]
                 self._file.create_dataset(field, dtype=dtype, compression="gzip", compression_opts=GZIP_LEVEL,
                                           shuffle=np.dtype(dtype).itemsize > 1,
                                           **_chunked(self.frames, frame_shape, 1))

@@ -25,8 +25,12 @@ def test_bad_arrays_are_refused_and_nothing_is_written(tmp_path, mutate, message
 def test_expected_shape_fills_in_the_shard_sizes():
     from spm_data.io.shards.schema import check_arrays, expected_shape
 
-    assert expected_shape("rgb", 3, 8, 10, 1) == (3, 8, 10, 3)
-    assert expected_shape("occlusion_rects", 3, 8, 10, 2) == (3, 2, 4)
-    assert expected_shape("visible_mask", 2, 5, 6, 1) == (2, 5, 6)     # an optional field
-    assert expected_shape("class_name", 4, 8, 10, 1) == (4,)
+    assert expected_shape("rgb", 3, 8, 10) == (3, 8, 10, 3)
+    assert expected_shape("occlusion_rects", 3, 8, 10, {"R": 2}) == (3, 2, 4)
+    assert expected_shape("occlusion_rects", 3, 8, 10) == (3, 1, 4)     # one rectangle unless told
+    assert expected_shape("visible_mask", 2, 5, 6) == (2, 5, 6)     # an optional field
+    assert expected_shape("normals", 2, 5, 6) == (2, 5, 6, 3)
+    assert expected_shape("distractor_R", 2, 5, 6, {"D": 3}) == (2, 3, 3, 3)
+    assert expected_shape("lights", 2, 5, 6, {"L": 4}) == (2, 4, 7)
+    assert expected_shape("class_name", 4, 8, 10) == (4,)
     assert check_arrays(make_arrays(n=3, h=8, w=10)) == (3, 8, 10)

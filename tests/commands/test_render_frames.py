@@ -1,0 +1,142 @@
+"""Rendered frames with [randomize], [distractors] and [outputs], through the whole render path."""
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial import cKDTree
+
+from spm_data.commands.occlude_jobs import occlude_dataset
+from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.core.instances import load_instance
+from spm_data.errors import ShardError
+from spm_data.io.files import file_sha256
+from spm_data.io.shards import list_shards, read_attrs, read_shard
+from spm_data.jobs.executor import LocalExecutor
+
+CLUTTERED = """class = "{cls}"
+seed = 4
+[mesh]
+generator = "cup"
+instances = 2
+[camera]
+sampler = "sphere"
+views = 12
+elevation_range = [0, 50]
+roll_range = [-30, 30]
+distance_range = [0.6, 0.8]
+[randomize]
+lights = [1, 3]
+light_strength = [1.0, 2.0]
+base_color = [0.8, 1.2]
+roughness = [0.4, 1.0]
+backgrounds = ["gradient", "noise"]
+focal = [0.97, 1.03]
+principal_point = 2.0
+[distractors]
+count = 2
+visible = [0.3, 0.9]
+classes = ["box", "ball"]
+instances = 2
+[outputs]
+normals = true
+instances = true
+coords = true
+[render]
+renderer = "pyrender"
+frames_per_shard = 8
+"""
+
+
+@pytest.fixture
+def cluttered_specs(tmp_path):
+    folder = tmp_path / "specs"
+    folder.mkdir()
+    (folder / "cluttered.toml").write_text(CLUTTERED.format(cls="cluttered"))
+    return load_run_specs(all_classes=True, specs_dir=folder)
+
+
+@pytest.fixture
+def cluttered(cluttered_specs, tmp_path):
+    render_dataset(cluttered_specs, tmp_path / "out", limit=16)
+    return tmp_path / "out"
+
+
+def test_the_visible_fraction_lands_within_two_percent_of_its_draw(cluttered):
+    for path in list_shards(cluttered):
+        d = read_shard(path)
+        area = d["mask"].reshape(len(d["mask"]), -1).sum(1)
+        seen = d["visible_mask"].reshape(len(d["mask"]), -1).sum(1)
+        assert np.all(area > 300)
+        np.testing.assert_array_less(np.abs(seen / area - d["visible_target"]), 0.02)
+        np.testing.assert_allclose(d["occlusion_fraction"], 1 - seen / area, atol=1e-6)
+        assert np.all(d["visible_mask"] <= d["mask"])
+
+
+def test_instances_normals_and_coords_describe_the_frame(cluttered):
+    for path in list_shards(cluttered):
+        d = read_shard(path)
+        ids = d["instances"]
+        assert set(np.unique(ids)) >= {0, 1, 2}
+        np.testing.assert_array_equal(d["visible_mask"] > 0, (ids == 1) & (d["mask"] > 0))
+        n = d["normals"].astype(np.float32)
+        np.testing.assert_allclose(np.linalg.norm(n[ids > 0], axis=1), 1.0, atol=2e-3)
+        assert not n[ids == 0].any()
+        # Normals face the camera where a surface is seen head-on: most point against the view ray (+z).
+        assert np.mean(n[ids > 0][:, 2] < 0) > 0.8
+        for i in range(0, len(ids), 3):
+            coords = d["coords"][i][ids[i] == 1].astype(np.float64)
+            mesh = load_instance(_spec(cluttered), int(d["instance_id"][i])).to_trimesh()
+            surface = cKDTree(trimesh.sample.sample_surface_even(mesh, 200_000, seed=0)[0])
+            distance, _ = surface.query(coords)
+            # On the surface: within the samples' spacing (about 1 mm); a wrong frame is centimetres off.
+            assert np.median(distance) < 1.5e-3 and np.percentile(distance, 99) < 4e-3
+            assert not d["coords"][i][ids[i] != 1].any()
+
+
+def _spec(folder):
+    from spm_data.core.specs import parse_spec
+
+    return parse_spec(read_attrs(list_shards(folder)[0])["spec"])
+
+
+def test_the_shard_records_the_draws_and_the_distractors(cluttered):
+    d = read_shard(list_shards(cluttered)[0])
+    attrs = read_attrs(list_shards(cluttered)[0])
+    assert d["lights"].shape[1:] == (3, 7) and d["material"].shape[1:] == (5,)
+    assert np.ptp(d["K"][:, 0, 0]) > 0 and np.ptp(d["K"][:, 0, 2]) > 0  # K jitters per frame
+    assert d["distractor_R"].shape[1:] == (2, 3, 3) and np.all(d["distractor_mesh"] >= 0)
+    import json
+
+    assert json.loads(attrs["distractor_meshes"]) == ["box-10000", "box-10001", "ball-10000", "ball-10001"]
+    assert np.all(d["distractor_t"][:, :, 2] > 0) and np.all(d["distractor_size"] > 0)
+
+
+def test_two_workers_and_a_rerun_give_the_same_shards(cluttered_specs, cluttered, tmp_path):
+    two = render_dataset(cluttered_specs, tmp_path / "two", limit=16, executor=LocalExecutor(workers=2))
+    assert two.failed == []
+    for a, b in zip(list_shards(cluttered), list_shards(tmp_path / "two")):
+        assert file_sha256(a) == file_sha256(b)
+    first = list_shards(tmp_path / "two")[0]
+    before = file_sha256(first)
+    first.unlink()  # a lost shard is rendered again, to the same bytes
+    render_dataset(cluttered_specs, tmp_path / "two", limit=16)
+    assert file_sha256(first) == before
+
+
+def test_occluding_a_shard_that_has_distractors_is_refused(cluttered, tmp_path):
+    with pytest.raises(ShardError, match="already occluded \\(it has a visible_mask"):
+        occlude_dataset(cluttered, tmp_path / "occ")
+    assert not (tmp_path / "occ").exists() or not list((tmp_path / "occ").glob("*.h5"))
+
+
+def test_merge_keeps_the_distractor_fields(cluttered, tmp_path):
+    from spm_data.commands.merge import merge_folders
+
+    merge_folders([cluttered], tmp_path / "merged")
+    merged = read_shard(list_shards(tmp_path / "merged")[0])
+    original = read_shard(list_shards(cluttered)[0])
+    np.testing.assert_array_equal(merged["distractor_t"][:8], original["distractor_t"])
+    np.testing.assert_array_equal(merged["normals"][:8], original["normals"])
+    np.testing.assert_array_equal(merged["distractor_mesh"][:8], original["distractor_mesh"])
+    assert read_attrs(list_shards(tmp_path / "merged")[0])["distractor_meshes"] == \
+        read_attrs(list_shards(cluttered)[0])["distractor_meshes"]
