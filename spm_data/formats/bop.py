@@ -240,7 +240,8 @@ class _Export:
         visible = data["visible_mask"][i] > 0 if "visible_mask" in data else mask
         rgb_name = f"rgb/{im:06d}{self.rgb_suffix}"
         _encode(sdir / rgb_name, data["rgb"][i])
-        depth = _depth_with_occluders(data["depth"][i], mask, visible)
+        # Rendered distractors are in the depth already; only 2-D rectangles need a stand-in.
+        depth = data["depth"][i] if "distractor_mesh" in data else _depth_with_occluders(data["depth"][i], mask, visible)
         depth_units = np.round(depth.astype(np.float64) * 1000.0 / DEPTH_SCALE)
         _encode(sdir / "depth" / f"{im:06d}.png", np.clip(depth_units, 0, 65535).astype(np.uint16))
         _encode(sdir / "mask" / f"{im:06d}_000000.png", mask.astype(np.uint8) * 255)

@@ -319,3 +319,27 @@ def test_split_must_be_one_folder_name_and_meshes_from_a_folder(small_specs_dir,
                                       "--meshes-from", str(tmp_path / "nowhere")])
     assert r.exit_code == 1 and "--meshes-from" in r.output and "no such folder" in r.output
     assert not (tmp_path / "evil").exists() and not (tmp_path / "bop").exists()
+
+
+def test_a_cluttered_export_keeps_the_rendered_depth_and_visible_masks(tmp_path):
+    from spm_data.formats.bop import DEPTH_SCALE
+    from tests.commands.test_render_frames import CLUTTERED
+
+    folder = tmp_path / "specs"
+    folder.mkdir()
+    (folder / "c.toml").write_text(CLUTTERED.format(cls="c").replace('frames_per_shard = 8', 'frames_per_shard = 6'))
+    render_dataset(load_run_specs(all_classes=True, specs_dir=folder), tmp_path / "r", limit=6)
+    export_bop(tmp_path / "r", tmp_path / "bop")
+    d = read_shard(list_shards(tmp_path / "r")[0], ["depth", "mask", "visible_mask", "instance_id"])
+    seen = {}
+    for i, inst in enumerate(d["instance_id"]):
+        scene = sorted(set(d["instance_id"])).index(inst)
+        im = seen[scene] = seen.get(scene, -1) + 1
+        sdir = tmp_path / "bop" / "train" / f"{scene:06d}"
+        depth = cv2.imread(str(sdir / "depth" / f"{im:06d}.png"), cv2.IMREAD_UNCHANGED) * DEPTH_SCALE / 1000
+        # The distractors' own depth in front of the target, not a flat stand-in.
+        np.testing.assert_allclose(depth, d["depth"][i], atol=DEPTH_SCALE / 1000)
+        visib = cv2.imread(str(sdir / "mask_visib" / f"{im:06d}_000000.png"), cv2.IMREAD_UNCHANGED) > 0
+        np.testing.assert_array_equal(visib, d["visible_mask"][i] > 0)
+        info = json.loads((sdir / "scene_gt_info.json").read_text())[str(im)][0]
+        assert info["visib_fract"] == pytest.approx(d["visible_mask"][i].sum() / d["mask"][i].sum())
