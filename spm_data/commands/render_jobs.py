@@ -28,7 +28,7 @@ from spm_data.core.distractors import pool_names
 from spm_data.jobs.executor import LocalExecutor
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
 from spm_data.io.shards import SCHEMA_VERSION, ShardWriter, manifest_entry
-from spm_data.core.specs import RenderSpec, all_spec_paths, find_spec, load_spec
+from spm_data.core.specs import RenderSpec, all_spec_paths, find_spec, load_spec, validate_spec
 
 
 @dataclass(frozen=True, init=False)
@@ -89,6 +89,10 @@ def effective_spec(spec: RenderSpec, renderer: str | None = None, seed: int | No
     """``spec`` with command-line overrides applied."""
     if renderer is not None:
         spec = spec.replace(render=replace(spec.render, renderer=renderer))
+        try:
+            validate_spec(spec)  # what the spec asks may be beyond this renderer (Workbench: no normals)
+        except SpecError as exc:
+            raise SpecError(f"{spec.class_name} with --renderer {renderer}: {exc}") from None
     if seed is not None:
         spec = spec.replace(seed=int(seed))
     return spec

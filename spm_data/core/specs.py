@@ -214,6 +214,11 @@ def _check(ok: bool, message: str) -> None:
         raise SpecError(message)
 
 
+def validate_spec(spec: RenderSpec) -> RenderSpec:
+    """``spec`` once more through every check (after a command-line override); SpecError."""
+    return _validate(spec)
+
+
 def _validate(spec: RenderSpec) -> RenderSpec:
     _check(spec.class_name.strip() != "" and "/" not in spec.class_name,
            f"class: expected a non-empty name without '/', got {spec.class_name!r}")
@@ -269,6 +274,10 @@ def _validate(spec: RenderSpec) -> RenderSpec:
     _check(not (lit and r.renderer == "blender" and b.engine == "workbench"),
            f"randomize.{lit[0] if lit else ''}: Workbench lights with its own studio light and no materials; "
            "use engine = \"cycles\" or the pyrender renderer")
+    workbench = r.renderer == "blender" and b.engine == "workbench"
+    _check(not (workbench and (spec.distractors.count or spec.outputs.instances)),
+           f"{'distractors.count' if spec.distractors.count else 'outputs.instances'}: Blender's Workbench has no "
+           "object index pass to tell the objects apart; use engine = \"cycles\" or the pyrender renderer")
     _check(not (spec.outputs.normals and r.renderer == "blender" and b.engine == "workbench"),
            "outputs.normals: Blender's Workbench has no normal pass; use engine = \"cycles\" or the pyrender renderer")
     return spec

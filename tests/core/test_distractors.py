@@ -104,3 +104,22 @@ def test_pool_names_list_classes_then_files(tmp_path):
 def test_bad_values_name_their_key(body, message):
     with pytest.raises(SpecError, match=message):
         parse_spec(f'class = "cup"\n[distractors]\n{body}\n')
+
+
+def test_workbench_cannot_tell_distractors_apart():
+    with pytest.raises(SpecError, match="distractors.count: Blender's Workbench has no object index pass"):
+        parse_spec('class = "cup"\n[render.blender]\nengine = "workbench"\n[distractors]\ncount = 1\n')
+    with pytest.raises(SpecError, match="outputs.instances: Blender's Workbench"):
+        parse_spec('class = "cup"\n[render.blender]\nengine = "workbench"\n[outputs]\ninstances = true\n')
+    parse_spec('class = "cup"\n[render]\nrenderer = "pyrender"\n[render.blender]\nengine = "workbench"\n'
+               '[distractors]\ncount = 1\n')  # Workbench settings unused by pyrender
+
+
+def test_a_renderer_override_is_checked_too(tmp_path):
+    from spm_data.commands.render_jobs import load_run_specs
+
+    (tmp_path / "c.toml").write_text('class = "c"\n[render]\nrenderer = "pyrender"\n[render.blender]\n'
+                                     'engine = "workbench"\n[distractors]\ncount = 1\n')
+    assert load_run_specs(spec_files=[tmp_path / "c.toml"])[0].distractors.count == 1
+    with pytest.raises(SpecError, match="c with --renderer blender: distractors.count: Blender's Workbench"):
+        load_run_specs(spec_files=[tmp_path / "c.toml"], renderer="blender")
