@@ -118,8 +118,8 @@ def test_workbench_cannot_tell_distractors_apart():
 def test_a_renderer_override_is_checked_too(tmp_path):
     from spm_data.commands.render_jobs import load_run_specs
 
-    (tmp_path / "c.toml").write_text('class = "c"\n[render]\nrenderer = "pyrender"\n[render.blender]\n'
+    (tmp_path / "c.toml").write_text('class = "cup"\n[render]\nrenderer = "pyrender"\n[render.blender]\n'
                                      'engine = "workbench"\n[distractors]\ncount = 1\n')
     assert load_run_specs(spec_files=[tmp_path / "c.toml"])[0].distractors.count == 1
-    with pytest.raises(SpecError, match="c with --renderer blender: distractors.count: Blender's Workbench"):
+    with pytest.raises(SpecError, match="cup with --renderer blender: distractors.count: Blender's Workbench"):
         load_run_specs(spec_files=[tmp_path / "c.toml"], renderer="blender")
