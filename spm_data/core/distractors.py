@@ -81,9 +81,14 @@ class Placement:
 
 def pool_names(spec) -> list[str]:
     """The distractor meshes a spec draws from, as names: ``box-10003``, or a file's path."""
+    return list(_pool_names(spec))
+
+
+@lru_cache(maxsize=8)
+def _pool_names(spec) -> tuple:  # the files are globbed once per spec, not once per frame
     d = spec.distractors
     names = [f"{c}-{DISTRACTOR_INSTANCE0 + i}" for c in _classes(d) for i in range(d.instances)]
-    return names + [str(p) for p in _files(spec.base_dir, d.files)]
+    return tuple(names + [str(p) for p in _files(spec.base_dir, d.files)])
 
 
 def _classes(d: DistractorSpec) -> tuple:
@@ -103,7 +108,7 @@ def _files(base_dir: str, patterns: tuple) -> list[Path]:
 @lru_cache(maxsize=64)
 def pool_mesh(spec, index: int):
     """Mesh ``index`` of the spec's pool (pool_names), longest side 1 metre."""
-    name = pool_names(spec)[index]
+    name = _pool_names(spec)[index]
     if index < len(_classes(spec.distractors)) * spec.distractors.instances:
         cls, inst = name.rsplit("-", 1)
         return procedural_mesh(cls, int(inst), seed=spec.seed, size=1.0)
@@ -155,7 +160,7 @@ class _Window:
 def _place_one(spec, rng, window, covered, share, z_near):
     """One distractor whose silhouette brings ``covered`` (window bool) to ``share`` pixels."""
     d = spec.distractors
-    index = int(rng.integers(len(pool_names(spec))))
+    index = int(rng.integers(len(_pool_names(spec))))
     mesh = pool_mesh(spec, index)
     R = Rotation.from_quat(rng.normal(size=4)).as_matrix()
     scale, depth = rng.uniform(*d.scale), rng.uniform(*d.depth)
