@@ -200,6 +200,7 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
                 images, labels = maker.make(mesh, int(inst), int(pidx), R[i], t[i])
                 for field, image in images.items():
                     block[field][j] = image
+                writer.encode_ahead(i, {f: a[j] for f, a in block.items()})  # compressed while the next renders
                 frame_labels.append(labels)
                 report(1)
             writer.write_images(start, {f: a[:k] for f, a in block.items()})

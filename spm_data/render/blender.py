@@ -22,7 +22,8 @@ import numpy as np
 from spm_data.errors import RenderError
 from spm_data.core.poses import K_to_corner_origin, cv_to_gl_camera_to_world
 from spm_data.render import Renderer, light_rotations, rotate_normals
-from spm_data.render.blender_scene import captured_output, mesh_data, remove_mesh_data, srgb_encode, tail
+from spm_data.render.blender_scene import (border_box, captured_output, cycles_device, mesh_data, remove_mesh_data,
+                                           srgb_encode, tail, uncrop)
 
 NO_HIT_DEPTH = 1e9  # Blender writes 1e10 where no surface was hit
 INSTALL_HINT = "install it with: pip install 'spm[blender]' (bpy 5.0.x, Python 3.11)"
@@ -45,7 +46,6 @@ def _import_openexr():
     return OpenEXR
 
 
-GPU_BACKENDS = ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL")  # in the order "auto" and "gpu" try them
 
 class BlenderRenderer(Renderer):
     """bpy renderer for one spec (engine, samples, image size, intrinsics, lights)."""
@@ -66,6 +66,9 @@ class BlenderRenderer(Renderer):
         self._exr_path = os.path.join(self._tmp, "frame.exr")
         self._log = os.path.join(self._tmp, "blender.log")
         self._object = None
+        self._points = np.zeros((0, 3))  # the target's distinct vertices, for its render border
+        self._frame_K = self.K           # the frame's intrinsics (randomised per frame or the spec's)
+        self._crop = None  # (x0, y0, x1, y1): the pixels the frame's render border keeps, or None
         self._slots, self._distractor_data = [], {}  # distractor objects, and their meshes by id(mesh)
         try:
             with captured_output(self._log):
@@ -92,6 +95,10 @@ class BlenderRenderer(Renderer):
         r.film_transparent = s.film_transparent
         if s.threads > 0:  # else Blender's default, all cores (measured fastest, even with 2 workers)
             r.threads_mode, r.threads = "FIXED", s.threads
+        # Keep the synced scene (Cycles: objects, BVH, shaders, images) between frames; a frame
+        # then re-syncs only what changed (camera, lights, materials, distractors). Cycles then
+        # ignores changes to scene.cycles settings made after the first frame: set them all here.
+        r.use_persistent_data = True
         if self.engine == "cycles":
             r.engine = "CYCLES"
             sc.cycles.device = "CPU"
@@ -110,30 +117,11 @@ class BlenderRenderer(Renderer):
         sc.view_settings.view_transform = "Standard"
 
     def _set_device(self, sc) -> str:
-        """Where Cycles renders, as the spec's ``device`` asks: ``"CPU"`` or the GPU backend
-        used (OPTIX, CUDA, HIP, ONEAPI, METAL; the first with a device). ``"auto"`` falls
-        back to the CPU; ``"gpu"`` without one is a RenderError."""
-        wanted = self.spec.render.blender.device
-        if self.engine != "cycles" or wanted == "cpu":
+        """Where Cycles renders (cycles_device): "CPU" or the GPU backend used."""
+        if self.engine != "cycles":
             sc.cycles.device = "CPU"
             return "CPU"
-        prefs = self._bpy.context.preferences.addons["cycles"].preferences
-        for backend in GPU_BACKENDS:
-            try:
-                prefs.compute_device_type = backend  # a TypeError where this Blender has no such backend
-                found = [d for d in prefs.get_devices_for_type(backend) if d.type == backend]
-            except (TypeError, AttributeError, RuntimeError):
-                continue
-            if found:
-                for d in prefs.devices:
-                    d.use = d.type == backend
-                sc.cycles.device = "GPU"
-                return backend
-        if wanted == "gpu":
-            raise RenderError("render.blender.device = \"gpu\": Blender finds no GPU here (tried "
-                              f"{', '.join(GPU_BACKENDS)}); use \"auto\" to fall back to the CPU, or \"cpu\"")
-        sc.cycles.device = "CPU"
-        return "CPU"
+        return cycles_device(self._bpy, sc, self.spec.render.blender.device)
 
     def _set_output(self, sc) -> None:
         """One multi-layer EXR a frame: Combined, Depth and Object Index, 32-bit, uncompressed."""
@@ -149,6 +137,7 @@ class BlenderRenderer(Renderer):
         img.exr_codec = "NONE"
         r.filepath = self._exr_path
         r.use_file_extension = False
+        r.use_crop_to_border = True  # with a render border (_set_border) the EXR holds only the border
 
     def _add_camera(self, sc) -> None:
         cam = self._bpy.data.cameras.new("spm-camera")
@@ -231,6 +220,12 @@ class BlenderRenderer(Renderer):
     def set_mesh(self, mesh) -> None:
         """Replace the target with ``mesh`` (a TexturedMesh): mesh data, UVs, normals, texture."""
         bpy = self._bpy
+        # Persistent data (_set_engine): Cycles keeps images by their datablock's address, and
+        # a new texture may be given the freed one's, so it would keep the old pixels (seen).
+        # Switching the setting off frees the kept scene; the next frame builds it anew.
+        render = bpy.context.scene.render
+        render.use_persistent_data = False
+        render.use_persistent_data = True
         if self._object is not None:
             old = self._object.data
             bpy.data.objects.remove(self._object)
@@ -239,6 +234,7 @@ class BlenderRenderer(Renderer):
         obj.pass_index = 1
         bpy.context.scene.collection.objects.link(obj)
         self._object = obj
+        self._points = np.unique(np.asarray(mesh.vertices, dtype=np.float64), axis=0)
 
     def _place_distractors(self, R, t, distractors) -> None:
         """Show one object per PlacedDistractor (slot k: pass index 2 + k), posed in
@@ -271,6 +267,9 @@ class BlenderRenderer(Renderer):
         if distractors or self._slots:
             self._place_distractors(R, t, distractors)
         self._camera.matrix_world = self._mathutils.Matrix(cv_to_gl_camera_to_world(R, t).tolist())
+        self._frame_K = draws.K if draws is not None else self.K
+        if self.engine == "cycles" and self.spec.render.blender.film_transparent:
+            self._set_border(np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64))
         try:
             with captured_output(self._log):
                 self._bpy.ops.render.render(write_still=True)
@@ -284,6 +283,31 @@ class BlenderRenderer(Renderer):
             out["normals"] = rotate_normals(self._normals, self._instances, world_to_camera)
         return out
 
+    def _set_border(self, R, t) -> None:
+        """Let Cycles trace only the pixels around what it can see: a render border, cropped,
+        around the projection of the target's vertices and of the bounding boxes of the
+        scene's other visible meshes (distractors), plus BORDER_MARGIN pixels. With a
+        transparent film the pixels outside are background, which _read_exr fills in as a
+        full frame has it (tests/render/test_blender.py); else the full frame."""
+        r = self._bpy.context.scene.render
+        points = []
+        for obj in self._bpy.context.scene.objects:
+            if obj.type == "MESH" and not obj.hide_render:
+                local = self._points if obj == self._object else np.array(obj.bound_box)
+                m = np.array(obj.matrix_world)
+                points.append(local @ m[:3, :3].T + m[:3, 3])
+        # R, t map the world (the target's frame) to the camera
+        self._crop = border_box(np.concatenate(points) @ R.T + t, self._frame_K, self.width, self.height) \
+            if points else None
+        r.use_border = self._crop is not None
+        if self._crop is not None:
+            x0, y0, x1, y1 = self._crop
+            W, H = self.width, self.height
+            # Blender takes pixel int(fraction * size) (render_pipeline.cc, disprect): a half pixel
+            # more makes that exact; its y counts from the bottom.
+            r.border_min_x, r.border_max_x = (x0 + 0.5) / W, min(1.0, (x1 + 0.5) / W)
+            r.border_min_y, r.border_max_y = (H - y1 + 0.5) / H, min(1.0, (H - y0 + 0.5) / H)
+
     def _read_exr(self) -> dict:
         try:
             with self._exr.File(self._exr_path) as f:
@@ -293,19 +317,29 @@ class BlenderRenderer(Renderer):
                 z = np.asarray(channels["ViewLayer.Depth.Z"].pixels, dtype=np.float32)
                 index = channels.get("ViewLayer.Object Index.X")
                 index = None if index is None else np.asarray(index.pixels)
+                normals = None
                 if self.outputs.normals:
-                    self._normals = np.stack([np.asarray(channels[f"ViewLayer.Normal.{c}"].pixels, np.float32)
+                    normals = np.stack([np.asarray(channels[f"ViewLayer.Normal.{c}"].pixels, np.float32)
                                               for c in "XYZ"], axis=-1)
         except (OSError, KeyError, RuntimeError) as exc:
             raise RenderError(f"could not read Blender's EXR output ({type(exc).__name__}: {exc})") from None
         hit = z < NO_HIT_DEPTH
         ids = np.where(hit, np.rint(index), 0).astype(np.uint8) if index is not None else hit.astype(np.uint8)
-        self._instances = ids
         mask = ids == 1 if index is not None else hit
         depth = np.where(hit if self._slots else mask, z, 0.0).astype(np.float32)
         alpha = np.clip(combined[..., 3], 0.0, 1.0)
-        return {"rgb": srgb_encode(combined[..., :3]), "alpha": alpha.astype(np.float32),
-                "depth": depth, "mask": mask.astype(np.uint8)}
+        out = {"rgb": srgb_encode(combined[..., :3]), "alpha": alpha.astype(np.float32),
+               "depth": depth, "mask": mask.astype(np.uint8), "ids": ids}
+        if self.outputs.normals:
+            out["world_normals"] = normals
+        if z.shape != (self.height, self.width):
+            x0, y0, x1, y1 = self._crop or (0, 0, 0, 0)
+            if z.shape != (y1 - y0, x1 - x0):
+                raise RenderError(f"Blender's EXR is {z.shape[1]}x{z.shape[0]}, expected {self.width}x{self.height} "
+                                  f"or its render border {x1 - x0}x{y1 - y0}")
+            out = uncrop(out, self._crop, self.height, self.width)
+        self._instances, self._normals = out.pop("ids"), out.pop("world_normals", None)
+        return out
 
     def close(self) -> None:
         shutil.rmtree(self._tmp, ignore_errors=True)

@@ -1,5 +1,6 @@
-"""Blender helpers that need no renderer state: meshes and materials from a
-TexturedMesh, Blender's console output captured, linear to sRGB (spm_data.render.blender)."""
+"""Blender helpers that need no renderer state (spm_data.render.blender): meshes and
+materials from a TexturedMesh, the Cycles device, the render border and its uncropping,
+Blender's console output captured, linear to sRGB."""
 
 from __future__ import annotations
 
@@ -8,12 +9,52 @@ import os
 
 import numpy as np
 
+from spm_data.errors import RenderError
+
 
 def srgb_encode(linear: np.ndarray) -> np.ndarray:
-    """Linear float RGB (any shape) -> sRGB uint8 (IEC 61966-2-1 transfer curve)."""
+    """Linear float RGB (any shape) -> sRGB uint8 (IEC 61966-2-1 transfer curve).
+
+    Only values above 0 go through the curve (a frame is mostly background, which
+    is exactly 0 and encodes to 0); each value's code is the same as through the
+    curve for the whole array."""
     c = np.clip(linear, 0.0, 1.0)
-    s = np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.power(c, 1 / 2.4) - 0.055)
-    return np.round(s * 255.0).astype(np.uint8)
+    out = np.zeros(c.shape, dtype=np.uint8)
+    lit = c > 0.0
+    v = c[lit]
+    s = np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.power(v, 1 / 2.4) - 0.055)
+    out[lit] = np.round(s * 255.0).astype(np.uint8)
+    return out
+
+
+BORDER_MARGIN = 2  # pixels kept around the projected geometry
+
+
+def border_box(points, K, width: int, height: int, margin: int = BORDER_MARGIN):
+    """The pixels ``(x0, y0, x1, y1)`` (half-open) around camera-frame ``points`` (N, 3)
+    metres projected through ``K`` (3, 3, OpenCV centres), plus ``margin``; None when a
+    point is at or behind the camera plane, nothing is given, or the box is the frame."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if not len(p) or p[:, 2].min() <= 1e-6:
+        return None
+    uv = p @ np.asarray(K, dtype=np.float64).T
+    u, v = uv[:, 0] / uv[:, 2], uv[:, 1] / uv[:, 2]  # OpenCV: pixel i's centre is at i
+    x0, x1 = max(0, int(np.floor(u.min())) - margin), min(width, int(np.floor(u.max())) + margin + 1)
+    y0, y1 = max(0, int(np.floor(v.min())) - margin), min(height, int(np.floor(v.max())) + margin + 1)
+    if x0 >= x1 or y0 >= y1 or (x1 - x0) * (y1 - y0) == width * height:
+        return None
+    return x0, y0, x1, y1
+
+
+def uncrop(arrays: dict, crop, height: int, width: int) -> dict:
+    """Arrays of a render border ``crop`` = (x0, y0, x1, y1) placed in frames of zeros, the
+    background a full frame has with a transparent film (rgb, alpha, depth, ids, normals 0)."""
+    x0, y0, x1, y1 = crop
+    full = {}
+    for name, a in arrays.items():
+        full[name] = np.zeros((height, width) + a.shape[2:], dtype=a.dtype)
+        full[name][y0:y1, x0:x1] = a
+    return full
 
 
 @contextlib.contextmanager
@@ -94,3 +135,32 @@ def mesh_data(bpy, mesh, base_color: bool = False):
     bsdf.inputs["Metallic"].default_value = 0.0
     me.materials.append(mat)
     return me
+
+
+GPU_BACKENDS = ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL")  # in the order "auto" and "gpu" try them
+
+
+def cycles_device(bpy, sc, wanted: str) -> str:
+    """Where Cycles renders, as a spec's ``render.blender.device`` (``wanted``) asks:
+    ``"CPU"`` or the GPU backend used (OPTIX, CUDA, HIP, ONEAPI, METAL; the first with a
+    device). ``"auto"`` falls back to the CPU; ``"gpu"`` without one is a RenderError."""
+    if wanted == "cpu":
+        sc.cycles.device = "CPU"
+        return "CPU"
+    prefs = bpy.context.preferences.addons["cycles"].preferences
+    for backend in GPU_BACKENDS:
+        try:
+            prefs.compute_device_type = backend  # a TypeError where this Blender has no such backend
+            found = [d for d in prefs.get_devices_for_type(backend) if d.type == backend]
+        except (TypeError, AttributeError, RuntimeError):
+            continue
+        if found:
+            for d in prefs.devices:
+                d.use = d.type == backend
+            sc.cycles.device = "GPU"
+            return backend
+    if wanted == "gpu":
+        raise RenderError("render.blender.device = \"gpu\": Blender finds no GPU here (tried "
+                          f"{', '.join(GPU_BACKENDS)}); use \"auto\" to fall back to the CPU, or \"cpu\"")
+    sc.cycles.device = "CPU"
+    return "CPU"

@@ -64,6 +64,62 @@ def test_blender_and_pyrender_agree_on_mask_and_depth(engine, tmp_path_factory):
     assert frames == 18
 
 
+def test_cycles_border_and_kept_scene_give_the_frames_of_a_plain_full_render():
+    """render() traces only a border around the object and keeps Cycles' scene between
+    frames (rebuilt at each set_mesh): every array is the one a plain full-frame render of a
+    freshly built scene gives, over mesh switches (a new texture may take the old one's address)."""
+    import bpy
+    import mathutils
+
+    from spm_data.core.poses import cv_to_gl_camera_to_world
+
+    spec = parse_spec('class = "cup"\n[image]\nwidth = 64\nheight = 48\n[render.blender]\nsamples = 4')
+    path = camera_path(CameraGrid(azimuth=AngleRange(0, 300, 60), elevation=AngleRange(0, 60, 60),
+                                  distances=(0.6, 0.8), look_at=(0.02, 0.0, -0.01)))
+    meshes = [procedural_mesh("cup", 0), procedural_mesh("cup", 1), procedural_mesh("motorcycle", 0),
+              procedural_mesh("cup", 0)]
+    views = range(0, len(path), 3)
+    ours = []
+    with make_renderer(spec, "blender") as renderer:
+        for mesh in meshes:
+            renderer.set_mesh(mesh)
+            for i in views:
+                R, t = path.poses(slice(i, i + 1))
+                ours.append(renderer.render(R[0], t[0]))
+                assert bpy.context.scene.render.use_border  # the object is in view: a border
+        assert bpy.context.scene.render.use_persistent_data
+    plain = []
+    for mesh in meshes:
+        with make_renderer(spec, "blender") as fresh:
+            fresh.set_mesh(mesh)
+            bpy.context.scene.render.use_persistent_data = False
+            for i in views:
+                R, t = path.poses(slice(i, i + 1))
+                fresh._camera.matrix_world = mathutils.Matrix(cv_to_gl_camera_to_world(R[0], t[0]).tolist())
+                bpy.ops.render.render(write_still=True)
+                plain.append(fresh._read_exr())
+    assert len(ours) == len(plain) == 4 * len(views)
+    for k, (a, b) in enumerate(zip(ours, plain)):
+        for name in ("rgb", "alpha", "depth", "mask"):
+            np.testing.assert_array_equal(a[name], b[name], err_msg=f"frame {k}, {name}")
+        assert b["mask"].any()
+
+
+def test_an_opaque_film_renders_the_full_frame():
+    """Without a transparent film the background is the world's colour, not 0: no border."""
+    import bpy
+
+    spec = parse_spec('class = "cup"\n[image]\nwidth = 32\nheight = 32\n[render.blender]\nsamples = 1\n'
+                      'film_transparent = false')
+    path = camera_path(CameraGrid(azimuth=AngleRange(0, 0, 5), elevation=AngleRange(30, 30, 5), distances=(0.8,)))
+    R, t = path.poses(slice(0, 1))
+    with make_renderer(spec, "blender") as renderer:
+        renderer.set_mesh(procedural_mesh("cup", 0))
+        out = renderer.render(R[0], t[0])
+        assert not bpy.context.scene.render.use_border
+    assert out["rgb"][0, 0].min() > 0 and out["alpha"][0, 0] == 1.0  # a corner: the world, opaque
+
+
 def test_blender_shards_record_engine_settings(tmp_path):
     spec_file = tmp_path / "cup.toml"
     spec_file.write_text('class = "cup"\n[camera]\nazimuth = [0, 10, 5]\nelevation = 0\n[image]\nwidth = 32\n'
@@ -167,3 +223,35 @@ def test_blender_and_pyrender_agree_on_a_randomised_cluttered_spec(tmp_path):
         cos = np.sum(a["normals"][i][both].astype(np.float32) * b["normals"][i][both].astype(np.float32), axis=1)
         assert np.median(np.degrees(np.arccos(np.clip(cos, -1, 1)))) <= 5.0
     assert b["rgb"][b["instances"] > 0].mean() > 20  # lit
+
+
+def test_kept_scene_and_border_honour_per_frame_draws_and_distractors():
+    """With persistent data and the render border, frames whose lights, material, K and
+    distractors change every frame are the frames a fresh full-frame scene renders."""
+    import bpy
+
+    from spm_data.core.distractors import place_distractors
+    from spm_data.core.randomize import frame_draws
+    from tests.commands.test_render_frames import CLUTTERED
+
+    spec = parse_spec(CLUTTERED.format(cls="c").replace('renderer = "pyrender"', 'renderer = "blender"')
+                      + "[render.blender]\nsamples = 4\n")
+    mesh = procedural_mesh("cup", 0)
+    R, t = camera_path(spec.camera, spec.seed).poses(slice(0, 5))
+    frames = []
+    for i in range(5):
+        draws = frame_draws(spec, 0, i)
+        frames.append((R[i], t[i], draws, place_distractors(spec, mesh, R[i], t[i], draws.K, 0, i).distractors))
+    with make_renderer(spec, "blender") as kept:
+        kept.set_mesh(mesh)
+        ours = [kept.render(*f) for f in frames]
+    for k, frame in enumerate(frames):
+        with make_renderer(spec, "blender") as fresh:
+            fresh.set_mesh(mesh)
+            bpy.context.scene.render.use_persistent_data = False
+            fresh._set_border = lambda R, t: None  # the full frame
+            bpy.context.scene.render.use_border = False
+            plain = fresh.render(*frame)
+        for name in ("rgb", "depth", "mask", "instances", "normals"):
+            np.testing.assert_array_equal(ours[k][name], plain[name], err_msg=f"frame {k}, {name}")
+        assert len(np.unique(ours[k]["instances"])) >= 3  # the target and distractors in view

@@ -16,3 +16,20 @@ def test_tail_quotes_the_last_non_empty_lines(tmp_path):
     log.write_text("one\n\ntwo\nthree\n\nfour\n")
     assert tail(str(log)) == "three | four"  # the last three lines, the empty one dropped
     assert tail(str(tmp_path / "missing.log")) == ""
+
+
+def test_srgb_encode_is_the_transfer_curve_everywhere():
+    """srgb_encode sends only lit values through the curve: the same codes as the curve applied
+    to the whole array, for every float32 step in [0, 1] sampled, specials and a 3-of-4 view."""
+    def curve(linear):
+        c = np.clip(linear, 0.0, 1.0)
+        s = np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.power(c, 1 / 2.4) - 0.055)
+        return np.round(s * 255.0).astype(np.uint8)
+
+    bits = np.arange(0, int(np.float32(1.0).view(np.uint32)) + 1, 97, dtype=np.uint32)
+    values = np.concatenate([bits.view(np.float32),
+                             np.array([-0.0, -1.0, -np.inf, np.inf, 2.0, 1.0, 0.0, 1e-45], np.float32)])
+    np.testing.assert_array_equal(srgb_encode(values), curve(values))
+    rgba = np.zeros((len(values) // 4, 4, 4), np.float32)
+    rgba[:, 1, :] = values[:len(rgba) * 4].reshape(-1, 4)
+    np.testing.assert_array_equal(srgb_encode(rgba[..., :3]), curve(rgba[..., :3]))

@@ -27,11 +27,21 @@ def fletcher32(data: bytes) -> int:
         data = bytes(data) + b"\0"
     raw = np.frombuffer(data, ">u2")
     nonzero = bool(raw.any())  # before reducing: a 0xFFFF word is 0 mod 65535 but makes the sums non-zero
+    n = len(raw)
+    if n <= _EXACT_WORDS:  # the plain sums fit in int64: one pass each, reduced at the end (_fold)
+        words = raw.astype(np.int64)
+        s1 = int(words.sum())
+        s2 = int(np.dot(words, np.arange(n, 0, -1, dtype=np.int64)))  # word i counts in n - i running sums
+        return (_fold(s2, nonzero) << 16) | _fold(s1, nonzero)
     words = raw.astype(np.int64) % 65535
-    weights = np.arange(len(words), 0, -1, dtype=np.int64) % 65535  # word i counts in n - i running sums
+    weights = np.arange(n, 0, -1, dtype=np.int64) % 65535
     s1 = int(words.sum())
     s2 = int((words * weights % 65535).sum())  # reduced first: no int64 overflow on big chunks
     return (_fold(s2, nonzero) << 16) | _fold(s1, nonzero)
+
+
+# Words up to which sum(word * weight) < 65535 * n**2 / 2 stays below 2**63 (about 32 MB of data)
+_EXACT_WORDS = 16_000_000
 
 
 def _fold(total: int, nonzero: bool) -> int:

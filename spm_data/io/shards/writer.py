@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import threading
 import zlib
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -24,6 +25,7 @@ from spm_data.io.shards.schema import (FIELDS, IMAGE_FIELDS, OPTIONAL_FIELDS, SC
                                        expected_shape)
 
 GZIP_LEVEL = 1
+COMPRESS_NICE = 19  # niceness of the compression threads (_nice_thread)
 
 
 LABEL_CHUNK = 4096  # frames per chunk of a label field (read whole; verified per chunk)
@@ -89,6 +91,7 @@ class ShardWriter:
         self.tmp = partial_path(self.path)
         self._written = {f: 0 for f in self.images}
         self._file = self._pool = None
+        self._ahead = {}  # (field, frame index) -> Future of its encoded chunk (encode_ahead)
         self._done = False
 
     def __enter__(self):
@@ -107,26 +110,38 @@ class ShardWriter:
             if isinstance(exc, OSError):
                 raise self._os_error(exc) from None
             raise
-        self._pool = ThreadPoolExecutor(max_workers=2)
+        self._pool = ThreadPoolExecutor(max_workers=2, initializer=_nice_thread)
         return self
+
+    def encode_ahead(self, index: int, frames: dict) -> None:
+        """Start compressing frame ``index`` of some image fields ({field: one frame}) on the
+        writer's threads now, while the caller renders the next frame; the write_images call
+        that covers ``index`` stores these chunks (the same bytes, in the same order). The
+        frames must stay unchanged until then."""
+        for field, frame in frames.items():
+            self._ahead[(field, int(index))] = self._pool.submit(encode_chunk, frame)
 
     def write_images(self, start: int, block: dict) -> None:
         """Frames ``start .. start + k`` of some image fields: {field: (k, ...) array}.
         Compressed on two threads (zlib releases the GIL; h5py's filters do not)
         and stored as raw chunks any HDF5 reader decodes and verifies."""
+        targets = {}  # field -> (dataset id, chunk-offset tail): h5py's lookups cost more than a small chunk
         for field, frames in block.items():
             ds = self._file[field]
             if np.shape(frames)[1:] != ds.shape[1:] or np.asarray(frames).dtype != ds.dtype:
                 raise ShardError(f"shard field {field!r}: expected frames of {ds.shape[1:]} {ds.dtype}, "
                                  f"got {np.shape(frames)[1:]} {np.asarray(frames).dtype}")
+            targets[field] = (ds.id, (0,) * (ds.ndim - 1))
         # Every (field, frame) on the pool at once, so a one-frame block keeps both threads busy;
         # chunks come back, and are stored, in field-major order.
+        # Frames given to encode_ahead are compressed already (or being compressed).
         where = [(field, start + i) for field, frames in block.items() for i in range(len(frames))]
-        chunks = self._pool.map(encode_chunk, (frame for frames in block.values() for frame in frames))
+        chunks = [self._ahead.pop(key, None) or self._pool.submit(encode_chunk, frame)
+                  for key, frame in zip(where, (frame for frames in block.values() for frame in frames))]
         try:
             for (field, index), chunk in zip(where, chunks):
-                ds = self._file[field]
-                ds.id.write_direct_chunk((index,) + (0,) * (ds.ndim - 1), chunk)
+                dsid, tail = targets[field]
+                dsid.write_direct_chunk((index,) + tail, chunk.result())
             for field, frames in block.items():
                 self._written[field] += len(frames)
         except OSError as exc:
@@ -182,6 +197,16 @@ class ShardWriter:
         else:
             self._abort()
         return False
+
+
+def _nice_thread() -> None:
+    """Run this compression thread at the lowest CPU priority (Linux: per thread), so that
+    frames encoded ahead (encode_ahead) take the cores the renderer leaves idle instead of
+    slowing it down; best effort, and it changes no byte."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), COMPRESS_NICE)
+    except (OSError, AttributeError):  # not Linux, or not allowed: normal priority
+        pass
 
 
 def _copy_placeholders(copy_from) -> dict:

@@ -41,6 +41,16 @@ def test_fletcher32_matches_what_hdf5_stores(tmp_path, data):
     assert not stored_chunk_ok(bytes(flipped)) and not stored_chunk_ok(b"abc")
 
 
+@pytest.mark.parametrize("data", [_bytes(4099), b"\xff\xff" * 5000, b"\xff" * 3001, _bytes(1 << 20)],
+                         ids=["random", "ffff-words", "odd-ff", "1MiB"])
+def test_fletcher32_plain_sums_equal_the_reduced_ones(monkeypatch, data):
+    """Chunks up to _EXACT_WORDS words are summed plainly in int64 and reduced once; the
+    same value as reducing every term (the path longer chunks take)."""
+    fast = fletcher32(data)
+    monkeypatch.setattr("spm_data.io.shards.checksums._EXACT_WORDS", 0)
+    assert fletcher32(data) == fast
+
+
 def test_item_crc_is_canonical():
     assert item_crc({"a": 1, "b": [1, 2]}) == item_crc({"b": [1, 2], "a": 1})
     assert item_crc(b"spec") == item_crc("spec") and item_crc(np.arange(3)) == item_crc([0, 1, 2])

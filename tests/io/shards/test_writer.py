@@ -7,7 +7,8 @@ import pytest
 
 from spm_data.errors import ShardError
 from spm_data.io.files import file_sha256
-from spm_data.io.shards import FIELDS, SCHEMA_VERSION, list_shards, read_attrs, read_shard, write_shard
+from spm_data.io.shards import FIELDS, IMAGE_FIELDS, SCHEMA_VERSION, list_shards, read_attrs, read_shard, write_shard
+from spm_data.io.shards.writer import ShardWriter
 from tests.helpers import make_arrays
 
 
@@ -32,6 +33,27 @@ def test_same_arrays_give_identical_bytes(tmp_path):
     a = write_shard(tmp_path / "a.h5", make_arrays(), {"seed": 1, "renderer": "x"})
     b = write_shard(tmp_path / "b.h5", make_arrays(), {"seed": 1, "renderer": "x"})
     assert file_sha256(a) == file_sha256(b)
+
+
+def test_frames_encoded_ahead_give_the_same_bytes(tmp_path):
+    """render_shard hands each frame to encode_ahead as it is rendered: the shard is the
+    same bytes as without, whichever frames were encoded ahead and in whatever order."""
+    arrays = make_arrays(n=5, seed=4)
+    images = [f for f in IMAGE_FIELDS if f in arrays]
+    labels = {f: v for f, v in arrays.items() if f not in images}
+
+    def write(path, ahead=()):
+        with ShardWriter(path, frames=5, height=8, width=10, images=images) as writer:
+            for i in ahead:
+                writer.encode_ahead(i, {f: arrays[f][i] for f in images})
+            writer.write_images(0, {f: arrays[f][:2] for f in images})
+            writer.write_images(2, {f: arrays[f][2:] for f in images})
+            return writer.finish(labels, {"seed": 1, "renderer": "x"})
+
+    plain = write(tmp_path / "plain.h5")
+    assert file_sha256(write(tmp_path / "ahead.h5", ahead=(3, 0, 4))) == file_sha256(plain)  # 1, 2: not ahead
+    assert file_sha256(write(tmp_path / "all.h5", ahead=range(5))) == file_sha256(plain)
+    np.testing.assert_array_equal(read_shard(plain)["depth"], arrays["depth"])
 
 
 def test_failed_write_leaves_no_partial_and_keeps_the_old_shard(tmp_path, monkeypatch):
