@@ -102,7 +102,7 @@ def bench_blender(specs, engine: str, per_class: int, rounds: int = 2) -> dict:
     import mathutils
 
     from spm_data.core.poses import cv_to_gl_camera_to_world
-    from spm_data.render.blender import _captured_output
+    from spm_data.render.blender_scene import captured_output
 
     specs = [_blender_spec(spec, engine) for spec in specs]
     totals = {"bare": 0.0, "bare_border": 0.0, "ours": 0.0}
@@ -131,7 +131,7 @@ def bench_blender(specs, engine: str, per_class: int, rounds: int = 2) -> dict:
                             for k in ks:
                                 renderer.render(R[k], t[k])
                         else:
-                            with _captured_output(renderer._log):  # Blender's per-frame lines, as ours does
+                            with captured_output(renderer._log):  # Blender's per-frame lines, as ours does
                                 for k in ks:
                                     renderer._camera.matrix_world = mathutils.Matrix(
                                         cv_to_gl_camera_to_world(R[k], t[k]).tolist())
