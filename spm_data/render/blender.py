@@ -3,8 +3,12 @@
 See spm_data.render for the interface and the arrays ``render`` returns. The
 scene (camera with the spec's intrinsics, lights that move with the camera,
 world, render settings) is built once per renderer and the mesh once per
-instance; a frame only moves the camera and renders one multi-layer EXR
-(Combined, Depth, Object Index) that is read back with the OpenEXR package.
+instance; a frame moves the camera (and sets the frame's draws and distractors)
+and renders one multi-layer EXR (Combined, Depth, Object Index, Normal when asked)
+that is read back with the OpenEXR package. Cycles keeps its synced scene between
+frames (persistent data) and, with a transparent film, renders only a border
+around the objects (blender_scene.border_box); Blender 5.0.1 headless offers no
+way to read a render without a file.
 
 Blender runs in worker processes only (spm_data.commands.render_jobs): a crash or a
 leak in Blender takes down a worker, never the run.
