@@ -11,7 +11,7 @@ import numpy as np
 
 from spm_data.core.backgrounds import background_image, composite
 from spm_data.core.distractors import place_distractors
-from spm_data.core.randomize import frame_draws, max_lights
+from spm_data.core.randomize import frame_draws, lights_width
 from spm_data.core.raster import object_coords
 from spm_data.io.shards import FIELDS, OPTIONAL_FIELDS
 
@@ -60,7 +60,7 @@ class FrameMaker:
         images = {"rgb": rgb, "depth": out["depth"], "mask": out["mask"]}
         labels = {"K": K}
         if draws is not None:
-            labels.update(draws.labels(max_lights(spec)))
+            labels.update(draws.labels(lights_width(spec)))
         if placement is not None:
             images["mask"] = placement.amodal.astype(np.uint8)
             images["visible_mask"] = out["mask"] & images["mask"]

@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from spm_data.errors import SpecError
+from spm_data.errors import SpecError, SpmError
 from spm_data.core.meshes import CLASSES, load_mesh_file, procedural_mesh
 from spm_data.core.randomize import frame_stream
-from spm_data.core.raster import silhouette
+from spm_data.core.raster import CLIP_NEAR, silhouette
 
 DISTRACTOR_INSTANCE0 = 10_000  # procedural instances from here, so no distractor repeats a target instance
 _GROWTH = 1.3                  # a distractor too small for its share grows by this, up to _MAX_RADIUS
@@ -84,11 +84,15 @@ def pool_names(spec) -> list[str]:
     return list(_pool_names(spec))
 
 
-@lru_cache(maxsize=8)
 def _pool_names(spec) -> tuple:  # the files are globbed once per spec, not once per frame
+    return _pool_names_in(spec, spec.base_dir)
+
+
+@lru_cache(maxsize=8)
+def _pool_names_in(spec, base_dir: str) -> tuple:  # base_dir: specs compare without it
     d = spec.distractors
     names = [f"{c}-{DISTRACTOR_INSTANCE0 + i}" for c in _classes(d) for i in range(d.instances)]
-    return tuple(names + [str(p) for p in _files(spec.base_dir, d.files)])
+    return tuple(names + [str(p) for p in _files(base_dir, d.files)])
 
 
 def _classes(d: DistractorSpec) -> tuple:
@@ -105,10 +109,16 @@ def _files(base_dir: str, patterns: tuple) -> list[Path]:
     return out
 
 
-@lru_cache(maxsize=64)
 def pool_mesh(spec, index: int):
-    """Mesh ``index`` of the spec's pool (pool_names), longest side 1 metre."""
-    name = _pool_names(spec)[index]
+    """Mesh ``index`` of the spec's pool (pool_names), longest side 1 metre. The pool is
+    built once and kept (renderers keep each mesh's scene objects by identity, so a
+    mesh made twice would be built twice): keep it to what fits in memory."""
+    return _pool_mesh(spec, spec.base_dir, index)
+
+
+@lru_cache(maxsize=None)
+def _pool_mesh(spec, base_dir: str, index: int):
+    name = _pool_names_in(spec, base_dir)[index]
     if index < len(_classes(spec.distractors)) * spec.distractors.instances:
         cls, inst = name.rsplit("-", 1)
         return procedural_mesh(cls, int(inst), seed=spec.seed, size=1.0)
@@ -121,6 +131,10 @@ def place_distractors(spec, mesh, R, t, K, instance: int, path_index: int) -> Pl
     d, h, w = spec.distractors, spec.image.height, spec.image.width
     rng = frame_stream(spec, instance, path_index, "distractors")
     v = float(rng.uniform(d.visible[0], d.visible[1]))
+    z_near = float(np.min(np.asarray(mesh.vertices) @ np.asarray(R)[2] + t[2]))
+    if z_near < 2 * CLIP_NEAR:
+        raise SpmError(f"frame {instance}/{path_index}: the target comes within {z_near * 100:.1f} cm of the camera, "
+                       "too near for distractors in front of it; use larger camera distances or a smaller mesh.size")
     amodal = silhouette(mesh.vertices, mesh.faces, K, R, t, h, w)
     area = int(amodal.sum())
     if area == 0 or d.count == 0:
@@ -128,7 +142,6 @@ def place_distractors(spec, mesh, R, t, K, instance: int, path_index: int) -> Pl
     weights = rng.uniform(0.5, 1.5, d.count)
     shares = np.round((1.0 - v) * area * np.cumsum(weights) / weights.sum()).astype(int)
     window = _Window(amodal, K)
-    z_near = float(np.min(np.asarray(mesh.vertices) @ np.asarray(R)[2] + t[2]))
     covered = np.zeros_like(window.target)
     placed = []
     for k in range(d.count):
@@ -169,10 +182,14 @@ def _place_one(spec, rng, window, covered, share, z_near):
     fx, K_inv = window.K[0, 0], np.linalg.inv(window.K)
     before = int(covered.sum())
     a_per_scale = window.extent / fx * unit_radius  # the distractor's radius over its depth, per unit of scale
-    scale = min(scale, _MAX_RADIUS / a_per_scale)
+    # Its radius is a * z: between the camera's clip plane and the target, z (1 - a) >= 2 CLIP_NEAR
+    # and z (1 + a) <= 0.95 z_near, so a <= (0.95 z_near - 2 CLIP_NEAR) / (0.95 z_near + 2 CLIP_NEAR).
+    room = (0.95 * z_near - 2 * CLIP_NEAR) / (0.95 * z_near + 2 * CLIP_NEAR)
+    max_scale = min(_MAX_RADIUS, room) / a_per_scale
+    scale = min(scale, max_scale)
     while True:
         a = scale * a_per_scale
-        z = min(depth * z_near, 0.95 * z_near / (1.0 + a))  # wholly nearer than the target
+        z = min(max(depth * z_near, 2 * CLIP_NEAR / (1.0 - a)), 0.95 * z_near / (1.0 + a))
         size = scale * window.extent * z / fx
         reach = window.radius + fx * a / (1.0 - a) + 2.0  # pixels from the target's centre to clear it
 
@@ -183,7 +200,7 @@ def _place_one(spec, rng, window, covered, share, z_near):
                 seen[s] = (t, covered | window.covered(mesh, size, R, t))
             return seen[s]
 
-        grown = min(scale * _GROWTH, _MAX_RADIUS / a_per_scale)
+        grown = min(scale * _GROWTH, max_scale)
         if share <= before or int(at(0.0)[1].sum()) >= share or grown <= scale * 1.001:
             break  # big enough to cover its share, or as big as it may be (then centred: the best it does)
         scale = grown

@@ -152,8 +152,14 @@ def frame_draws(spec, instance: int, path_index: int, K=None) -> FrameDraws:
 
 
 def max_lights(spec) -> int:
-    """The most lights any frame of ``spec`` has (the width of the shard's lights field)."""
+    """The most lights any frame of ``spec`` has."""
     return int(spec.randomize.lights[1]) if spec.randomize.lights else spec.lighting.lights
+
+
+def lights_width(spec) -> int:
+    """The width L of the shard's ``lights`` field: max_lights, at least 1 (HDF5 has no
+    zero-width chunks; a frame without lights has a zero row)."""
+    return max(1, max_lights(spec))
 
 
 _BOUNDS = {"light_strength": (0.0, None), "light_color": (0.0, 1.0), "ambient": (0.0, 1.0),

@@ -15,6 +15,7 @@ import numpy as np
 from spm_data.errors import SpmError
 
 NEAR = 1e-3          # metres: a vertex closer to the camera plane than this is not projected
+CLIP_NEAR, CLIP_FAR = 0.01, 100.0  # metres: both renderers' clipping planes; placement keeps distractors beyond
 _CANDIDATES = 1 << 21  # pixel-centre tests per batch of triangles (memory bound)
 
 

@@ -269,7 +269,7 @@ def _validate(spec: RenderSpec) -> RenderSpec:
                                         f"got {b.device!r}")
     validate_randomize(spec.randomize, bg.folder)
     validate_distractors(spec.distractors, spec.base_dir)
-    lit = [k for k in ("lights", "light_strength", "light_color", "ambient", "roughness", "metallic")
+    lit = [k for k in ("lights", "light_strength", "light_color", "ambient", "base_color", "roughness", "metallic")
            if getattr(spec.randomize, k)]
     _check(not (lit and r.renderer == "blender" and b.engine == "workbench"),
            f"randomize.{lit[0] if lit else ''}: Workbench lights with its own studio light and no materials; "

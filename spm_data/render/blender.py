@@ -25,6 +25,7 @@ import numpy as np
 
 from spm_data.errors import RenderError
 from spm_data.core.poses import K_to_corner_origin, cv_to_gl_camera_to_world
+from spm_data.core.raster import CLIP_FAR, CLIP_NEAR
 from spm_data.render import Renderer, light_rotations, rotate_normals
 from spm_data.render.blender_scene import (border_box, captured_output, cycles_device, mesh_data, remove_mesh_data,
                                            srgb_encode, tail, uncrop)
@@ -148,7 +149,7 @@ class BlenderRenderer(Renderer):
         cam.sensor_fit = "HORIZONTAL"
         cam.sensor_width = 36.0
         self._set_intrinsics(cam, self.K)
-        cam.clip_start, cam.clip_end = 0.01, 100.0
+        cam.clip_start, cam.clip_end = CLIP_NEAR, CLIP_FAR
         self._camera = self._bpy.data.objects.new("spm-camera", cam)
         sc.collection.objects.link(self._camera)
         sc.camera = self._camera
@@ -273,7 +274,7 @@ class BlenderRenderer(Renderer):
         self._camera.matrix_world = self._mathutils.Matrix(cv_to_gl_camera_to_world(R, t).tolist())
         self._frame_K = draws.K if draws is not None else self.K
         if self.engine == "cycles" and self.spec.render.blender.film_transparent:
-            self._set_border(np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64))
+            self._set_border(np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64), distractors)
         try:
             with captured_output(self._log):
                 self._bpy.ops.render.render(write_still=True)
@@ -287,22 +288,16 @@ class BlenderRenderer(Renderer):
             out["normals"] = rotate_normals(self._normals, self._instances, world_to_camera)
         return out
 
-    def _set_border(self, R, t) -> None:
+    def _set_border(self, R, t, distractors=()) -> None:
         """Let Cycles trace only the pixels around what it can see: a render border, cropped,
-        around the projection of the target's vertices and of the bounding boxes of the
-        scene's other visible meshes (distractors), plus BORDER_MARGIN pixels. With a
-        transparent film the pixels outside are background, which _read_exr fills in as a
-        full frame has it (tests/render/test_blender.py); else the full frame."""
+        around the projection of the target's and the distractors' vertices (from the meshes
+        given, not Blender's bounding boxes, which lag a mesh swap by a frame), plus the
+        margin. With a transparent film the pixels outside are background, which _read_exr
+        fills in as a full frame has it (tests/render/test_blender.py); else the full frame."""
         r = self._bpy.context.scene.render
-        points = []
-        for obj in self._bpy.context.scene.objects:
-            if obj.type == "MESH" and not obj.hide_render:
-                local = self._points if obj == self._object else np.array(obj.bound_box)
-                m = np.array(obj.matrix_world)
-                points.append(local @ m[:3, :3].T + m[:3, 3])
-        # R, t map the world (the target's frame) to the camera
-        self._crop = border_box(np.concatenate(points) @ R.T + t, self._frame_K, self.width, self.height) \
-            if points else None
+        points = [self._points @ R.T + t] + [(np.asarray(d.mesh.vertices) * d.size) @ d.R.T + d.t
+                                             for d in distractors]
+        self._crop = border_box(np.concatenate(points), self._frame_K, self.width, self.height)
         r.use_border = self._crop is not None
         if self._crop is not None:
             x0, y0, x1, y1 = self._crop

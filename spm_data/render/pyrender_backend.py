@@ -11,6 +11,7 @@ import numpy as np
 
 from spm_data.errors import RenderError
 from spm_data.core.poses import K_to_corner_origin, cv_to_gl_camera_to_world
+from spm_data.core.raster import CLIP_FAR, CLIP_NEAR
 from spm_data.render import Renderer, decode_normals, light_rotations, mask_from_depth
 
 # EGL needs no display; it must be chosen before OpenGL is first imported.
@@ -146,7 +147,7 @@ class PyrenderRenderer(Renderer):
         self._target_nodes = [scene.add(m) for m in self._target]
         self._material = self._target[0].primitives[0].material
         K = K_to_corner_origin(self.K)  # pyrender counts the principal point from the pixel corner
-        self._camera = pr.IntrinsicsCamera(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2], znear=0.01, zfar=100.0)
+        self._camera = pr.IntrinsicsCamera(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2], znear=CLIP_NEAR, zfar=CLIP_FAR)
         self._camera_node = scene.add(self._camera, pose=np.eye(4))
         self._light_nodes = [scene.add(pr.DirectionalLight(color=np.ones(3), intensity=self.lighting.strength),
                                        name=f"spm-light-{i}", pose=np.eye(4)) for i in range(self.max_lights)]

@@ -140,3 +140,28 @@ def test_merge_keeps_the_distractor_fields(cluttered, tmp_path):
     np.testing.assert_array_equal(merged["distractor_mesh"][:8], original["distractor_mesh"])
     assert read_attrs(list_shards(tmp_path / "merged")[0])["distractor_meshes"] == \
         read_attrs(list_shards(cluttered)[0])["distractor_meshes"]
+
+
+def test_a_spec_without_lights_renders(tmp_path):
+    folder = tmp_path / "specs"
+    folder.mkdir()
+    (folder / "dark.toml").write_text('class = "cup"\n[camera]\nazimuth = [0, 10, 5]\nelevation = 0\n'
+                                      '[randomize]\nlights = [0, 0]\n[render]\nrenderer = "pyrender"\n')
+    summary = render_dataset(load_run_specs(all_classes=True, specs_dir=folder), tmp_path / "out")
+    assert summary.failed == [] and summary.frames == 3 * 3 * 4 // 3  # 3 views x 4 instances
+    assert read_shard(list_shards(tmp_path / "out")[0], ["lights"])["lights"].shape[1:] == (1, 7)
+
+
+def test_merge_of_datasets_with_different_distractor_pools(tmp_path):
+    from spm_data.commands.merge import merge_folders
+
+    for name, cls in (("a", "box"), ("b", "ball")):
+        folder = tmp_path / f"specs_{name}"
+        folder.mkdir()
+        text = CLUTTERED.format(cls=name).replace('classes = ["box", "ball"]', f'classes = ["{cls}"]')
+        (folder / f"{name}.toml").write_text(text)
+        render_dataset(load_run_specs(all_classes=True, specs_dir=folder), tmp_path / name, limit=4)
+    summary = merge_folders([tmp_path / "a", tmp_path / "b"], tmp_path / "merged")
+    assert summary.failed == []
+    merged = read_shard(list_shards(tmp_path / "merged")[0])
+    assert merged["distractor_R"].shape[:2] == (8, 2) and "distractor_mesh" not in merged  # indices of two pools

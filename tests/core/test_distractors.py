@@ -8,7 +8,7 @@ from spm_data.core.instances import load_instance
 from spm_data.core.paths import camera_path
 from spm_data.core.raster import project
 from spm_data.core.specs import parse_spec
-from spm_data.errors import SpecError
+from spm_data.errors import SpecError, SpmError
 from spm_data.render import spec_intrinsics
 
 
@@ -123,3 +123,43 @@ def test_a_renderer_override_is_checked_too(tmp_path):
     assert load_run_specs(spec_files=[tmp_path / "c.toml"])[0].distractors.count == 1
     with pytest.raises(SpecError, match="cup with --renderer blender: distractors.count: Blender's Workbench"):
         load_run_specs(spec_files=[tmp_path / "c.toml"], renderer="blender")
+
+
+def test_distractors_stay_beyond_the_renderers_near_clip_plane():
+    from spm_data.core.raster import CLIP_NEAR
+
+    spec = parse_spec('class = "cup"\n[camera]\nsampler = "sphere"\nviews = 12\ndistance_range = [0.3, 0.35]\n'
+                      '[distractors]\ncount = 2\ndepth = [0.05, 0.1]\nscale = [1.0, 2.0]\nvisible = [0.2, 0.6]\n')
+    mesh = load_instance(spec, 0)
+    R, t = camera_path(spec.camera, spec.seed).poses(slice(0, 12))
+    for i in range(12):
+        p = place_distractors(spec, mesh, R[i], t[i], spec_intrinsics(spec), 0, i)
+        for d in p.distractors:
+            _, z = project(d.mesh.vertices * d.size, np.eye(3), d.R, d.t)
+            assert z.min() >= 2 * CLIP_NEAR - 1e-9
+        assert abs(p.visible - p.visible_target) <= 0.01
+
+
+def test_a_target_too_near_the_camera_for_distractors_is_one_line():
+    spec = cluttered()
+    mesh = load_instance(spec, 0)
+    with pytest.raises(SpmError, match="frame 0/3: the target comes within .* cm of the camera"):
+        place_distractors(spec, mesh, np.eye(3), np.array([0.0, 0.0, 0.05]), spec_intrinsics(spec), 0, 3)
+
+
+def test_specs_alike_in_text_keep_their_own_folders_files(tmp_path):
+    import trimesh
+
+    from spm_data.core.specs import load_spec
+
+    text = 'class = "cup"\n[distractors]\ncount = 1\nfiles = ["m/*.obj"]\n'
+    for name, mesh in (("a", trimesh.creation.box()), ("b", trimesh.creation.icosphere())):
+        (tmp_path / name / "m").mkdir(parents=True)
+        mesh.export(tmp_path / name / "m" / f"{name}.obj")
+        (tmp_path / name / "s.toml").write_text(text)
+    a, b = load_spec(tmp_path / "a" / "s.toml"), load_spec(tmp_path / "b" / "s.toml")
+    assert a == b  # the same text: equal specs, yet other folders
+    assert pool_names(a)[0].endswith("a.obj") and pool_names(b)[0].endswith("b.obj")
+    from spm_data.core.distractors import pool_mesh
+
+    assert len(pool_mesh(a, 0).faces) != len(pool_mesh(b, 0).faces)

@@ -103,3 +103,17 @@ def test_bad_values_name_their_key(body, message):
 def test_workbench_cannot_honour_random_lights():
     with pytest.raises(SpecError, match="Workbench"):
         parse_spec('class = "cup"\n[render.blender]\nengine = "workbench"\n[randomize]\nlights = [1, 2]\n')
+
+
+def test_a_spec_without_lights_still_has_a_lights_field():
+    from spm_data.core.randomize import lights_width
+
+    spec = parse_spec('class = "cup"\n[randomize]\nlights = [0, 0]\n')
+    d = frame_draws(spec, 0, 0)
+    assert len(d.light_strengths) == 0 and lights_width(spec) == 1
+    assert d.labels(lights_width(spec))["lights"].shape == (1, 7) and not d.labels(1)["lights"].any()
+
+
+def test_workbench_cannot_honour_a_base_colour():
+    with pytest.raises(SpecError, match="randomize.base_color: Workbench"):
+        parse_spec('class = "cup"\n[render.blender]\nengine = "workbench"\n[randomize]\nbase_color = [0.5, 1]\n')

@@ -64,7 +64,7 @@ OPTIONAL_FIELDS: dict[str, tuple[str, tuple]] = {
 
 
 IMAGE_FIELDS = ("rgb", "depth", "mask", "visible_mask", "instances", "normals", "coords")
-SIZED_DIMS = {"R": "occlusion_rects", "D": "distractor_mesh", "L": "lights"}  # dimension -> field it is read from
+SIZED_DIMS = ("R", "D", "L")  # per-frame list lengths, read from the arrays (check_arrays)
 SIZED_FIELDS = tuple(f for f, (_, shape) in {**FIELDS, **OPTIONAL_FIELDS}.items() if set(shape) & set(SIZED_DIMS))
 
 
@@ -90,7 +90,12 @@ def check_arrays(arrays: dict) -> tuple[int, int, int]:
     if unknown:
         raise ShardError(f"shard arrays have unknown fields {', '.join(unknown)}")
     n, h, w = np.asarray(arrays["rgb"]).shape[:3]
-    dims = {d: np.shape(arrays[f])[1] for d, f in SIZED_DIMS.items() if f in arrays and np.ndim(arrays[f]) > 1}
+    dims = {}
+    for field, value in arrays.items():  # each sized dimension from the first field that has it
+        shape = {**FIELDS, **OPTIONAL_FIELDS}.get(field, ("", ()))[1]
+        for k, d in enumerate(shape):
+            if d in SIZED_DIMS and d not in dims and np.ndim(value) > k + 1:
+                dims[d] = np.shape(value)[k + 1]
     for field, value in arrays.items():
         dtype = {**FIELDS, **OPTIONAL_FIELDS}[field][0]
         shape = expected_shape(field, n, h, w, dims)
