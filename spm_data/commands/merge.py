@@ -95,7 +95,8 @@ def _shard_info(path) -> dict:
     return {"schema_version": int(attrs["schema_version"]), "frames": int(attrs["frames"]),
             "height": int(attrs["height"]), "width": int(attrs["width"]), "fields": fields,
             "source": read_shard(path, ["source"])["source"].astype(str), "sha256": file_sha256(path),
-            "distractor_meshes": attrs.get("distractor_meshes", "")}
+            # the pool's names, and the seed that made its procedural meshes
+            "distractor_meshes": (attrs.get("distractor_meshes", ""), int(attrs.get("seed", 0)))}
 
 
 def merge_shard(job: MergeJob, report=lambda n: None) -> dict:

@@ -165,3 +165,16 @@ def test_merge_of_datasets_with_different_distractor_pools(tmp_path):
     assert summary.failed == []
     merged = read_shard(list_shards(tmp_path / "merged")[0])
     assert merged["distractor_R"].shape[:2] == (8, 2) and "distractor_mesh" not in merged  # indices of two pools
+
+
+def test_merge_keeps_pool_indices_only_when_pool_and_seed_agree(tmp_path):
+    from spm_data.commands.merge import merge_folders
+
+    for name, seed in (("a", 1), ("b", 2)):
+        folder = tmp_path / f"specs_{name}"
+        folder.mkdir()
+        (folder / f"{name}.toml").write_text(CLUTTERED.format(cls=name).replace("seed = 4", f"seed = {seed}"))
+        render_dataset(load_run_specs(all_classes=True, specs_dir=folder), tmp_path / name, limit=4)
+    merge_folders([tmp_path / "a", tmp_path / "b"], tmp_path / "merged")
+    merged = read_shard(list_shards(tmp_path / "merged")[0])
+    assert "distractor_mesh" not in merged and merged["distractor_t"].shape[:2] == (8, 2)  # same names, other meshes
