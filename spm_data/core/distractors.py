@@ -191,7 +191,9 @@ def _place_one(spec, rng, window, covered, share, z_near):
         a = scale * a_per_scale
         z = min(max(depth * z_near, 2 * CLIP_NEAR / (1.0 - a)), 0.95 * z_near / (1.0 + a))
         size = scale * window.extent * z / fx
-        reach = window.radius + fx * a / (1.0 - a) + 2.0  # pixels from the target's centre to clear it
+        # Pixels from the target's centre to clear it: twice the distractor's on-axis image radius,
+        # as off the axis (or with a shifted principal point) perspective stretches it.
+        reach = window.radius + 2.0 * fx * a / (1.0 - a) + 2.0
 
         def at(s, size=size, z=z, reach=reach, seen={}):  # noqa: B006 - seen: this size's slides, memoised
             if s not in seen:

@@ -273,7 +273,8 @@ class BlenderRenderer(Renderer):
             self._place_distractors(R, t, distractors)
         self._camera.matrix_world = self._mathutils.Matrix(cv_to_gl_camera_to_world(R, t).tolist())
         self._frame_K = draws.K if draws is not None else self.K
-        if self.engine == "cycles" and self.spec.render.blender.film_transparent:
+        s = self.spec.render.blender
+        if self.engine == "cycles" and s.film_transparent and not s.denoise:  # a denoiser would see only the crop
             self._set_border(np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64), distractors)
         try:
             with captured_output(self._log):
