@@ -81,15 +81,11 @@ class Placement:
 
 def pool_names(spec) -> list[str]:
     """The distractor meshes a spec draws from, as names: ``box-10003``, or a file's path."""
-    return list(_pool_names(spec))
-
-
-def _pool_names(spec) -> tuple:  # the files are globbed once per spec, not once per frame
-    return _pool_names_in(spec, spec.base_dir)
+    return list(_pool_names_in(spec, spec.base_dir))
 
 
 @lru_cache(maxsize=8)
-def _pool_names_in(spec, base_dir: str) -> tuple:  # base_dir: specs compare without it
+def _pool_names_in(spec, base_dir: str) -> tuple:  # globbed once per spec and folder (specs compare without it)
     d = spec.distractors
     names = [f"{c}-{DISTRACTOR_INSTANCE0 + i}" for c in _classes(d) for i in range(d.instances)]
     return tuple(names + [str(p) for p in _files(base_dir, d.files)])
@@ -173,7 +169,7 @@ class _Window:
 def _place_one(spec, rng, window, covered, share, z_near):
     """One distractor whose silhouette brings ``covered`` (window bool) to ``share`` pixels."""
     d = spec.distractors
-    index = int(rng.integers(len(_pool_names(spec))))
+    index = int(rng.integers(len(_pool_names_in(spec, spec.base_dir))))
     mesh = pool_mesh(spec, index)
     R = Rotation.from_quat(rng.normal(size=4)).as_matrix()
     scale, depth = rng.uniform(*d.scale), rng.uniform(*d.depth)
