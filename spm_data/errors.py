@@ -38,3 +38,15 @@ class LockError(SpmError):
 class SpmWarning(UserWarning):
     """Something the user should know that does not stop the command (the CLI
     prints ``warning: <message>`` on one line)."""
+
+
+class ModelError(SpmError):
+    """A model cannot be trained, loaded or applied to this input."""
+
+
+class FeatureError(SpmError):
+    """No feature for this image (too few keypoints, or no ellipse fits)."""
+
+
+class ImageError(SpmError):
+    """An image file cannot be read or decoded (the message is the reason alone)."""
