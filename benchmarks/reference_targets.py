@@ -1,4 +1,4 @@
-"""The reference estimator (HOG templates, spm_model/template.py) against the
+"""The reference estimator (HOG templates, spm_model/methods/template.py) against the
 targets of the issue "A pose benchmark with signal", on the default dataset.
 
     spm-data render --all --out full/render            # or --renderer pyrender
@@ -20,10 +20,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from spm_model.dataset import load_features  # noqa: E402
-from spm_model.evaluation import evaluate  # noqa: E402
-from spm_model.features import FeatureConfig  # noqa: E402
-from spm_model.report import aggregate  # noqa: E402
+from spm_model.bench.feature_cache import load_features  # noqa: E402
+from spm_model.bench.protocols import evaluate  # noqa: E402
+from spm_model.spm.features import FeatureConfig  # noqa: E402
+from spm_model.bench.report import aggregate  # noqa: E402
 from spm_data.jobs.executor import LocalExecutor  # noqa: E402
 
 TARGETS = {"views": [("success_tol5", ">=", 97.0)],

@@ -14,7 +14,7 @@ Usage (from the repository root, in the venv; PYOPENGL_PLATFORM=egl for renderin
 Subset: every class in --shards, instances 0 .. --instances-1 of each, every
 --azimuth-step-th azimuth and every --elevation-step-th elevation of the camera
 grid. The training keypoint rule (RANSAC inliers against the frame's path
-neighbours, spm_model/features.py) uses the neighbours from the full render,
+neighbours, spm_model/spm/features.py) uses the neighbours from the full render,
 so the neighbours are read (and, for 512 px, rendered) too.
 
 Table 1 sweeps one choice at a time from the default (FeatureConfig() and
@@ -23,13 +23,13 @@ normalisation, PSO vs direct ellipse, appended ellipse parameters, gamma,
 the regressor's kernel width and centres, and 128 vs 512 px renders (with
 max_side 256, today's cap, and 512); then a "best" row combining the
 per-choice winners (chosen on these same test splits: optimistic).
-Protocols (the same splits as spm_model/evaluation.py): ``views`` (a seeded
+Protocols (the same splits as spm_model/bench/protocols.py): ``views`` (a seeded
 20% of the (instance, view) groups held out) and ``instances`` (fold f tests
 the f-th instance of every class, in a seeded order; every frame tested once).
 Metrics per protocol, for 1-NN on the manifold vector and for the SPM
 estimator (SPP + RBF regressor): the median geodesic error in degrees over all
 test frames, a frame without a vector counted as 180 degrees, and the % of test
-frames with every Euler angle within +-5 degrees (spm_model.metrics; no
+frames with every Euler angle within +-5 degrees (spm_model.bench.metrics; no
 vector: a failure). Training frames without a vector are left out.
 
 Table 2 (the probe): 1-NN median geodesic error when the descriptor is
@@ -59,14 +59,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from spm_data.io.shards import list_shards, read_shard  # noqa: E402
-from spm_model.bunches import BunchError, fit_bunches  # noqa: E402
-from spm_model.ellipse import EllipseError, fit_ellipse  # noqa: E402
-from spm_model.estimator import SPMEstimator  # noqa: E402
-from spm_model.features import FeatureConfig, FeatureError, manifold_from_keypoints, working_image  # noqa: E402
-from spm_model.keypoints import homography_inliers, sift_keypoints  # noqa: E402
-from spm_model.manifold import canonical_order, ellipse_parameters, foci_distances  # noqa: E402
-from spm_model.metrics import pose_errors, tolerance_rate  # noqa: E402
-from spm_model.regressor import RBFPoseRegressor  # noqa: E402
+from spm_model.spm.bunches import BunchError, fit_bunches  # noqa: E402
+from spm_model.spm.ellipse import EllipseError, fit_ellipse  # noqa: E402
+from spm_model.spm.estimator import SPMEstimator  # noqa: E402
+from spm_model.spm.features import FeatureConfig, FeatureError, manifold_from_keypoints, working_image  # noqa: E402
+from spm_model.spm.keypoints import homography_inliers, sift_keypoints  # noqa: E402
+from spm_model.spm.manifold import canonical_order, ellipse_parameters, foci_distances  # noqa: E402
+from spm_model.bench.metrics import pose_errors, tolerance_rate  # noqa: E402
+from spm_model.spm.regressor import RBFPoseRegressor  # noqa: E402
 
 LABELS = ("class_name", "instance_id", "instance_name", "path_index", "pose", "azimuth", "elevation")
 FAIL_DEG = 180.0
@@ -245,9 +245,9 @@ class FrameSet:
 # ----------------------------------------------------------------------------- splits and scoring
 
 def splits(fs: FrameSet, protocol: str, seed: int, held_out: float = 0.2):
-    """spm_model.evaluation.splits on a FrameSet (it has the class_name, instance and
+    """spm_model.bench.protocols.splits on a FrameSet (it has the class_name, instance and
     path_index arrays the splits read): [(name, train index, test index)]."""
-    from spm_model.evaluation import splits as protocol_splits
+    from spm_model.bench.protocols import splits as protocol_splits
 
     return protocol_splits(fs, protocol, seed, held_out)
 

@@ -30,12 +30,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from spm_data.commands.render_jobs import load_run_specs, render_dataset  # noqa: E402
 from spm_data.io.shards import read_shard  # noqa: E402
-from spm_model.dataset import find_shards, load_features  # noqa: E402
-from spm_model.ellipse import fit_ellipse  # noqa: E402
-from spm_model.estimator import SPMEstimator  # noqa: E402
-from spm_model.evaluation import splits  # noqa: E402
-from spm_model.features import FeatureConfig, frames_features  # noqa: E402
-from spm_model.metrics import pose_errors, summarise  # noqa: E402
+from spm_model.bench.feature_cache import find_shards, load_features  # noqa: E402
+from spm_model.spm.ellipse import fit_ellipse  # noqa: E402
+from spm_model.spm.estimator import SPMEstimator  # noqa: E402
+from spm_model.bench.protocols import splits  # noqa: E402
+from spm_model.bench.extract import frames_features
+from spm_model.spm.features import FeatureConfig  # noqa: E402
+from spm_model.bench.metrics import pose_errors, summarise  # noqa: E402
 from spm_data.jobs.executor import LocalExecutor  # noqa: E402
 
 
@@ -66,8 +67,8 @@ def extraction_fps(shards: Path, frames: int = 256) -> tuple[float, float]:
 
 
 def ellipse_timing(table) -> tuple[float, float]:
-    from spm_model.bunches import fit_bunches
-    from spm_model.keypoints import sift_keypoints
+    from spm_model.spm.bunches import fit_bunches
+    from spm_model.spm.keypoints import sift_keypoints
 
     shard = find_shards(table)[0]
     d = read_shard(shard, ("rgb", "mask"), frames=slice(0, 100))

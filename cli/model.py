@@ -43,8 +43,8 @@ def _parse_roi(text):
 @handle_errors
 def train_cmd(shards, report_dir, protocol, runs, ellipse, gamma, estimators, allow_partial, executor):
     """Extract features (cached), evaluate SPM and the baselines, write the report and the model."""
-    from spm_model.features import FeatureConfig
-    from spm_model.train import train
+    from spm_model.spm.features import FeatureConfig
+    from spm_model.commands.train import train
 
     bar = Progress()
     try:
@@ -74,7 +74,7 @@ def evaluate_cmd(model_path, shards, as_json, allow_partial, executor):
     """Score a trained model (SPM or reference) on other shards: ±5°, sum < 5° and < 3°, errors."""
     import json
 
-    from spm_model.train import evaluate_model
+    from spm_model.commands.evaluate import evaluate_model
 
     bar = Progress()
     try:
@@ -106,7 +106,7 @@ def predict_cmd(model_path, images, roi, mask_path, as_json):
     stdout: one line per image that got a pose (--json: every image, failed ones as
     {"image", "error"}); stderr: one "error: IMAGE: reason" line per image that failed.
     The other images still get their results; exit status 1 if any image failed."""
-    from spm_model.train import format_predictions, prediction_errors, predict_images
+    from spm_model.commands.predict import format_predictions, prediction_errors, predict_images
 
     results = predict_images(model_path, images, roi=None if roi is None else _parse_roi(roi),
                              mask_path=mask_path)

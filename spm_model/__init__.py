@@ -1,12 +1,11 @@
-"""spm_model: the Sparse Pose Manifolds estimator (Kouskouridas et al. 2014).
+"""spm_model: the Sparse Pose Manifolds method (Kouskouridas et al. 2014) and the benchmark.
 
-The paper's stages, one module each: ``keypoints`` (SIFT + homography RANSAC
-against the path neighbours), ``bunches`` (EM, gamma = 8), ``ellipse`` (Eq. 1 by
-particle swarm, and the direct fit), ``manifold`` (foci distances in a canonical
-order), ``sparse`` (Eq. 5 as Sparsity Preserving Projections) and ``regressor``
-(RBF kernel ridge with input noise, angles as cos/sin). Around them:
-``features`` and ``dataset`` (per-frame features, cached per shard),
-``estimator`` (the model and its file), ``baselines``, ``metrics``,
-``evaluation`` (protocols), ``report`` and ``train`` (what ``spm`` calls).
-Decisions: docs/method.md.
+Layers, lowest first (each imports its own and those below, never above):
+``base`` (the PoseEstimator contract and its one fitted check, the frames methods
+get, model files), ``spm`` (the method's stages: keypoints, bunches, ellipse,
+manifold, sparse, regressor, features, and SPMEstimator), ``methods`` (every
+benchmark method behind ``fit(frames, poses)``/``predict(frames)``: SPM, KNN,
+PCA, LS, the reference templates, N3M, SMM, chance; the registry), ``bench``
+(feature cache, protocols, metrics, surface metrics, report) and ``commands``
+(what ``spm train``, ``evaluate`` and ``predict`` call). Decisions: docs/method.md.
 """

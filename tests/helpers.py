@@ -149,8 +149,8 @@ def ppm16(img, comment=b"# converted by a scanner tool\n"):
 # --------------------------------------------------------------------------- ellipses
 
 def ellipse_points(centre=(40.0, 70.0), a=30.0, b=18.0, degrees=30.0, n=8, phase=0.3):
-    """``n`` points on a known ellipse, and that ellipse (spm_model.ellipse.Ellipse)."""
-    from spm_model.ellipse import Ellipse
+    """``n`` points on a known ellipse, and that ellipse (spm_model.spm.ellipse.Ellipse)."""
+    from spm_model.spm.ellipse import Ellipse
 
     u = np.array([np.cos(np.radians(degrees)), np.sin(np.radians(degrees))])
     v = np.array([-u[1], u[0]])
@@ -165,7 +165,7 @@ N = 24
 
 
 class CachedFrames(list):
-    """Frames whose features are all cached (as spm_model.frames.Frames serves them)."""
+    """Frames whose features are all cached (as spm_model.base.frames.Frames serves them)."""
 
     def __init__(self, columns: dict):
         super().__init__({"K": k} for k in columns["K"])
@@ -186,7 +186,7 @@ def vectors(n, seed, d=16):
 
 
 def frames(n, seed):
-    from spm_model.descriptors import HOG_SIZE
+    from spm_model.methods.descriptors import HOG_SIZE
 
     rng = np.random.default_rng(seed)
     K = np.tile(np.array([[60.0, 0, 31.5], [0, 60, 31.5], [0, 0, 1]]), (n, 1, 1))

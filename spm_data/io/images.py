@@ -17,13 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from spm_data.errors import SpmError, one_line
+from spm_data.errors import ImageError, SpmError, one_line
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".bmp", ".tif", ".tiff")
-
-
-class ImageError(SpmError):
-    """An image that cannot be read (truncated, foreign, empty)."""
 
 
 def read_bytes(ref: str) -> bytes:

@@ -89,8 +89,8 @@ def test_a_killed_task_is_retried_and_the_run_completes(specs, tmp_path):
 
 
 def test_features_on_ray_equal_local_and_a_failing_job_is_reported(specs, tmp_path):
-    from spm_model.dataset import extract_shard, load_features
-    from spm_model.features import FeatureConfig
+    from spm_model.bench.feature_cache import extract_shard, load_features
+    from spm_model.spm.features import FeatureConfig
 
     render_dataset(specs, tmp_path / "shards")
     config = FeatureConfig(ellipse="direct")

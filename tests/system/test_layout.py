@@ -5,7 +5,7 @@ its mirrored path, and every test file outside tests/system/ names a module that
     spm_data/<layer>/<module>.py      -> tests/<layer>/test_<module>.py   (also io/shards/...)
     spm_data/<layer>/__init__.py      -> tests/<layer>/test_<layer>.py    (a package's own logic)
     spm_data/__init__.py              -> tests/test_spm_data.py           (once it has logic of its own)
-    spm_model/<module>.py             -> tests/model/test_<module>.py
+    spm_model/<layer>/<module>.py     -> tests/model/<layer>/test_<module>.py
     cli/<module>.py                   -> tests/cli/test_<module>.py
 
 Tests that exercise many modules at once (hostile reads, interruptions, layers, ...) live in
@@ -69,7 +69,7 @@ def test_the_mirror_maps_as_documented():
     assert mirror(Path("spm_data/errors.py")) == Path("tests/test_errors.py")
     assert mirror(Path("spm_data/io/shards/reader.py")) == Path("tests/io/shards/test_reader.py")
     assert mirror(Path("spm_data/render/__init__.py")) == Path("tests/render/test_render.py")
-    assert mirror(Path("spm_model/train.py")) == Path("tests/model/test_train.py")
+    assert mirror(Path("spm_model/commands/train.py")) == Path("tests/model/commands/test_train.py")
     assert mirror(Path("cli/common.py")) == Path("tests/cli/test_common.py")
     assert mirror(Path("spm_data/__init__.py")) == Path("tests/test_spm_data.py")
     assert mirror(Path("spm_model/__init__.py")) == Path("tests/model/test_model.py")

@@ -24,8 +24,8 @@ from click.testing import CliRunner
 
 from cli import data_cli, model_cli
 from spm_data.io.shards import write_manifest
-from spm_model import dataset
-from spm_model.features import FeatureConfig
+from spm_model.bench import feature_cache
+from spm_model.spm.features import FeatureConfig
 
 FAST = FeatureConfig(ellipse="direct")
 IMAGE_TYPES = ".png, .jpg, .jpeg, .pdf, .svg"
@@ -330,13 +330,13 @@ def test_train_default_report_beside_read_only_shards(shards, tmp_path):
 def test_user_cache_root(monkeypatch, tmp_path):
     monkeypatch.setenv("SPM_CACHE_DIR", str(tmp_path / "mine"))
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
-    assert dataset.user_cache_root() == tmp_path / "mine"
+    assert feature_cache.user_cache_root() == tmp_path / "mine"
     monkeypatch.delenv("SPM_CACHE_DIR")
-    assert dataset.user_cache_root() == tmp_path / "xdg" / "spm" / "features"
+    assert feature_cache.user_cache_root() == tmp_path / "xdg" / "spm" / "features"
     monkeypatch.delenv("XDG_CACHE_HOME")
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
-    assert dataset.user_cache_root() == tmp_path / "home" / ".cache" / "spm" / "features"
-    assert dataset.user_cache_folder(tmp_path / "s") == dataset.user_cache_root() / cache_hash(tmp_path / "s")
+    assert feature_cache.user_cache_root() == tmp_path / "home" / ".cache" / "spm" / "features"
+    assert feature_cache.user_cache_folder(tmp_path / "s") == feature_cache.user_cache_root() / cache_hash(tmp_path / "s")
 
 
 def test_feature_cache_on_a_full_disk_leaves_nothing(shards, tmp_path):
@@ -384,7 +384,7 @@ def read_only_run(model_shards, tmp_path_factory):
         with read_only(folder):
             trained = run(model_cli, "train", "--shards", folder, "--report", root / "report", "--runs", "1",
                           "--protocol", "views", "--ellipse", "direct")
-            mp.setattr(dataset, "frames_features", lambda *a, **k: pytest.fail("features extracted again"))
+            mp.setattr(feature_cache, "frames_features", lambda *a, **k: pytest.fail("features extracted again"))
             evaluated = run(model_cli, "evaluate", "--model", root / "report" / "model.npz", "--shards", folder)
     return {"root": root, "shards": folder, "trained": trained, "evaluated": evaluated,
             "shards_before": shards_before, "shards_after": tree(folder)}
@@ -411,7 +411,7 @@ def test_report_on_a_full_disk_leaves_nothing(read_only_run):
     report = r["root"] / "new" / "report"
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("XDG_CACHE_HOME", str(r["root"] / "xdg"))   # features cached by read_only_run
-        mp.setattr(dataset, "frames_features", lambda *a, **k: pytest.fail("features extracted again"))
+        mp.setattr(feature_cache, "frames_features", lambda *a, **k: pytest.fail("features extracted again"))
         with unraisable() as ignored:
             with read_only(r["shards"]), disk_full(r["root"] / "new"):
                 result = run(model_cli, "train", "--shards", r["shards"], "--report", report, "--runs", "1",

@@ -16,9 +16,9 @@ from PIL import Image
 from cli import model_cli
 from spm_data.io.images import decode_image
 from spm_data.core.poses import intrinsics_from_fov
-from spm_model.estimator import SPMEstimator
-from spm_model.features import FeatureConfig, image_features
-from spm_model.template import TemplatePose
+from spm_model.spm.estimator import SPMEstimator
+from spm_model.spm.features import FeatureConfig, image_features
+from spm_model.methods.template import TemplatePose
 
 SIDE = 96
 SPM_CMD = Path(sys.executable).with_name("spm")

@@ -1,0 +1,245 @@
+"""Features of every frame under a folder of shards, cached next to the shards.
+
+Each shard's features live in ``<shard folder>/.spm-features/<shard stem>-<config
+key>.npz`` (written to a temporary name and ``os.replace``-d, so a cache file
+that exists is whole); where that folder cannot be created or written (read-only
+shards), in the per-user cache ``$SPM_CACHE_DIR`` (else ``$XDG_CACHE_HOME/spm/features``,
+default ``~/.cache/spm/features``) under a hash of the shard folder's absolute
+path, with one warning. A cache file records the shard's size and modification
+time; a shard rewritten since is extracted again. Extraction runs shard by
+shard on an executor (spm_data.jobs.make_executor), with per-frame progress.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import socket
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from spm_data.errors import ShardError, SpmError, SpmWarning
+from spm_data.jobs.executor import LocalExecutor
+from spm_data.io.folders import open_tree
+from spm_data.io.locking import pid_alive
+from spm_data.io.files import PARTIAL_PREFIX, write_npz_atomic
+from spm_data.io.shards import read_attrs, read_shard
+from spm_model.bench.extract import frames_features
+from spm_model.spm.features import FeatureConfig
+
+CACHE_DIR = ".spm-features"
+LABEL_FIELDS = ("pose", "K", "label_measured", "class_name", "instance_name", "instance_id", "path_index",
+                "occlusion_fraction", "source")
+READ_BLOCK = 256  # frames read from a shard at a time (bounded memory for big shards)
+
+
+def find_shards(folder, allow_partial: bool = False) -> list[Path]:
+    """Every shard under ``folder``, each folder read by its manifest
+    (spm_data.io.folders.open_tree; hidden folders skipped)."""
+    return open_tree(folder, allow_partial=allow_partial)
+
+
+def user_cache_root() -> Path:
+    """The per-user feature cache: ``$SPM_CACHE_DIR``, else ``$XDG_CACHE_HOME/spm/features``
+    (default ``~/.cache/spm/features``)."""
+    if os.environ.get("SPM_CACHE_DIR"):
+        return Path(os.environ["SPM_CACHE_DIR"]).expanduser()
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path("~/.cache").expanduser()) / "spm" / "features"
+
+
+def user_cache_folder(shard_folder) -> Path:
+    """The per-user cache of one shard folder: a subfolder named by a hash of its absolute path."""
+    return user_cache_root() / hashlib.sha256(str(Path(shard_folder).resolve()).encode()).hexdigest()[:16]
+
+
+def _unwritable(folder: Path, parents: bool = False) -> str | None:
+    """None when ``folder`` is (now) a folder this process can write in, else why not. Creates it if missing."""
+    try:
+        folder.mkdir(parents=parents, exist_ok=True)
+    except FileExistsError:
+        return "a file is in the way"
+    except OSError as exc:
+        return exc.strerror or str(exc)
+    return None if os.access(folder, os.W_OK | os.X_OK) else "not writable"
+
+
+def _whole(path: Path, shard: Path) -> bool:
+    """Whether ``path`` is a cache file made from ``shard`` as it is now."""
+    try:
+        with np.load(path) as z:
+            return bool(np.array_equal(z["identity"], _identity(shard)))
+    except (OSError, KeyError, ValueError, EOFError):
+        return False
+
+
+def cache_path(shard: Path, config: FeatureConfig) -> Path:
+    """Where ``shard``'s features are (or will be) cached: ``<shard folder>/.spm-features``, or,
+    when that cannot be created or written, the per-user cache (user_cache_folder); a whole
+    cache file already beside a read-only shard is used where it is. SpmError when neither
+    place can be written."""
+    shard = Path(shard)
+    name = f"{shard.stem}-{config.key()}.npz"
+    beside = shard.parent / CACHE_DIR
+    why = _unwritable(beside)
+    if why is None or _whole(beside / name, shard):
+        return beside / name
+    user = user_cache_folder(shard.parent)
+    why_user = _unwritable(user, parents=True)
+    if why_user is None:
+        return user / name
+    raise SpmError(f"cannot cache features: neither {beside} ({why}) nor {user} ({why_user}) is writable; "
+                   "set SPM_CACHE_DIR to a writable folder")
+
+
+def _identity(shard: Path) -> np.ndarray:
+    st = shard.stat()
+    return np.array([st.st_size, st.st_mtime_ns], dtype=np.int64)
+
+
+def cached(shard: Path, config: FeatureConfig) -> Path | None:
+    """The shard's cache file when present and made from the shard as it is now."""
+    path = cache_path(shard, config)
+    return path if _whole(path, shard) else None
+
+
+def walks_in_steps(attrs: dict) -> bool:
+    """Whether a shard's consecutive path indices are neighbouring views (a rendered grid walk,
+    or an import); False for views a sampler drew at random (camera.sampler "sphere", "so3")."""
+    if not attrs.get("spec"):
+        return True
+    from spm_data.core.specs import parse_spec
+
+    return parse_spec(str(attrs["spec"])).camera.sampler == "grid"
+
+
+def extract_shard(job, report=lambda n: None) -> str:
+    """Compute and cache one shard's features; job = (shard path, FeatureConfig)."""
+    shard, config = Path(job[0]), job[1]
+    attrs = read_attrs(shard)  # a missing or foreign file: a ShardError naming it
+    n = int(attrs["frames"])
+    identity = _identity(shard)
+    labels = read_shard(shard, LABEL_FIELDS)
+    if np.any(labels["class_name"].astype(str) == ""):
+        raise ShardError(f"{shard}: frames without a class_name; set one when importing")
+    parts = []
+    # Path neighbours are looked up within a block of READ_BLOCK frames (a default shard is one block).
+    for start in range(0, n, READ_BLOCK):
+        block = slice(start, min(n, start + READ_BLOCK))
+        images = read_shard(shard, ("rgb", "mask"), frames=block)
+        parts.append(frames_features(images["rgb"], images["mask"], labels["instance_id"][block],
+                                     labels["path_index"][block], config, report, K=labels["K"][block],
+                                     path_steps=walks_in_steps(attrs)))
+        parts[-1]["width"] = np.full(block.stop - block.start, images["rgb"].shape[2], dtype=np.int64)
+    features = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
+    out = cache_path(shard, config)
+    # Host and pid in the temporary name: remove_stale_partials can tell a dead writer's leftovers.
+    tmp = out.parent / f"{PARTIAL_PREFIX}{out.name}.{socket.gethostname()}.{os.getpid()}.partial"
+    try:
+        write_npz_atomic(out, tmp, identity=identity, **features,
+                         **{k: (v.astype(str) if v.dtype == object else v) for k, v in labels.items()})
+    except OSError as exc:
+        fix = "" if out.parent.name == CACHE_DIR else " or set SPM_CACHE_DIR to another folder"
+        raise SpmError(f"could not write the feature cache {out}: {exc.strerror or exc}; "
+                       f"free space there{fix}") from None
+    return str(out)
+
+
+@dataclass
+class FeatureTable:
+    """Features and labels of every frame found, concatenated (n frames).
+
+    train_vector / query_vector (n, 2 gamma) float64, NaN where the frame had
+    too few keypoints; *_eccentricity (n,); raw (n, s^2) uint8; template (n,
+    3535) float32 (spm_model/methods/template.py); pose (n, 6) (rx, ry, rz degrees, t
+    metres); K (n, 3, 3); width (n,) int64 pixels; label_measured (n, 6) bool;
+    class_name, instance (n,) str (instance: source:class/name, unique per
+    object); instance_id (n,) int64 (within its shard's spec); path_index (n,)
+    int64; occlusion_fraction (n,) float32; shard (n,) str; frame (n,) int64."""
+
+    arrays: dict
+
+    def __len__(self) -> int:
+        return len(self.arrays["pose"])
+
+    def __getattr__(self, name):
+        try:
+            return self.__dict__["arrays"][name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+    def subset(self, index) -> "FeatureTable":
+        return FeatureTable({k: v[index] for k, v in self.arrays.items()})
+
+
+def remove_stale_partials(shards: list[Path]) -> list[Path]:
+    """Delete cache files half-written by processes of this host that are gone
+    (a killed run); another host's, or a live process's, are left alone.
+
+    Also where the cache goes: a shard folder whose ``.spm-features`` cannot be created or
+    written caches in the per-user cache instead, said once in a warning (SpmWarning)."""
+    removed, moved = [], []
+    host = socket.gethostname()
+    for shard_folder in sorted({Path(s).parent for s in shards}):
+        folders = [shard_folder / CACHE_DIR]
+        why = _unwritable(folders[0])
+        if why is not None:
+            folders.append(user_cache_folder(shard_folder))
+            if _unwritable(folders[1], parents=True) is None:
+                moved.append((folders[0], why, folders[1]))
+        for folder in folders:
+            for path in folder.glob(PARTIAL_PREFIX + "*.partial") if folder.is_dir() else []:
+                parts = path.name.rsplit(".", 3)  # .NAME.npz . host . pid . partial
+                if len(parts) != 4 or parts[1] != host or not parts[2].isdigit():
+                    continue
+                if pid_alive(int(parts[2])):
+                    continue
+                try:
+                    path.unlink(missing_ok=True)
+                    removed.append(path)
+                except OSError:
+                    pass  # a read-only folder: left as it is
+    if moved:
+        beside, why, user = moved[0]
+        where = (f"{beside} ({why}); caching features in {user}" if len(moved) == 1 else
+                 f"beside the shards of {len(moved)} folders (first: {beside}: {why}); caching features under "
+                 f"{user.parent}")
+        warnings.warn(f"cannot write the feature cache {where} instead (set SPM_CACHE_DIR to choose another "
+                      "folder)", SpmWarning, stacklevel=2)
+    return removed
+
+
+def load_features(folder, config: FeatureConfig = FeatureConfig(), *, progress=None, executor=None,
+                  allow_partial: bool = False) -> FeatureTable:
+    """Extract (or reuse) the features of every shard under ``folder``, one job per
+    shard on ``executor`` (spm_data.jobs.make_executor; default: this process); progress is a
+    callable taking frame deltas, with a settable ``total`` (a tqdm bar).
+    allow_partial: read folders still being written (spm_data.io.folders.open_folder)."""
+    shards = find_shards(folder, allow_partial)
+    remove_stale_partials(shards)
+    paths = {s: cached(s, config) for s in shards}   # where each shard's features are, once decided
+    todo = [(str(s), config) for s, p in paths.items() if p is None]
+    if progress is not None:
+        progress.total = sum(int(read_attrs(path)["frames"]) for path, _ in todo)
+    executor = executor or LocalExecutor(workers=1, retries=1)
+    outcomes = executor.run(extract_shard, todo, on_progress=progress)
+    failed = [o for o in outcomes if o.error]
+    if failed:
+        first, error = Path(failed[0].job[0]), str(failed[0].error)
+        where = "" if error.startswith(str(first)) else f"{first.name}: "  # shard errors name their shard
+        raise SpmError(f"feature extraction failed for {len(failed)} shard(s); first: {where}{error}")
+    paths.update({Path(o.job[0]): Path(o.result) for o in outcomes})
+    tables = []
+    for shard in shards:
+        with np.load(paths[shard]) as z:
+            arrays = {k: z[k] for k in z.files if k != "identity"}
+        n = len(arrays["pose"])
+        arrays["instance"] = np.char.add(np.char.add(arrays.pop("source"), ":"),
+                                         np.char.add(np.char.add(arrays["class_name"], "/"),
+                                                     arrays.pop("instance_name")))
+        arrays["shard"] = np.full(n, str(shard))
+        arrays["frame"] = np.arange(n, dtype=np.int64)
+        tables.append(arrays)
+    return FeatureTable({k: np.concatenate([t[k] for t in tables]) for k in tables[0]})

@@ -1,0 +1,61 @@
+"""The library call behind ``spm evaluate``: a saved model scored on a folder of shards."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from spm_data.errors import ModelError, SpmError, one_line
+from spm_model.base.frames import Frames
+from spm_model.base.model_files import load_model_file
+from spm_model.bench.feature_cache import load_features
+from spm_model.bench.metrics import summarise
+from spm_model.bench.protocols import frame_errors
+from spm_model.bench.surface_metrics import mesh_keys
+from spm_model.methods.template import TemplatePose
+from spm_model.spm.estimator import SPMEstimator
+from spm_model.spm.features import FeatureConfig
+
+
+def load_model(path):
+    """A model file from ``spm train``: an SPMEstimator (model.npz) or a TemplatePose (reference-model.npz).
+    ModelError naming the file for a missing, truncated, corrupt or foreign one."""
+    header, arrays = load_model_file(path)  # read once
+    kinds = {"spm": SPMEstimator, "template": TemplatePose}
+    if header.get("kind") not in kinds:
+        raise ModelError(f"{path}: not an spm model file (kind {header.get('kind')!r}, expected one of "
+                         f"{sorted(kinds)}); give the model.npz or reference-model.npz that spm train wrote")
+    try:
+        model = kinds[header["kind"]].from_model_file(header, arrays)
+        model.check_loaded()
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, SpmError) as exc:
+        problem = (f"no {exc.args[0]!r} in it" if isinstance(exc, KeyError) and exc.args else
+                   f"{type(exc).__name__}: {exc}" if isinstance(exc, IndexError) else str(exc))
+    else:
+        return model
+    raise ModelError(f"{path}: damaged spm model file ({one_line(problem)}); retrain it with spm train")
+
+
+def evaluate_model(model_path, shards, *, progress=None, executor=None,
+                   allow_partial: bool = False) -> dict:
+    """Score a saved model (SPM or reference) on every frame under ``shards``:
+    {"classes": {class: summary}, "all": summary} (summaries: spm_model/bench/metrics.py)."""
+    model = load_model(model_path)
+    features = model.features if isinstance(model, SPMEstimator) else FeatureConfig()
+    table = load_features(shards, features, progress=progress, executor=executor,
+                          allow_partial=allow_partial)
+    if isinstance(model, SPMEstimator):
+        ok = np.isfinite(table.query_vector).all(axis=1)
+        pred = np.full((len(table), 6), np.nan)
+        if ok.any():
+            pred[ok] = model.predict(table.query_vector[ok])
+    else:
+        pred = model.predict(Frames(table))
+    index = np.arange(len(table))
+    errors = frame_errors(table, index, pred, mesh_keys(table.shard, table.instance_id))
+    per_class = {}
+    for c in sorted(set(table.class_name.tolist())):
+        sel = table.class_name == c
+        per_class[c] = summarise({k: v[sel] for k, v in errors.items()})
+    return {"classes": per_class, "all": summarise(errors)}
+
+

@@ -1,0 +1,116 @@
+"""The library call behind ``spm predict``: poses of image files from a saved model."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from spm_data.errors import FeatureError, ImageError, ModelError, one_line
+from spm_data.io.images import decode_bytes
+from spm_model.commands.evaluate import load_model
+
+LABEL_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
+
+
+def roi_mask(roi, width: int, height: int) -> np.ndarray:
+    """(height, width) uint8 mask of the region of interest ``(x, y, w, h)`` (pixels); ModelError
+    unless the box lies inside the image and is not empty (never clipped or wrapped)."""
+    x, y, w, h = (int(v) for v in roi)
+    if x < 0 or y < 0:
+        problem = "starts at a negative x or y"
+    elif w < 1 or h < 1:
+        problem = "is empty (width and height must be at least 1)"
+    elif x >= width or y >= height:
+        problem = "lies outside the image"
+    elif x + w > width or y + h > height:
+        problem = f"reaches outside the image (x + width = {x + w}, y + height = {y + h})"
+    else:
+        mask = np.zeros((height, width), np.uint8)
+        mask[y: y + h, x: x + w] = 1
+        return mask
+    raise ModelError(f"--roi {x},{y},{w},{h} {problem}; the image is {width}x{height} pixels: give a box inside it "
+                     f"(x, y >= 0, width, height >= 1, x + width <= {width}, y + height <= {height})")
+
+
+def read_image(path) -> np.ndarray:
+    """(H, W, 3) uint8 RGB of an image file for ``spm predict``; ImageError with the reason alone."""
+    try:
+        data = Path(path).read_bytes()
+    except FileNotFoundError:
+        raise ImageError("no such file") from None
+    except IsADirectoryError:
+        raise ImageError("is a folder, not an image file") from None
+    except OSError as exc:
+        raise ImageError(f"cannot read ({exc.strerror or exc})") from None
+    return decode_bytes(data)
+
+
+def read_mask(path) -> np.ndarray:
+    """(H, W) bool object mask of ``--mask`` (non-zero = object); ModelError naming it."""
+    try:
+        with open(path, "rb") as fh:
+            m = decode_bytes(fh.read(), mode="raw")
+    except FileNotFoundError:
+        raise ModelError(f"--mask {path}: no such file") from None
+    except OSError as exc:
+        raise ModelError(f"--mask {path}: cannot read ({exc.strerror or exc})") from None
+    except ImageError as exc:
+        raise ModelError(f"--mask {path}: {exc}") from None
+    if m.ndim == 3:  # colour: any non-zero colour channel (alpha ignored)
+        m = m[..., :3] if m.shape[2] >= 3 else m[..., :1]
+        m = m.max(axis=2)
+    mask = m > 0
+    if not mask.any():
+        raise ModelError(f"--mask {path}: no object pixel (every value is 0); give a mask with the object non-zero")
+    return mask
+
+
+def predict_images(model_path, images, *, roi=None, mask_path=None) -> list[dict]:
+    """One result per image, in order: {"image", "pose": {rx..tz}[, "keypoints", "eccentricity"]},
+    or {"image", "error": reason} when that image cannot be read (missing, not an image,
+    truncated, over Pillow's decompression-bomb limit), the region of interest does not fit
+    it, or the model finds no pose in it. The model and ``mask_path`` are read first: a
+    problem with either raises ModelError (no image is read)."""
+    model = load_model(model_path)
+    mask = read_mask(mask_path) if mask_path is not None else None
+    results = []
+    for image in images:
+        try:
+            rgb = read_image(image)
+            h, w = rgb.shape[:2]
+            this_mask = roi_mask(roi, w, h) if roi is not None else mask
+            if this_mask is not None and this_mask.shape != (h, w):
+                raise ModelError(f"--mask {mask_path} is {this_mask.shape[1]}x{this_mask.shape[0]} pixels, the image "
+                                 f"{w}x{h}; give a mask of the image's size")
+            out = model.predict_image(rgb, this_mask)
+            pose = np.asarray(out["pose"], dtype=np.float64)
+            if pose.shape != (6,) or not np.isfinite(pose).all():
+                raise ModelError("the model found no pose (no object in the mask or region of interest)")
+            results.append({"image": str(image), "pose": dict(zip(LABEL_NAMES, map(float, pose))),
+                            **({"keypoints": int(out["keypoints"]), "eccentricity": float(out["eccentricity"])}
+                               if "keypoints" in out else {})})
+        except (ImageError, FeatureError, ModelError) as exc:
+            results.append({"image": str(image), "error": one_line(exc)})
+    return results
+
+
+def format_predictions(results: list[dict], as_json: bool) -> str:
+    """What ``spm predict`` prints on stdout: JSON of every result (failed images as
+    {"image", "error"}), or one text line per image that got a pose ("" if none did)."""
+    if as_json:
+        return json.dumps(results, indent=2)
+    lines = []
+    for r in results:
+        if "error" not in r:
+            p = r["pose"]
+            extra = f"  [{r['keypoints']} keypoints]" if "keypoints" in r else ""
+            lines.append(f"{r['image']}: rx {p['rx']:.1f} ry {p['ry']:.1f} rz {p['rz']:.1f} deg, "
+                         f"t ({p['tx']:.3f}, {p['ty']:.3f}, {p['tz']:.3f}) m{extra}")
+    return "\n".join(lines)
+
+
+def prediction_errors(results: list[dict]) -> list[str]:
+    """One line per failed image, in order, for stderr: "IMAGE: reason" (the CLI adds "error: ")."""
+    return [f"{r['image']}: {r['error']}" for r in results if "error" in r]

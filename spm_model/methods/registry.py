@@ -1,0 +1,67 @@
+"""Every method the benchmark runs, behind one interface (scikit-learn's):
+``fit(frames, poses)`` returns self, ``predict(frames)`` returns (n, 6) labels
+(rx, ry, rz degrees, t metres; a row of NaN where the method has no estimate).
+``frames`` is a sequence of per-frame dicts (spm_model/base/frames.py); poses (n, 6).
+Learned state ends in ``_`` (each class's ``FITTED``); predict before fit raises
+ModelError (spm_model/base/estimator.py).
+
+Built in: SPM and KNN on its re-projected vectors (the paper's Tables 1 and 2),
+the PCA- and LS-based raw-image baselines (§3.3-3.4), the reference template
+matcher (spm_model/methods/template.py) and chance (a random training pose). Any class
+with the same contract joins them: ``spm train --estimator MODULE:CLASS``
+(docs/estimators.md).
+"""
+
+from __future__ import annotations
+
+import importlib
+import re
+
+import numpy as np
+
+from spm_data.errors import ModelError
+from spm_model.methods.baselines import ChancePose, RawImagePose
+from spm_model.methods.spm_pose import SPMNeighbours, SPMPose
+from spm_model.methods.template import TemplatePose
+from spm_model.spm.features import FeatureConfig
+
+METHOD_NAMES = {"spm": "SPM", "knn1": "KNN K=1", "knn3": "KNN K=3", "pca": "PCA-based", "ls": "LS-based",
+                "template": "HOG templates (reference)", "chance": "chance (random training pose)"}
+
+
+def builtin_methods(seed: int, features: FeatureConfig, model_params: dict | None = None) -> dict:
+    """Fresh, unfitted instances of every built-in method, in report order."""
+    spm = SPMPose(seed=seed, features=features, params=model_params)
+    return {"spm": spm, "knn1": SPMNeighbours(k=1, spm=spm), "knn3": SPMNeighbours(k=3, spm=spm),
+            "pca": RawImagePose(kind="pca"), "ls": RawImagePose(kind="ls"), "template": TemplatePose(),
+            "chance": ChancePose(seed=seed)}
+
+
+def load_estimator_class(spec: str):
+    """'MODULE:CLASS' (MODULE importable, e.g. on PYTHONPATH) -> the class; ModelError otherwise."""
+    match = re.fullmatch(r"([A-Za-z_][\w.]*):([A-Za-z_]\w*)", spec or "")
+    if not match:
+        raise ModelError(f"--estimator expects MODULE:CLASS (for example my_pose:MyEstimator), got {spec!r}")
+    try:
+        module = importlib.import_module(match.group(1))
+    except Exception as exc:  # noqa: BLE001 - a user's module can fail in any way; report it in one line
+        raise ModelError(f"--estimator {spec}: cannot import {match.group(1)} ({type(exc).__name__}: {exc}); "
+                         "is its folder on PYTHONPATH?") from None
+    cls = getattr(module, match.group(2), None)
+    if cls is None or not all(callable(getattr(cls, m, None)) for m in ("fit", "predict")):
+        raise ModelError(f"--estimator {spec}: {match.group(2)} is not a class in {match.group(1)} with "
+                         "fit(frames, poses) and predict(frames)")
+    return cls
+
+
+def check_predictions(name: str, pred, n: int) -> np.ndarray:
+    """A method's predict() output as (n, 6) float64; ModelError naming the method otherwise."""
+    try:
+        out = np.asarray(pred, dtype=np.float64)
+    except (TypeError, ValueError):
+        out = None
+    if out is None or out.shape != (n, 6):
+        got = "something that is not an array" if out is None else f"shape {out.shape}"
+        raise ModelError(f"estimator {name}: predict(frames) must return ({n}, 6) labels "
+                         f"(rx, ry, rz degrees, t metres; NaN rows for no estimate), got {got}")
+    return out

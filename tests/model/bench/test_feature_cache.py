@@ -1,0 +1,87 @@
+"""spm_model.bench.feature_cache: features of a shard tree, cached next to the shards and refreshed when a
+shard changes; one-line errors; half-written cache files of dead processes removed."""
+
+import os
+import shutil
+
+import numpy as np
+import pytest
+
+from spm_data.errors import ShardError
+from spm_data.io.shards import read_shard, write_manifest, write_shard
+from spm_model.bench import feature_cache
+from spm_model.bench.feature_cache import cache_path, find_shards, load_features
+from spm_model.spm.features import FeatureConfig
+
+
+def test_features_are_cached_next_to_the_shards_and_refreshed(model_shards, tmp_path, monkeypatch):
+    folder = tmp_path / "shards"
+    shutil.copytree(model_shards, folder / "nested")      # found recursively
+    config = FeatureConfig(ellipse="direct")
+    table = load_features(folder, config)
+    assert len(table) == 144 and sorted(set(table.class_name)) == ["box", "car", "cup"]
+    assert table.train_vector.shape == (144, 16) and table.raw.shape == (144, 1024)
+    ok = np.isfinite(table.train_vector).all(axis=1)
+    assert ok.mean() > 0.5 and np.isfinite(table.query_vector).all(axis=1).mean() > 0.9
+    # A failed frame is NaN, never zeros.
+    assert not (table.train_vector == 0).all(axis=1).any()
+    shard = find_shards(folder)[0]
+    assert cache_path(shard, config).is_file() and cache_path(shard, config).parent.name == ".spm-features"
+
+    calls = []
+    monkeypatch.setattr(feature_cache, "frames_features", lambda *a, **k: calls.append(1))
+    again = load_features(folder, config)                 # second run: nothing recomputed
+    assert calls == [] and np.array_equal(again.query_vector, table.query_vector, equal_nan=True)
+    monkeypatch.undo()
+
+    # Rewriting a shard invalidates its cache entry only.
+    arrays = read_shard(shard)
+    arrays["pose"][:, 2] += 1.0
+    write_shard(shard, arrays, {"renderer": "pyrender", "seed": 1})
+    write_manifest(shard.parent)   # a rewritten shard, listed again
+    refreshed = load_features(folder, config)
+    changed = refreshed.shard == str(shard)
+    assert np.allclose(refreshed.pose[changed, 2], table.pose[changed, 2] + 1.0)
+
+
+def test_no_shards_and_missing_class_are_one_line_errors(tmp_path, model_shards):
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ShardError, match="no shards"):
+        load_features(tmp_path / "empty")
+    shard = find_shards(model_shards)[0]
+    arrays = read_shard(shard)
+    arrays["class_name"] = np.array([""] * len(arrays["pose"]), dtype=object)
+    (tmp_path / "nameless").mkdir()
+    write_shard(tmp_path / "nameless" / "x.h5", arrays, {"renderer": "pyrender", "seed": 1})
+    write_manifest(tmp_path / "nameless")
+    with pytest.raises(Exception, match="without a class_name"):
+        load_features(tmp_path / "nameless")
+
+
+def test_half_written_cache_files_of_dead_processes_are_removed(tmp_path):
+    import socket
+    import subprocess
+    import sys
+
+    from spm_model.bench.feature_cache import CACHE_DIR, remove_stale_partials
+
+    shard = tmp_path / "a.h5"
+    cache = tmp_path / CACHE_DIR
+    cache.mkdir()
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True).stdout.strip()
+    host = socket.gethostname()
+    stale = cache / f".a-x.npz.{host}.{dead}.partial"
+    live = cache / f".a-y.npz.{host}.{os.getpid()}.partial"
+    other = cache / f".a-z.npz.otherhost.{dead}.partial"
+    for p in (stale, live, other):
+        p.write_bytes(b"half")
+    assert remove_stale_partials([shard]) == [stale]
+    assert not stale.exists() and live.exists() and other.exists()
+
+
+def test_only_grid_walks_give_path_neighbours(tmp_path):
+    spec = 'class = "cup"\n[camera]\nsampler = "sphere"\nviews = 5\n'
+    assert feature_cache.walks_in_steps({"spec": 'class = "cup"\n'}) is True            # the grid walk
+    assert feature_cache.walks_in_steps({"source": "coil100"}) is True                  # an import: its own order
+    assert feature_cache.walks_in_steps({"spec": spec}) is False                        # random views

@@ -1,0 +1,130 @@
+"""spm_model.bench.protocols: protocols (splits), the plug-in path and the reference estimator against chance."""
+
+import json
+import textwrap
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from cli import model_cli
+from spm_model.bench.feature_cache import FeatureTable, load_features
+from spm_model.spm.estimator import ModelError
+from spm_model.bench.protocols import evaluate, splits
+from spm_model.spm.features import FeatureConfig
+
+FAST = FeatureConfig(ellipse="direct")
+
+
+def instance_table():
+    classes = np.repeat(["car", "cup"], 30)
+    instance = np.array([f"r:{c}/{i}" for c, i in zip(classes, np.tile(np.repeat([0, 1, 2], 10), 2))])
+    instance[30:] = np.where(instance[30:] == "r:cup/2", "r:cup/1", instance[30:])  # cup: 2 instances, car: 3
+    return FeatureTable({"class_name": classes, "instance": instance, "path_index": np.tile(np.arange(10), 6)})
+
+
+def test_instances_leave_one_instance_of_every_class_out():
+    t = instance_table()
+    folds = splits(t, "instances", seed=0)
+    assert len(folds) == 3                                   # car has 3 instances
+    tested = np.concatenate([test for _, _, test in folds])
+    assert sorted(tested.tolist()) == list(range(60))        # every frame tested once per run
+    for _, train, test in folds:
+        assert not set(t.instance[train]) & set(t.instance[test])
+        per_class = {c: set(t.instance[test][t.class_name[test] == c]) for c in ("car", "cup")}
+        assert len(per_class["car"]) == 1 and len(per_class["cup"]) <= 1
+        assert set(t.class_name[train]) == {"car", "cup"}    # a tested class is still trained on
+    assert [s[2].tolist() for s in splits(t, "instances", seed=0)] == [f.tolist() for _, _, f in folds]
+    assert [s[2].tolist() for s in splits(t, "instances", seed=1)] != [f.tolist() for _, _, f in folds]
+    lonely = t.subset(t.instance != "r:cup/1")               # cup keeps one instance
+    with pytest.raises(ModelError, match=r"at least 2 instances of every class; 'cup' has 1"):
+        splits(lonely, "instances", seed=0)
+
+
+def test_splits_never_share_a_view():
+    from spm_model.bench.feature_cache import FeatureTable
+
+    n = 40
+    t = FeatureTable({"class_name": np.array(["a"] * 20 + ["b"] * 20), "instance": np.array(["i"] * 20 + ["j"] * 20),
+                      "path_index": np.tile(np.arange(10), 4)})            # each view twice (an occluded copy)
+    (_, train, test), = splits(t, "views", seed=3)
+    key = lambda i: (t.instance[i], t.path_index[i])  # noqa: E731
+    assert len(train) + len(test) == n and not {key(i) for i in train} & {key(i) for i in test}
+    loco = splits(t, "loco", seed=0)
+    assert [c for c, _, _ in loco] == ["a", "b"] and set(t.class_name[loco[0][1]]) == {"b"}
+    with pytest.raises(ModelError, match="at least 2 classes"):
+        splits(t.subset(t.class_name == "a"), "loco", seed=0)
+
+
+PLUGIN = '''
+import numpy as np
+
+class MeanPose:
+    """Predicts the mean training label; records what it was given."""
+    seen = {}
+
+    def __init__(self, *, shift=0.0):
+        self.shift = shift
+
+    def fit(self, frames, poses):
+        f = frames[0]
+        MeanPose.seen.update(rgb=(f["rgb"].shape, str(f["rgb"].dtype)), mask=str(f["mask"].dtype), K=f["K"].shape,
+                             n=len(frames), poses=np.asarray(poses).shape)
+        self.mean_ = np.asarray(poses).mean(axis=0) + self.shift
+        return self
+
+    def predict(self, frames):
+        return np.tile(self.mean_, (len(frames), 1))
+
+class WrongShape(MeanPose):
+    def predict(self, frames):
+        return np.zeros((len(frames), 5))
+'''
+
+
+def test_a_plugged_in_estimator_gets_frames_and_is_scored_like_the_rest(model_shards, tmp_path, monkeypatch):
+    (tmp_path / "my_pose.py").write_text(textwrap.dedent(PLUGIN))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import my_pose
+
+    table = load_features(model_shards, FAST)
+    evaluation = evaluate(table, "loco", runs=1, model_params={"features": FAST, "projection_samples": 60},
+                          estimators={"MeanPose": my_pose.MeanPose})
+    assert my_pose.MeanPose.seen == {"rgb": ((128, 128, 3), "uint8"), "mask": "bool", "K": (3, 3), "n": 96,
+                                     "poses": (96, 6)}
+    overall = evaluation["runs"][0]["overall"]
+    assert set(overall) == {"spm", "knn1", "knn3", "pca", "ls", "template", "chance", "MeanPose"}
+    assert overall["MeanPose"]["frames"] == 144 and overall["MeanPose"]["estimated"] == 144
+    runner = CliRunner()
+    report = tmp_path / "report"
+    r = runner.invoke(model_cli, ["train", "--shards", str(model_shards), "--report", str(report), "--runs", "1",
+                                  "--ellipse", "direct", "--estimator", "my_pose:MeanPose"])
+    assert r.exit_code == 0, r.output
+    payload = json.loads((report / "results.json").read_text())
+    assert payload["schema_version"] == 2 and "MeanPose" in payload["summary"]["methods"]
+    assert "| MeanPose |" in (report / "results.md").read_text()
+    for spec, message in (("my_pose:WrongShape", "estimator WrongShape: predict(frames) must return (48, 6)"),
+                          ("my_pose", "--estimator expects MODULE:CLASS"),
+                          ("no_such_module:X", "cannot import no_such_module"),
+                          ("my_pose:Nope", "Nope is not a class in my_pose")):
+        r = runner.invoke(model_cli, ["train", "--shards", str(model_shards), "--report", str(tmp_path / "r2"),
+                                      "--runs", "1", "--ellipse", "direct", "--estimator", spec])
+        assert r.exit_code == 1 and message in r.output and "Traceback" not in r.output, (spec, r.output)
+        assert sum(line.startswith("error:") for line in r.output.splitlines()) == 1
+
+
+def test_the_reference_estimator_beats_chance_on_new_views_and_instances(instance_shards):
+    table = load_features(instance_shards, FAST)
+    params = {"features": FAST, "projection_samples": 60}
+    views = evaluate(table, "views", runs=1, model_params=params)["runs"][0]["overall"]
+    ref, chance = views["template"], views["chance"]
+    # New views of seen objects: the adjacent 5-degree view is found almost always. (Chance is
+    # about 10% here: 48 views per instance, of which a +-5 degree box holds up to 9.)
+    assert ref["success_tol5"] >= 80 and ref["success_tol5"] >= chance["success_tol5"] + 60, \
+        (ref["success_tol5"], chance["success_tol5"])
+    assert ref["geodesic_median_deg"] <= 6 and ref["median_error"]["distance_mm"] <= 1
+    assert ref["auc_45"] >= chance["auc_45"] + 40
+    instances = evaluate(table, "instances", runs=1, model_params=params)["runs"][0]["overall"]
+    # New instances of a class: still far above a random training pose.
+    assert instances["template"]["success_tol5"] >= instances["chance"]["success_tol5"] + 20, instances["template"]
+    assert instances["template"]["surface"]["add_s_recall"] > instances["chance"]["surface"]["add_s_recall"]

@@ -1,0 +1,102 @@
+"""spm_model.bench.report: results.md, results.json and the plots of a tiny hand-made evaluation:
+one class (cup), four frames, methods whose errors are known."""
+
+import json
+
+import numpy as np
+import pytest
+
+from spm_data.errors import SpmError
+from spm_model.bench.metrics import accuracy_curve, pose_errors, summarise
+from spm_model.bench.report import (SCHEMA, SCHEMA_VERSION, aggregate, check_report_folder, markdown, summary_text,
+                              write_error, write_report)
+
+TRUE = np.array([[90.0, 0, 10, 0, 0, 0.6]] * 4)
+# Rotation errors about z per frame: spm misses one frame by 20 degrees, knn3 two by 30, chance all by 90.
+OFF = {"spm": [0, 0, 0, 20], "knn1": [0, 0, 0, 0], "knn3": [0, 0, 30, 30], "chance": [90, 90, 90, 90]}
+
+
+def tiny_evaluation():
+    errors = {}
+    for m, off in OFF.items():
+        pred = TRUE.copy()
+        pred[:, 2] += off
+        errors[m] = pose_errors(pred, TRUE)
+    run = {"seed": 0, "overall": {m: summarise(e) for m, e in errors.items()},
+           "classes": {"cup": {m: summarise(e) for m, e in errors.items()}},
+           "occlusion": {m: [{"low": 0.0, "high": 0.1, "frames": 4,
+                              **{k: summarise(e)[k] for k in ("success_tol5", "success_sum5", "success_sum3")}},
+                             {"low": 0.1, "high": 0.2, "frames": 0, "success_tol5": None, "success_sum5": None,
+                              "success_sum3": None}] for m, e in errors.items()},
+           "accuracy_curve": {m: accuracy_curve(e["geodesic"], 4).tolist() for m, e in errors.items()}}
+    return {"protocol": "views", "runs": [run], "eccentricity": {"cup": {"mean": 0.5, "std": 0.1, "frames": 4}},
+            "classes": ["cup"], "methods": list(OFF)}
+
+
+CONTEXT = {"command": "spm train --shards s", "frames": 4, "shards": "s", "train_features": 4, "query_features": 4}
+
+
+def test_aggregate_is_the_mean_over_runs_with_sigma():
+    evaluation = tiny_evaluation()
+    evaluation["runs"].append(json.loads(json.dumps(evaluation["runs"][0])))
+    evaluation["runs"][1]["overall"]["spm"]["success_tol5"] = 25.0
+    summary = aggregate(evaluation)
+    assert summary["protocol"] == "views" and summary["runs"] == 2
+    assert list(summary["methods"]) == ["spm", "knn1", "knn3"] and summary["chance"]["success_tol5"] == 0.0
+    spm = summary["methods"]["spm"]
+    assert spm["success_tol5"] == 50.0 and spm["std"]["success_tol5"] == 25.0      # mean and sigma of 75 and 25
+    assert spm["frames"] == 4 and spm["estimated"] == 4 and "frames" not in spm["std"]
+    assert summary["occlusion"]["knn3"][0]["success_tol5"] == 50.0 and summary["occlusion"]["knn3"][1]["frames"] == 0
+
+
+def test_markdown_of_a_tiny_summary_has_the_expected_rows():
+    evaluation = tiny_evaluation()
+    text = markdown(evaluation, aggregate(evaluation), CONTEXT)
+    lines = text.splitlines()
+    assert lines[0] == "# Pose benchmark (views protocol, 1 run)"
+    assert lines[2].startswith("- **Best method, views protocol: KNN K=1**, 100.0% within ±5° (chance 0.0%), "
+                               "geodesic median 0.0° (chance 90.0°)")
+    assert "- SPM: 75.0% within ±5°, geodesic median 0.0°." in lines
+    assert "Command: `spm train --shards s`" in lines
+    # Table 1 (SPM, with the paper's cup numbers beside), Table 2 (KNN K=1 and K=3).
+    assert "| cup | 75.0 | 0.0 | 75.0 | 75.0 | 0.50 | 0.10 | 86.6 | 0.87 |" in lines
+    assert "| cup | 100.0 | 0.0 | 50.0 | 0.0 | 82.6 | 82.8 |" in lines
+    # Every method over all frames, chance last; per class; occlusion bins with frames only.
+    rows = [line for line in lines if line.startswith(("| SPM |", "| KNN K=1 |", "| KNN K=3 |", "| chance"))]
+    assert [r.split(" | ")[:4] for r in rows[:4]] == [["| SPM", "4/4", "75.0", "0.0"],
+                                                      ["| KNN K=1", "4/4", "100.0", "0.0"],
+                                                      ["| KNN K=3", "4/4", "50.0", "0.0"],
+                                                      ["| chance (random training pose)", "4/4", "0.0", "0.0"]]
+    assert "| cup | 75.0 (0) | 100.0 (0) | 50.0 (15) | 0.0 (90) |" in lines
+    assert "| 0%–10% | 4 | 75.0 | 100.0 | 50.0 | 0.0 |" in lines and not any(r.startswith("| 10%–20%") for r in lines)
+
+
+def test_write_report_writes_four_files_whole(tmp_path):
+    summary = write_report(tiny_evaluation(), CONTEXT, tmp_path / "report")
+    assert sorted(p.name for p in (tmp_path / "report").iterdir()) == ["accuracy.png", "occlusion.png",
+                                                                       "results.json", "results.md"]
+    payload = json.loads((tmp_path / "report" / "results.json").read_text())
+    assert (payload["schema"], payload["schema_version"]) == (SCHEMA, SCHEMA_VERSION) == ("spm-results", 2)
+    assert payload["summary"] == json.loads(json.dumps(summary)) and payload["context"] == CONTEXT
+    assert (tmp_path / "report" / "accuracy.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    text = summary_text(summary).splitlines()
+    assert text[0].startswith("- Best method, views protocol: KNN K=1, 100.0% within ±5°")
+    assert "- Recovered by KNN K=1 (median error at most half of chance's): azimuth 0.0° (chance 90.0°); azimuth " \
+           "mod 180° 0.0° (chance 90.0°)." in text
+    # The method, ±5° %, sum<5 %, geodesic median, AUC to 45° (spm: 75% up to 20°, then 100%), elevation, distance.
+    assert [line.rsplit(maxsplit=6)[1:] for line in text[-4:]] == [
+        ["75.0", "75.0", "0.0", "89.0", "0.0", "0.0"], ["100.0", "100.0", "0.0", "100.0", "0.0", "0.0"],
+        ["50.0", "50.0", "15.0", "66.9", "0.0", "0.0"], ["0.0", "0.0", "90.0", "0.0", "0.0", "0.0"]]
+
+
+def test_report_folder_problems_are_one_line(tmp_path):
+    (tmp_path / "notes").write_text("mine")
+    assert check_report_folder(tmp_path / "new" / "report") == tmp_path / "new" / "report"
+    with pytest.raises(SpmError, match=r"^report folder .*notes is a file; give a folder with --report$"):
+        check_report_folder(tmp_path / "notes")
+    with pytest.raises(SpmError, match=r"^report folder .*notes/r cannot be made: .*notes is a file; give a folder"):
+        check_report_folder(tmp_path / "notes" / "r")
+    assert str(write_error(tmp_path, OSError(28, "No space left on device"))) == (
+        f"could not write the report in {tmp_path}: No space left on device; free space there or give another "
+        "folder with --report")
+    assert not (tmp_path / "new").exists()

@@ -1,0 +1,67 @@
+"""spm_model.methods.registry: the built-in methods behind one interface, a user's estimator by
+MODULE:CLASS, and predictions checked for shape (frames from cached columns: no rendering)."""
+
+import textwrap
+
+import numpy as np
+import pytest
+
+from spm_data.errors import ModelError
+from spm_model.methods.registry import METHOD_NAMES, builtin_methods, check_predictions, load_estimator_class
+from spm_model.spm.features import FeatureConfig
+
+
+def test_builtin_methods_in_report_order_knn_sharing_the_spm_model():
+    features = FeatureConfig(ellipse="direct")
+    methods = builtin_methods(3, features, {"projection_samples": 16})
+    assert list(methods) == ["spm", "knn1", "knn3", "pca", "ls", "template", "chance"] == list(METHOD_NAMES)
+    spm = methods["spm"]
+    assert spm.seed == 3 and spm.features == features and spm.params == {"projection_samples": 16}
+    assert methods["knn1"].spm is spm and methods["knn3"].spm is spm and methods["knn3"].k == 3
+    assert (methods["pca"].kind, methods["ls"].kind, methods["chance"].seed) == ("pca", "ls", 3)
+
+
+def test_load_estimator_class(tmp_path, monkeypatch):
+    (tmp_path / "mine.py").write_text(textwrap.dedent('''
+        class Good:
+            def fit(self, frames, poses):
+                return self
+
+            def predict(self, frames):
+                return None
+
+        class NoPredict:
+            def fit(self, frames, poses):
+                return self
+
+        VALUE = 3
+        '''))
+    (tmp_path / "broken.py").write_text("raise RuntimeError('no GPU here')\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert load_estimator_class("mine:Good").__name__ == "Good"
+    for spec, message in [
+        ("mine", "--estimator expects MODULE:CLASS (for example my_pose:MyEstimator), got 'mine'"),
+        ("mine:Good:x", "--estimator expects MODULE:CLASS (for example my_pose:MyEstimator), got 'mine:Good:x'"),
+        ("nowhere:X", "--estimator nowhere:X: cannot import nowhere (ModuleNotFoundError: No module named "
+                      "'nowhere'); is its folder on PYTHONPATH?"),
+        ("broken:X", "--estimator broken:X: cannot import broken (RuntimeError: no GPU here); is its folder on "
+                     "PYTHONPATH?"),
+        ("mine:NoPredict", "--estimator mine:NoPredict: NoPredict is not a class in mine with fit(frames, poses) "
+                           "and predict(frames)"),
+        ("mine:VALUE", "--estimator mine:VALUE: VALUE is not a class in mine with fit(frames, poses) and "
+                       "predict(frames)"),
+    ]:
+        with pytest.raises(ModelError) as info:
+            load_estimator_class(spec)
+        assert str(info.value) == message
+
+
+def test_check_predictions():
+    out = check_predictions("mine", [[0, 0, 0, 0, 0, 1]] * 2, 2)
+    assert out.dtype == np.float64 and out.shape == (2, 6)
+    for pred, got in [(np.zeros((3, 6)), "shape (3, 6)"), (np.zeros((2, 5)), "shape (2, 5)"),
+                      (None, "shape ()"), ([[1, 2], [3]], "something that is not an array")]:
+        with pytest.raises(ModelError) as info:
+            check_predictions("mine", pred, 2)
+        assert str(info.value) == ("estimator mine: predict(frames) must return (2, 6) labels (rx, ry, rz degrees, "
+                                   f"t metres; NaN rows for no estimate), got {got}")
