@@ -25,12 +25,33 @@ def _parse_roi(text):
     return x, y, w, h
 
 
+def _method_names(text):
+    """--methods a,b -> ["a", "b"] (None: all); SpmError naming an unknown one."""
+    if text is None:
+        return None
+    from spm_model.methods.registry import METHOD_NAMES
+
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    unknown = [n for n in names if n not in METHOD_NAMES]
+    if unknown or not names:
+        raise SpmError(f"--methods: unknown {', '.join(unknown) or 'empty list'}; choose from "
+                       f"{', '.join(METHOD_NAMES)}")
+    return names
+
+
 @model_cli.command("train")
 @click.option("--shards", required=True, type=click.Path(), help="Folder of shards (searched recursively).")
 @click.option("--report", "report_dir", default=None, type=click.Path(), help="Report folder [default: SHARDS/report].")
-@click.option("--protocol", type=click.Choice(["loco", "views", "instances"]), default="loco", show_default=True,
-              help="loco: leave one class out; views: new views of seen objects; instances: leave one instance "
-                   "out of every class (category level).")
+@click.option("--protocol", type=click.Choice(["loco", "views", "instances", "offgrid"]), default=None,
+              help="loco (default): leave one class out; views: new views of seen objects; instances: leave one "
+                   "instance out of every class (category level); offgrid: train on SHARDS, test on --test (Fig. 5).")
+@click.option("--test", "test", default=None, type=click.Path(),
+              help="Test folder of the offgrid protocol (random views, occluded): train on SHARDS, test here.")
+@click.option("--train-occluded/--clean-training", "train_occluded", default=None,
+              help="Whether occluded frames train too (the paper's training with noise) [default: yes, but no "
+                   "under offgrid].")
+@click.option("--methods", "methods", default=None, metavar="NAME,...",
+              help="Built-in methods to run (default all): spm, knn1, knn3, pca, ls, template, n3m, smm, chance.")
 @click.option("--runs", default=3, show_default=True, type=click.IntRange(min=1), help="Repeated runs (seeds) for sigma.")
 @click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1), help="Feature-extraction processes.")
 @click.option("--ellipse", type=click.Choice(["pso", "direct"]), default="pso", show_default=True,
@@ -41,7 +62,8 @@ def _parse_roi(text):
 @ALLOW_PARTIAL
 @executor_options
 @handle_errors
-def train_cmd(shards, report_dir, protocol, runs, ellipse, gamma, estimators, allow_partial, executor):
+def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs, ellipse, gamma, estimators,
+              allow_partial, executor):
     """Extract features (cached), evaluate SPM and the baselines, write the report and the model."""
     from spm_model.spm.features import FeatureConfig
     from spm_model.commands.train import train
@@ -51,7 +73,8 @@ def train_cmd(shards, report_dir, protocol, runs, ellipse, gamma, estimators, al
         result = train(shards, report_dir, protocol=protocol, runs=runs,
                        features=FeatureConfig(gamma=gamma, ellipse=ellipse), progress=bar, executor=executor,
                        log=lambda m: bar.bar.write(m), command="spm " + " ".join(sys.argv[1:]),
-                       estimators=estimators, allow_partial=allow_partial)
+                       estimators=estimators, allow_partial=allow_partial, test=test,
+                       train_occluded=train_occluded, builtins=_method_names(methods))
     except KeyboardInterrupt:
         bar.close()
         click.echo("interrupted; features already cached are kept", err=True)

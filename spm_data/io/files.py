@@ -57,9 +57,9 @@ def write_npz_atomic(path, tmp=None, **arrays) -> Path:
     return Path(path)
 
 
-def write_json_atomic(path, payload) -> None:
+def write_json_atomic(path, payload, sort_keys: bool = True) -> None:
     with atomic_file(path) as tmp, open(tmp, "w") as fh:
-        json.dump(payload, fh, indent=2, sort_keys=True)
+        json.dump(payload, fh, indent=2, sort_keys=sort_keys)
         fh.write("\n")
         fh.flush()
         os.fsync(fh.fileno())

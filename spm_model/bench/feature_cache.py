@@ -26,7 +26,8 @@ from spm_data.jobs.executor import LocalExecutor
 from spm_data.io.folders import open_tree
 from spm_data.io.locking import pid_alive
 from spm_data.io.files import PARTIAL_PREFIX, write_npz_atomic
-from spm_data.io.shards import read_attrs, read_shard
+from spm_data.io.shards import read_attrs, read_shard, shard_layout
+from spm_model.base.frames import visible_field
 from spm_model.bench.extract import frames_features
 from spm_model.spm.features import FeatureConfig
 
@@ -124,12 +125,13 @@ def extract_shard(job, report=lambda n: None) -> str:
     labels = read_shard(shard, LABEL_FIELDS)
     if np.any(labels["class_name"].astype(str) == ""):
         raise ShardError(f"{shard}: frames without a class_name; set one when importing")
+    visible = visible_field(str(shard))  # features of what a camera sees: the visible mask where there is one
     parts = []
     # Path neighbours are looked up within a block of READ_BLOCK frames (a default shard is one block).
     for start in range(0, n, READ_BLOCK):
         block = slice(start, min(n, start + READ_BLOCK))
-        images = read_shard(shard, ("rgb", "mask"), frames=block)
-        parts.append(frames_features(images["rgb"], images["mask"], labels["instance_id"][block],
+        images = read_shard(shard, ("rgb", visible), frames=block)
+        parts.append(frames_features(images["rgb"], images[visible], labels["instance_id"][block],
                                      labels["path_index"][block], config, report, K=labels["K"][block],
                                      path_steps=walks_in_steps(attrs)))
         parts[-1]["width"] = np.full(block.stop - block.start, images["rgb"].shape[2], dtype=np.int64)
@@ -147,6 +149,23 @@ def extract_shard(job, report=lambda n: None) -> str:
     return str(out)
 
 
+def occluder_kind(shard) -> str:
+    """What may hide the object in a shard's frames: "distractors" (3-D objects rendered in
+    front of it), "rectangles" (spm-data occlude) or "none"."""
+    layout = shard_layout(str(shard))
+    return "distractors" if "distractor_R" in layout else "rectangles" if "visible_mask" in layout else "none"
+
+
+def offgrid_table(train: "FeatureTable", test: "FeatureTable") -> "FeatureTable":
+    """One table of a training folder's frames and a test folder's, with ``test`` (n,) bool
+    and ``seen`` (n,) bool (the frame's instance has training frames)."""
+    common = [k for k in train.arrays if k in test.arrays]
+    arrays = {k: np.concatenate([train.arrays[k], test.arrays[k]]) for k in common}
+    arrays["test"] = np.r_[np.zeros(len(train), bool), np.ones(len(test), bool)]
+    arrays["seen"] = np.isin(arrays["instance"], train.instance)
+    return FeatureTable(arrays)
+
+
 @dataclass
 class FeatureTable:
     """Features and labels of every frame found, concatenated (n frames).
@@ -157,7 +176,9 @@ class FeatureTable:
     metres); K (n, 3, 3); width (n,) int64 pixels; label_measured (n, 6) bool;
     class_name, instance (n,) str (instance: source:class/name, unique per
     object); instance_id (n,) int64 (within its shard's spec); path_index (n,)
-    int64; occlusion_fraction (n,) float32; shard (n,) str; frame (n,) int64."""
+    int64; occlusion_fraction (n,) float32; occluder (n,) str (occluder_kind); shard (n,)
+    str; frame (n,) int64. Features are computed from what a camera sees: the visible mask
+    where the shard has one. offgrid_table adds ``test`` and ``seen`` (n,) bool."""
 
     arrays: dict
 
@@ -240,6 +261,7 @@ def load_features(folder, config: FeatureConfig = FeatureConfig(), *, progress=N
                                          np.char.add(np.char.add(arrays["class_name"], "/"),
                                                      arrays.pop("instance_name")))
         arrays["shard"] = np.full(n, str(shard))
+        arrays["occluder"] = np.full(n, occluder_kind(shard))
         arrays["frame"] = np.arange(n, dtype=np.int64)
         tables.append(arrays)
     return FeatureTable({k: np.concatenate([t[k] for t in tables]) for k in tables[0]})

@@ -20,6 +20,9 @@ the camera around the object, the distance to it, and azimuth modulo 180°
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import numpy as np
 
 from scipy.spatial.transform import Rotation
@@ -34,6 +37,7 @@ EPS = 1e-6
 CURVE_MAX_DEG = 45.0
 CURVE_THRESHOLDS = np.linspace(0.0, CURVE_MAX_DEG, 91)  # 0.5-degree steps
 VIEW_ERRORS = ("azimuth", "elevation", "roll", "distance", "azimuth_mod180")
+AXES = ("x", "y", "z")  # camera axes of the translation error (OpenCV: x right, y down, z forward)
 
 
 def _view_errors(pred: np.ndarray, true: np.ndarray, ok: np.ndarray) -> dict:
@@ -63,7 +67,9 @@ def pose_errors(pred: np.ndarray, true: np.ndarray, measured: np.ndarray | None 
       ``distance`` (metres): see the module docstring; NaN unless the whole
       pose is measured and estimated;
     - ``rotation_measured`` (n,) bool: all three angles measured (the frames the
-      geodesic accuracy curve counts, a missing estimate as a miss)."""
+      geodesic accuracy curve counts, a missing estimate as a miss);
+    - ``translation_x``, ``_y``, ``_z`` (metres): absolute error along each camera axis
+      (the paper's Figs. 6-7), NaN unless t is measured and estimated."""
     pred = np.array(pred, dtype=np.float64).reshape(-1, 6)
     true = np.asarray(true, dtype=np.float64).reshape(-1, 6)
     measured = np.ones(true.shape, bool) if measured is None else np.asarray(measured, bool).reshape(-1, 6)
@@ -91,6 +97,8 @@ def pose_errors(pred: np.ndarray, true: np.ndarray, measured: np.ndarray | None 
     errors["geodesic"] = geodesic
     errors["rotation_measured"] = measured[:, :3].all(axis=1)  # the frames a geodesic curve scores
     errors["translation"] = np.where(has_t, np.linalg.norm(pred[:, 3:] - true[:, 3:], axis=1), np.nan)
+    for k, axis in enumerate(AXES):  # Figs. 6-7: per camera axis
+        errors[f"translation_{axis}"] = np.where(has_t, np.abs(pred[:, 3 + k] - true[:, 3 + k]), np.nan)
     errors.update(_view_errors(pred, true, full & has_t))
     return errors
 
@@ -132,27 +140,86 @@ def _p90(values):
     return np.percentile(values, 90)
 
 
+@dataclass(frozen=True)
+class Metric:
+    """One figure of a summary entry: ``key`` (dotted for a nested one), how it is computed
+    from the per-frame errors, its column in results.md, in the terminal's table
+    (None: not shown there) and what it means (docs/results-schema.md is made from these)."""
+
+    key: str
+    compute: Callable
+    header: str
+    meaning: str
+    terminal: str | None = None
+    digits: int = 1
+
+
+def _sym(name, fn):
+    return lambda e: fn(e[name]) if name in e else None
+
+
+METRICS = (
+    Metric("success_tol5", lambda e: tolerance_rate(e["rotation_max"]), "±5° %",
+           "% with every measured rotation angle (rx, ry, rz of the label, wrapped) within 5°, inclusive: the "
+           "paper's Table 2 \"error tolerance of ±5 degrees\"", "±5° %"),
+    Metric("success_sum5", lambda e: success_rate(e["rotation_sum"], 5.0), "sum<5° %",
+           "% whose summed absolute angle errors are below 5°: the paper's Fig. 5(a) criterion (after "
+           "Hinterstoisser et al. 2007)", "sum<5 %"),
+    Metric("success_sum3", lambda e: success_rate(e["rotation_sum"], 3.0), "sum<3° %",
+           "the same below 3°: Fig. 5(b)"),
+    Metric("auc_45", lambda e: (curve_auc(accuracy_curve(e["geodesic"], int(e["rotation_measured"].sum())))
+                                if e["rotation_measured"].any() else None), "AUC 45°",
+           "area under the accuracy-against-geodesic-threshold curve over 0–45°, normalised to 0–100", "AUC45"),
+    Metric("geodesic_median_deg", lambda e: _stat(e["geodesic"], np.median), "Geodesic median °",
+           "median of the rotation's geodesic error", "geo med"),
+    Metric("geodesic_p90_deg", lambda e: _stat(e["geodesic"], _p90), "p90 °",
+           "90th percentile of the rotation's geodesic error"),
+    Metric("success_tol5_sym", _sym("rotation_max_sym", tolerance_rate), "±5° sym. %",
+           "`success_tol5` against the symmetric equivalent of the truth nearest the estimate, under the "
+           "symmetries the spec or generator declares (bench/symmetry_errors.py); `null` where no mesh is known"),
+    Metric("geodesic_median_sym_deg", _sym("geodesic_sym", lambda v: _stat(v, np.median)), "Geodesic sym. °",
+           "median geodesic error up to the declared symmetries"),
+    Metric("translation_median_mm", lambda e: _stat(e["translation"], np.median, 1000.0), "t median mm",
+           "median of ‖t_pred − t_true‖"),
+    Metric("translation_p90_mm", lambda e: _stat(e["translation"], _p90, 1000.0), "t p90 mm",
+           "90th percentile of ‖t_pred − t_true‖"),
+    *(Metric(f"translation_axis_median_mm.{a}", (lambda a: lambda e: _stat(e[f"translation_{a}"], np.median,
+                                                                              1000.0))(a),
+             f"t{a} mm", f"median absolute translation error along the camera's {a} axis (Figs. 6–7)")
+      for a in AXES),
+    *(Metric(f"median_error.{k}_deg", (lambda k: lambda e: _stat(e[k], np.median))(k), label,
+             f"median absolute error of the {what} (spm_data/core/poses.py's `label_to_view`)", term)
+      for k, label, what, term in (("azimuth", "Azimuth °", "camera's azimuth around the object", None),
+                                   ("azimuth_mod180", "Az. mod 180 °", "azimuth, front/back confusions forgiven",
+                                    None),
+                                   ("elevation", "Elevation °", "camera's elevation", "elev °"),
+                                   ("roll", "Roll °", "in-plane roll", None))),
+    Metric("median_error.distance_mm", lambda e: _stat(e["distance"], np.median, 1000.0), "Distance mm",
+           "median absolute error of the camera's distance to the object origin", "dist mm"),
+)
+
+
+def metric_value(entry: dict, key: str):
+    """A metric's value in a summary entry (dotted keys reach into nested dicts); None if absent."""
+    for part in key.split("."):
+        entry = entry.get(part) if isinstance(entry, dict) else None
+    return entry
+
+
 def summarise(errors: dict) -> dict:
-    """Success rates (% of all frames with a measured angle; a frame without an
-    estimate counts as a failure), the geodesic accuracy curve's AUC, medians and
-    90th percentiles, and the median error per degree of freedom. Keys of
-    :func:`spm_model.bench.surface_metrics.surface_errors` present in ``errors`` are
-    summarised too (see docs/results-schema.md for every key)."""
+    """``frames`` (with a measured angle), ``estimated`` (of those, with an estimate; a
+    missing one fails every criterion), every METRICS entry and, when ``errors`` has the
+    keys of :func:`spm_model.bench.surface_metrics.surface_errors`, ``surface``
+    (docs/results-schema.md lists every key)."""
     rot_max = errors["rotation_max"]
     scored = ~np.isnan(rot_max)
-    n = int(scored.sum())
-    out = {"frames": n, "estimated": int(np.isfinite(rot_max[scored]).sum()),
-           "success_tol5": tolerance_rate(rot_max)}
-    for th in SUM_THRESHOLDS:
-        out[f"success_sum{th:g}"] = success_rate(errors["rotation_sum"], th)
-    rotation_frames = int(errors["rotation_measured"].sum())
-    out["auc_45"] = curve_auc(accuracy_curve(errors["geodesic"], rotation_frames)) if rotation_frames else None
-    out["geodesic_median_deg"] = _stat(errors["geodesic"], np.median)
-    out["geodesic_p90_deg"] = _stat(errors["geodesic"], _p90)
-    out["translation_median_mm"] = _stat(errors["translation"], np.median, 1000.0)
-    out["translation_p90_mm"] = _stat(errors["translation"], _p90, 1000.0)
-    out["median_error"] = {f"{k}_deg": _stat(errors[k], np.median) for k in VIEW_ERRORS if k != "distance"}
-    out["median_error"]["distance_mm"] = _stat(errors["distance"], np.median, 1000.0)
+    out = {"frames": int(scored.sum()), "estimated": int(np.isfinite(rot_max[scored]).sum())}
+    for metric in METRICS:
+        *parents, leaf = metric.key.split(".")
+        target = out
+        for part in parents:
+            target = target.setdefault(part, {})
+        target[leaf] = metric.compute(errors)
     if "add" in errors:
         from spm_model.bench.surface_metrics import summarise_surface
 

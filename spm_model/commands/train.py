@@ -10,8 +10,8 @@ import numpy as np
 from spm_data.errors import ModelError
 from spm_data.io.outputs import removing_created
 from spm_model.base.frames import Frames
-from spm_model.bench.feature_cache import FeatureTable, load_features
-from spm_model.bench.protocols import evaluate
+from spm_model.bench.feature_cache import FeatureTable, load_features, offgrid_table
+from spm_model.bench.protocols import evaluate, training_rows
 from spm_model.bench.report import check_report_folder, summary_text, write_error, write_report
 from spm_model.methods.registry import load_estimator_class
 from spm_model.methods.spm_pose import MIN_TRAIN_FRAMES
@@ -44,17 +44,28 @@ def load_estimators(specs) -> dict:
 def train(shards, report_dir=None, *, protocol: str = "loco", runs: int = 3,
           features: FeatureConfig = FeatureConfig(), model_params: dict | None = None, progress=None,
           log=lambda message: None, command: str = "spm train", executor=None, estimators=(),
-          allow_partial: bool = False) -> dict:
+          allow_partial: bool = False, test=None, train_occluded: bool | None = None,
+          builtins=None) -> dict:
     """Features of every shard under ``shards`` (cached), the evaluation protocol
-    over ``runs`` seeds for every built-in method and each ``estimators`` entry
-    ('MODULE:CLASS'), final models on every frame, and the report files.
+    over ``runs`` seeds for every built-in method (``builtins``: their names, default
+    all) and each ``estimators`` entry ('MODULE:CLASS'), final models on every
+    training frame, and the report files. ``test``: the test folder of the offgrid
+    protocol (given alone, it selects offgrid); ``train_occluded``: see
+    spm_model/bench/protocols.py.
     Returns {"report": folder, "model", "reference_model": paths, "summary", "evaluation", "text"}."""
     if runs < 1:
         raise ModelError(f"--runs must be at least 1, got {runs}")
+    if test is not None and protocol not in ("offgrid", None):
+        raise ModelError(f"--test goes with --protocol offgrid, got --protocol {protocol}; leave --protocol out "
+                         "or give offgrid")
+    protocol = "offgrid" if test is not None else (protocol or "loco")
     out = check_report_folder(report_dir if report_dir else Path(shards) / "report")  # before any work
     plugins = load_estimators(estimators)
     table = load_features(shards, features, progress=progress, executor=executor,
                           allow_partial=allow_partial)
+    if test is not None:
+        table = offgrid_table(table, load_features(test, features, progress=progress, executor=executor,
+                                                   allow_partial=allow_partial))
     counts = check_classes(table)
     log(f"{len(table)} frames, {len(counts)} classes: " + ", ".join(f"{c} {n}" for c, n in counts.items())
         + " (frames with training features)")
@@ -63,11 +74,15 @@ def train(shards, report_dir=None, *, protocol: str = "loco", runs: int = 3,
         log(f"{alone} frames have no 5-degree path neighbour in their shard; their training features "
             "use every keypoint in the mask (docs/method.md)")
     model_params = dict(model_params or {}, features=features)
-    evaluation = evaluate(table, protocol, runs, model_params, estimators=plugins, report=log)
-    usable = np.isfinite(table.train_vector).all(axis=1)
+    evaluation = evaluate(table, protocol, runs, model_params, estimators=plugins, report=log, builtins=builtins,
+                          train_occluded=train_occluded)
+    final = np.flatnonzero(~table.test) if "test" in table.arrays else np.arange(len(table))
+    final = training_rows(table, final, evaluation["train_occluded"])
+    usable = final[np.isfinite(table.train_vector[final]).all(axis=1)]
     model = SPMEstimator(**model_params).fit(table.train_vector[usable], table.pose[usable])
-    reference = TemplatePose().fit(Frames(table), table.pose)
-    context = {"command": command, "shards": str(shards), "frames": len(table), "train_features": int(usable.sum()),
+    reference = TemplatePose().fit(Frames(table, final), table.pose[final])
+    context = {"command": command, "shards": str(shards), **({"test": str(test)} if test is not None else {}),
+               "frames": len(table), "train_features": int(len(usable)),
                "query_features": int(np.isfinite(table.query_vector).all(axis=1).sum()),
                "without_path_neighbour": int((table.train_neighbours == 0).sum()),
                "frames_per_class": {c: int((table.class_name == c).sum()) for c in counts},

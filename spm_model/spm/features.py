@@ -27,7 +27,7 @@ from spm_model.spm.ellipse import EllipseError
 from spm_model.spm.keypoints import sift_keypoints
 from spm_model.spm.manifold import ORDERS, initial_manifold
 
-FEATURE_VERSION = 5  # 5: template descriptors and K in the cache
+FEATURE_VERSION = 6  # 5: template descriptors and K in the cache; 6: from the visible mask
 
 
 @dataclass(frozen=True)

@@ -26,12 +26,34 @@ def test_the_documented_example_estimator_runs(model_shards):
     assert np.median(np.abs(np.linalg.norm(pred[:, 3:], axis=1) - 0.6)) < 0.01   # every frame of this set is at 0.6 m
 
 
-def test_frames_serve_features_never_labels(model_shards):
-    from spm_model.base.frames import Frames
+def test_training_frames_serve_images_depth_and_paths_never_labels(model_shards):
+    from spm_data.io.shards import read_shard
+    from spm_model.base.frames import TRAIN_KEYS, Frames
 
     table = load_features(model_shards, FAST)
-    frames = Frames(table, np.arange(5))
+    frames = Frames(table, np.arange(40, 45))
     assert frames.column("template").shape[0] == 5 and frames.column("K").shape == (5, 3, 3)
-    for label in ("pose", "class_name", "instance", "instance_id", "label_measured"):
+    for label in ("pose", "class_name", "instance", "instance_id", "label_measured", "train_vector_x"):
         assert frames.column(label) is None, label
-    assert set(frames[0]) == {"rgb", "mask", "K"} and not hasattr(frames, "table")
+    assert tuple(frames[0]) == TRAIN_KEYS and not hasattr(frames, "table") and not hasattr(frames, "_table")
+    stored = read_shard(table.shard[42], ("rgb", "mask", "depth"), frames=slice(int(table.frame[42]),
+                                                                                  int(table.frame[42]) + 1))
+    f = frames[2]
+    assert np.array_equal(f["rgb"], stored["rgb"][0]) and np.array_equal(f["mask"], stored["mask"][0] > 0)
+    assert np.array_equal(f["depth"], stored["depth"][0]) and f["depth"].dtype == np.float32
+    assert f["path_index"] == int(table.path_index[42]) and frames[-1]["sequence"] == f["sequence"]
+    assert len(frames[1:3]) == 2 and frames[1:3][0]["path_index"] == frames[1]["path_index"]
+
+
+def test_camera_frames_hold_what_a_camera_sees_in_the_order_asked(model_shards):
+    from spm_model.base.frames import CAMERA_KEYS, Frames, read_camera_frames
+
+    table = load_features(model_shards, FAST)
+    rows = np.array([100, 3, 57])
+    cam = read_camera_frames(table, rows)
+    train = Frames(table, rows)
+    assert len(cam) == 3 and tuple(cam[1]) == CAMERA_KEYS
+    for i in range(3):
+        assert np.array_equal(cam[i]["rgb"], train[i]["rgb"]) and np.array_equal(cam[i]["mask"], train[i]["mask"])
+    assert np.array_equal(cam.column("template"), table.template[rows]) and cam.column("train_vector") is None
+    assert cam.column("pose") is None and len(cam[::2]) == 2 and np.array_equal(cam[::2][1]["K"], table.K[57])

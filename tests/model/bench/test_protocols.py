@@ -101,7 +101,7 @@ def test_a_plugged_in_estimator_gets_frames_and_is_scored_like_the_rest(model_sh
                                   "--ellipse", "direct", "--estimator", "my_pose:MeanPose"])
     assert r.exit_code == 0, r.output
     payload = json.loads((report / "results.json").read_text())
-    assert payload["schema_version"] == 2 and "MeanPose" in payload["summary"]["methods"]
+    assert payload["schema_version"] == 3 and "MeanPose" in payload["summary"]["methods"]
     assert "| MeanPose |" in (report / "results.md").read_text()
     for spec, message in (("my_pose:WrongShape", "estimator WrongShape: predict(frames) must return (48, 6)"),
                           ("my_pose", "--estimator expects MODULE:CLASS"),

@@ -59,14 +59,14 @@ def test_markdown_of_a_tiny_summary_has_the_expected_rows():
     assert "- SPM: 75.0% within ±5°, geodesic median 0.0°." in lines
     assert "Command: `spm train --shards s`" in lines
     # Table 1 (SPM, with the paper's cup numbers beside), Table 2 (KNN K=1 and K=3).
-    assert "| cup | 75.0 | 0.0 | 75.0 | 75.0 | 0.50 | 0.10 | 86.6 | 0.87 |" in lines
-    assert "| cup | 100.0 | 0.0 | 50.0 | 0.0 | 82.6 | 82.8 |" in lines
+    assert "| cup | 75.0 | – | 75.0 | 75.0 | 0.50 | 0.10 | 86.6 | 0.87 |" in lines
+    assert "| cup | 100.0 | – | 50.0 | – | 82.6 | 82.8 |" in lines
     # Every method over all frames, chance last; per class; occlusion bins with frames only.
     rows = [line for line in lines if line.startswith(("| SPM |", "| KNN K=1 |", "| KNN K=3 |", "| chance"))]
-    assert [r.split(" | ")[:4] for r in rows[:4]] == [["| SPM", "4/4", "75.0", "0.0"],
-                                                      ["| KNN K=1", "4/4", "100.0", "0.0"],
-                                                      ["| KNN K=3", "4/4", "50.0", "0.0"],
-                                                      ["| chance (random training pose)", "4/4", "0.0", "0.0"]]
+    assert [r.split(" | ")[:4] for r in rows[:4]] == [["| SPM", "4/4", "75.0", "–"],
+                                                      ["| KNN K=1", "4/4", "100.0", "–"],
+                                                      ["| KNN K=3", "4/4", "50.0", "–"],
+                                                      ["| chance (random training pose)", "4/4", "0.0", "–"]]
     assert "| cup | 75.0 (0) | 100.0 (0) | 50.0 (15) | 0.0 (90) |" in lines
     assert "| 0%–10% | 4 | 75.0 | 100.0 | 50.0 | 0.0 |" in lines and not any(r.startswith("| 10%–20%") for r in lines)
 
@@ -76,17 +76,19 @@ def test_write_report_writes_four_files_whole(tmp_path):
     assert sorted(p.name for p in (tmp_path / "report").iterdir()) == ["accuracy.png", "occlusion.png",
                                                                        "results.json", "results.md"]
     payload = json.loads((tmp_path / "report" / "results.json").read_text())
-    assert (payload["schema"], payload["schema_version"]) == (SCHEMA, SCHEMA_VERSION) == ("spm-results", 2)
+    assert (payload["schema"], payload["schema_version"]) == (SCHEMA, SCHEMA_VERSION) == ("spm-results", 3)
+    assert list(payload) == ["schema", "schema_version", "context", "summary", "evaluation"]
+    assert payload["summary"]["methods"]["spm"]["std"]["success_tol5"] is None          # one run: no sigma
     assert payload["summary"] == json.loads(json.dumps(summary)) and payload["context"] == CONTEXT
     assert (tmp_path / "report" / "accuracy.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     text = summary_text(summary).splitlines()
     assert text[0].startswith("- Best method, views protocol: KNN K=1, 100.0% within ±5°")
     assert "- Recovered by KNN K=1 (median error at most half of chance's): azimuth 0.0° (chance 90.0°); azimuth " \
            "mod 180° 0.0° (chance 90.0°)." in text
-    # The method, ±5° %, sum<5 %, geodesic median, AUC to 45° (spm: 75% up to 20°, then 100%), elevation, distance.
+    # The method, ±5° %, sum<5 %, AUC to 45° (spm: 75% up to 20°, then 100%), geodesic median, elevation, distance.
     assert [line.rsplit(maxsplit=6)[1:] for line in text[-4:]] == [
-        ["75.0", "75.0", "0.0", "89.0", "0.0", "0.0"], ["100.0", "100.0", "0.0", "100.0", "0.0", "0.0"],
-        ["50.0", "50.0", "15.0", "66.9", "0.0", "0.0"], ["0.0", "0.0", "90.0", "0.0", "0.0", "0.0"]]
+        ["75.0", "75.0", "89.0", "0.0", "0.0", "0.0"], ["100.0", "100.0", "100.0", "0.0", "0.0", "0.0"],
+        ["50.0", "50.0", "66.9", "15.0", "0.0", "0.0"], ["0.0", "0.0", "0.0", "90.0", "0.0", "0.0"]]
 
 
 def test_report_folder_problems_are_one_line(tmp_path):
@@ -100,3 +102,37 @@ def test_report_folder_problems_are_one_line(tmp_path):
         f"could not write the report in {tmp_path}: No space left on device; free space there or give another "
         "folder with --report")
     assert not (tmp_path / "new").exists()
+
+
+def test_results_md_tables_render_as_gfm_tables():
+    from markdown_it import MarkdownIt
+
+    evaluation = tiny_evaluation()
+    text = markdown(evaluation, aggregate(evaluation), CONTEXT)
+    tokens = MarkdownIt("commonmark").enable("table").parse(text)
+    tables = [t for t in tokens if t.type == "table_open"]
+    pipe_blocks = [b for b in text.split("\n\n") if b.startswith("| ")]
+    assert len(tables) == len(pipe_blocks) >= 6          # every pipe block is a table, none left as text
+    header = next(i for i, t in enumerate(tokens) if t.type == "thead_open")
+    cells = [t for t in tokens[header:] if t.type == "th_open"]
+    assert len(cells) > 10
+
+
+def test_a_table_with_one_cell_too_many_in_its_delimiter_is_not_a_table():
+    from markdown_it import MarkdownIt
+
+    bad = "| a | b |\n|---|---|---|\n| 1 | 2 |\n"       # the shape results.md had before
+    assert not any(t.type == "table_open" for t in MarkdownIt("commonmark").enable("table").parse(bad))
+
+
+def test_the_schema_doc_lists_every_metric_as_made_from_the_list(tmp_path):
+    from pathlib import Path
+
+    from spm_model.bench.metrics import METRICS
+    from spm_model.bench.report_tables import schema_rows, update_schema_doc
+
+    doc = Path(__file__).resolve().parents[3] / "docs" / "results-schema.md"
+    copy = tmp_path / "schema.md"
+    copy.write_text(doc.read_text())
+    assert update_schema_doc(copy) is False, "run: python -m spm_model.bench.report_tables"
+    assert all(f"| `{m.key}` |" in doc.read_text() for m in METRICS) and len(schema_rows()) == len(METRICS) + 6

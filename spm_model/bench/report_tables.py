@@ -1,0 +1,262 @@
+"""results.md and the terminal summary of an aggregated evaluation (bench/report.py):
+a plain summary first, then the paper's Table 1, Table 2 and Fig. 5 analogues and
+every method's errors. Every table is GitHub-flavoured markdown whose header and
+delimiter rows come from the same list of cells; the method columns come from
+bench/metrics.py's METRICS."""
+
+from __future__ import annotations
+
+from spm_model.bench.metrics import METRICS, metric_value
+from spm_model.methods.registry import METHOD_NAMES
+
+PAPER_TABLE1 = {"box": (97.2, 0.9, 0.31, 0.09), "car": (95.6, 1.1, 0.44, 0.12), "motorcycle": (92.8, 1.6, 0.61, 0.11),
+                "ball": (88.4, 2.5, 0.76, 0.08), "animal4": (87.9, 2.9, 0.84, 0.09), "cup": (86.6, 3.3, 0.87, 0.07)}
+PAPER_TABLE2 = {"box": (94.7, 2.6, 94.2, 2.3), "car": (91.5, 3.2, 94.5, 3.0), "motorcycle": (92.0, 1.8, 95.5, 1.1),
+                "ball": (86.2, 3.4, 86.1, 2.5), "animal4": (83.3, 3.7, 83.8, 2.9), "cup": (82.6, 3.4, 82.8, 3.2)}
+DOF = (("azimuth_deg", "azimuth", "°"), ("azimuth_mod180_deg", "azimuth mod 180°", "°"),
+       ("elevation_deg", "elevation", "°"), ("roll_deg", "in-plane roll", "°"), ("distance_mm", "distance", " mm"))
+SURFACE = (("frames", "Frames", 0), ("add_s_recall", "ADD(-S) <10% d %", 1), ("add_recall", "ADD <10% d %", 1),
+           ("adds_recall", "ADD-S <10% d %", 1), ("ar_mssd", "AR MSSD %", 1), ("ar_mspd", "AR MSPD %", 1),
+           ("mssd_median_mm", "MSSD median mm", 1), ("mspd_median_px", "MSPD median px", 1))
+FIG5_CELL = "sum<5° / sum<3° / ±5° % (geodesic median °)"
+
+
+def fmt(value, digits=1):
+    return "–" if value is None else f"{value:.{digits}f}"
+
+
+def name(m: str) -> str:
+    return METHOD_NAMES.get(m, m)
+
+
+def table(header: list, rows: list) -> list:
+    """A GFM table: the delimiter row has exactly as many cells as the header."""
+    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)] + \
+           ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+
+
+def entry(summary: dict, m: str) -> dict:
+    return summary["methods"].get(m) or summary["chance"]
+
+
+def plain_summary(summary: dict) -> list[str]:
+    """The first lines a newcomer reads: the best method, how far above chance,
+    and which degrees of freedom it recovers (median error at most half of chance's)."""
+    methods, chance = summary["methods"], summary["chance"] or {}
+    best = max(methods, key=lambda m: (methods[m]["success_tol5"] or 0, methods[m]["auc_45"] or 0))
+    b = methods[best]
+    lines = [f"- **Best method, {summary['protocol']} protocol: {name(best)}**, {fmt(b['success_tol5'])}% within "
+             f"±5° (chance {fmt(chance.get('success_tol5'))}%), geodesic median {fmt(b['geodesic_median_deg'])}° "
+             f"(chance {fmt(chance.get('geodesic_median_deg'))}°), AUC of accuracy to 45° {fmt(b['auc_45'])} "
+             f"(chance {fmt(chance.get('auc_45'))})."]
+    spm = methods.get("spm")
+    if spm and best != "spm":
+        lines.append(f"- SPM: {fmt(spm['success_tol5'])}% within ±5°, geodesic median {fmt(spm['geodesic_median_deg'])}°.")
+    good, bad, constant = [], [], []
+    for key, label, unit in DOF:
+        mine, base = b["median_error"].get(key), (chance.get("median_error") or {}).get(key)
+        if mine is None or base is None:
+            continue
+        if base < 0.5:  # a random training pose gets it right: the data does not vary it
+            constant.append(label)
+            continue
+        text = f"{label} {fmt(mine)}{unit} (chance {fmt(base)}{unit})"
+        (good if mine <= 0.5 * base else bad).append(text)
+    if good:
+        lines.append(f"- Recovered by {name(best)} (median error at most half of chance's): " + "; ".join(good) + ".")
+    if bad:
+        lines.append("- Not recovered (median error above half of chance's): " + "; ".join(bad) + ".")
+    if constant:
+        lines.append("- Not varied in this data (a random training pose has a median error under 0.5): "
+                     + ", ".join(constant) + ".")
+    return lines
+
+
+def markdown(evaluation: dict, summary: dict, context: dict) -> str:
+    names = list(summary["methods"]) + (["chance"] if summary["chance"] else [])
+    return "\n".join(_intro(summary, context) + _fig5_tables(summary, names) + _paper_tables(evaluation, summary)
+                     + _method_tables(summary, names) + _class_and_occlusion_tables(summary, names) + [
+        "", "Plots: `accuracy.png` (accuracy against geodesic threshold), `occlusion.png` (success against "
+        "occlusion). Models trained on every training frame: `model.npz` (SPM) and `reference-model.npz` "
+        "(HOG templates).", ""])
+
+
+def _intro(summary: dict, context: dict) -> list:
+    runs = summary["runs"]
+    test = f", tested on the frames under `{context['test']}`" if context.get("test") else ""
+    return [f"# Pose benchmark ({summary['protocol']} protocol, {runs} run{'s' if runs != 1 else ''})", "",
+            *plain_summary(summary), "",
+            f"Command: `{context.get('command', '')}`", "",
+            f"Data: {context.get('frames', '?')} frames under `{context.get('shards', '')}`{test}; SPM features: "
+            f"{context.get('train_features', '?')} training frames with training features, "
+            f"{context.get('query_features', '?')} frames with query features "
+            f"({context.get('without_path_neighbour', 0)} frames had no path neighbour for the training rule). "
+            "Methods see test frames as a camera gives them: image, visible mask and K, in a seeded random order. "
+            "Criteria (the paper's): **±5° tolerance** (Table 2), every rotation angle within 5°, inclusive; "
+            "**sum < 5° (3°)** (Fig. 5), the summed absolute angle errors below 5° (3°); *sym.*: the same up to "
+            "the object's declared symmetries. A frame without an estimate fails. σ: over runs (– with one run). "
+            "Schema of results.json: docs/results-schema.md.", ""]
+
+
+def _fig5_tables(summary: dict, names: list) -> list:
+    """Offgrid only: the paper's Fig. 5 per instance group and occluder, every method."""
+    fig5 = summary.get("fig5")
+    if not fig5:
+        return []
+    lines = ["## Fig. 5 as the paper ran it: success against occlusion, views off the training grid", "",
+             f"Each cell: {FIG5_CELL}. *seen*: test views of training instances at random poses; *unseen*: "
+             "instances of seen classes that never trained. Bins: the fraction of the object hidden.", ""]
+    titles = {"seen": "seen instances", "unseen": "unseen instances", "all": "every test frame"}
+    for group, kinds in fig5.items():
+        for kind, curves in kinds.items():
+            if kind == "all" and len(kinds) > 1:
+                continue  # the per-occluder tables say it all
+            occluder = {"all": "any occluder", "rectangles": "rectangles (spm-data occlude)",
+                        "distractors": "3-D distractors"}.get(kind, kind)
+            rows = []
+            for b, row in enumerate(curves[names[0]]):
+                if row["frames"]:
+                    rows.append([f"{row['low']:.0%}–{row['high']:.0%}", row["frames"]] + [
+                        _fig5_cell(curves[m][b]) for m in names])
+            lines += [f"### {titles.get(group, group)}, {occluder}", ""]
+            lines += table(["Occlusion", "Frames"] + [name(m) for m in names], rows) + [""]
+    groups = summary.get("instances") or {}
+    if groups:
+        rows = [[titles.get(g, g), name(m), entry_["frames"]] + [fmt(metric_value(entry_, k)) for k in (
+                    "success_sum5", "success_sum3", "success_tol5", "success_tol5_sym", "geodesic_median_deg",
+                    "translation_axis_median_mm.x", "translation_axis_median_mm.y", "translation_axis_median_mm.z")]
+                for g, methods in groups.items() for m, entry_ in methods.items()]
+        lines += ["### Every occlusion level together", ""]
+        lines += table(["Instances", "Method", "Frames", "sum<5° %", "sum<3° %", "±5° %", "±5° sym. %",
+                        "Geodesic median °", "tx mm", "ty mm", "tz mm"], rows) + [""]
+    return lines
+
+
+def _fig5_cell(row: dict) -> str:
+    return (f"{fmt(row['success_sum5'], 0)} / {fmt(row['success_sum3'], 0)} / {fmt(row['success_tol5'], 0)} "
+            f"({fmt(row.get('geodesic_median_deg'))})")
+
+
+def _paper_tables(evaluation: dict, summary: dict) -> list:
+    """The analogues of the paper's Tables 1 and 2, per class, with the paper's numbers beside ours."""
+    ecc, classes = evaluation["eccentricity"], summary["classes"]
+    rows = []
+    for c, row in classes.items():
+        if "spm" not in row:
+            continue
+        s, e, paper = row["spm"], ecc.get(c, {}), PAPER_TABLE1.get(c)
+        rows.append([c, fmt(s["success_tol5"]), fmt(s["std"]["success_tol5"]), fmt(s["success_sum5"]),
+                     fmt(s["success_sum3"]), fmt(e.get("mean"), 2), fmt(e.get("std"), 2),
+                     paper[0] if paper else "–", paper[2] if paper else "–"])
+    lines = []
+    if rows:
+        lines += ["## Table 1 analogue: SPM", "",
+                  "The paper's Table 1 counts successful grasps; its pose criterion is Table 2's ±5°, used here.", ""]
+        lines += table(["Class", "±5° %", "σ", "sum<5° %", "sum<3° %", "Mean eccentricity", "σ", "Paper success %",
+                        "Paper ecc."], rows)
+    rows = []
+    for c, row in classes.items():
+        if "knn1" in row and "knn3" in row:
+            k1, k3, paper = row["knn1"], row["knn3"], PAPER_TABLE2.get(c)
+            rows.append([c, fmt(k1["success_tol5"]), fmt(k1["std"]["success_tol5"]), fmt(k3["success_tol5"]),
+                         fmt(k3["std"]["success_tol5"]), paper[0] if paper else "–", paper[2] if paper else "–"])
+    if rows:
+        lines += ["", "## Table 2 analogue: KNN on SPM's vectors, ±5° tolerance", ""]
+        lines += table(["Class", "K=1 %", "σ", "K=3 %", "σ", "Paper K=1 %", "Paper K=3 %"], rows)
+    return lines
+
+
+def _method_tables(summary: dict, names: list) -> list:
+    """Every method over all test frames: every METRICS column, then BOP surface errors."""
+    header = ["Method", "Estimated", METRICS[0].header, "σ"] + [m.header for m in METRICS[1:]]
+    rows = []
+    for m in names:
+        s = entry(summary, m)
+        rows.append([name(m), f"{s['estimated']}/{s['frames']}", fmt(metric_value(s, METRICS[0].key)),
+                     fmt((s.get("std") or {}).get("success_tol5"))]
+                    + [fmt(metric_value(s, k.key), k.digits) for k in METRICS[1:]])
+    lines = ["", "## Every method, all test frames", ""] + table(header, rows)
+    lines += ["", "Per DoF: median absolute errors (spm_data/core/poses.py's viewing angles and distance); "
+              "tx, ty, tz: along the camera's axes (the paper's Figs. 6–7).", "",
+              "## Surface errors (BOP), where the mesh is known", ""]
+    rows = [[name(m)] + [fmt((entry(summary, m).get("surface") or {}).get(k), d) for k, _, d in SURFACE]
+            for m in names]
+    return lines + table(["Method"] + [h for _, h, _ in SURFACE], rows)
+
+
+def _class_and_occlusion_tables(summary: dict, names: list) -> list:
+    rows = [[c] + [f"{fmt(row[m]['success_tol5'])} ({fmt(row[m]['geodesic_median_deg'], 0)})" for m in names]
+            for c, row in summary["classes"].items()]
+    lines = ["", "## Per class, ±5° % (geodesic median °)", ""] + table(["Class"] + [name(m) for m in names], rows)
+    rows = [[f"{row['low']:.0%}–{row['high']:.0%}", row["frames"]]
+            + [fmt(summary["occlusion"][m][b]["success_sum5"]) for m in names]
+            for b, row in enumerate(summary["occlusion"][names[0]]) if row["frames"]]
+    lines += ["", "## Success (sum < 5°) against occlusion, every test frame", ""]
+    return lines + table(["Occlusion", "Frames"] + [name(m) for m in names], rows)
+
+
+def summary_text(summary: dict) -> str:
+    """The plain summary and every method's headline figures (METRICS with a terminal
+    column), for the terminal; with offgrid, one Fig. 5 line per method."""
+    shown = [m for m in METRICS if m.terminal]
+    lines = [line.replace("**", "") for line in plain_summary(summary)]
+    lines.append(f"{'method':<32}" + "".join(f"{m.terminal:>9}" for m in shown))
+    for m in [*summary["methods"], *(["chance"] if summary["chance"] else [])]:
+        s = entry(summary, m)
+        lines.append(f"{name(m):<32}" + "".join(f"{fmt(metric_value(s, k.key), k.digits):>9}" for k in shown))
+    fig5 = (summary.get("fig5") or {}).get("seen") or (summary.get("fig5") or {}).get("all")
+    if fig5:
+        curves = fig5.get("rectangles") or fig5.get("all")
+        bins = [f"{r['low']:.0%}" for r in next(iter(curves.values())) if r["frames"]]
+        lines.append(f"Fig. 5 (sum < 5° %, bins {', '.join(bins)} occluded):")
+        for m, rows in curves.items():
+            lines.append(f"  {name(m):<30}" + " ".join(f"{fmt(r['success_sum5'], 0):>4}" for r in rows if r["frames"]))
+    return "\n".join(lines)
+
+
+SCHEMA_BEGIN = "<!-- metrics: made from spm_model/bench/metrics.py METRICS by `python -m spm_model.bench.report_tables` -->"
+SCHEMA_END = "<!-- end of metrics -->"
+
+
+ENTRY_FIRST = (
+    "| `frames` | frames scored (with at least one measured angle), in the first run (the `views` split draws a "
+    "new test set each run) |",
+    "| `estimated` | of those, frames the method gave an estimate for (a missing estimate fails every criterion), "
+    "first run; an estimate may leave unmeasured components NaN |",
+)
+ENTRY_LAST = (
+    "| `surface` | `null` when no test frame's mesh is known; else {`frames`, `add_recall`, `adds_recall`, "
+    "`add_s_recall` (ADD for asymmetric objects, ADD-S for objects with a symmetry), each the % below 10% of the "
+    "object's diameter; `ar_mssd`, `ar_mspd` (the BOP challenge's average recalls: MSSD thresholds 5–50% of the "
+    "diameter, MSPD thresholds 5–50 px × width/640); `add_median_mm`, `adds_median_mm`, `mssd_median_mm`, "
+    "`mspd_median_px`} (spm_model/bench/surface_metrics.py) |",
+    "| `std` | σ over runs of the keys above (`null` with fewer than two runs) |",
+)
+
+
+def schema_rows() -> list:
+    """docs/results-schema.md's table of a summary entry: counts, one row per METRICS entry
+    (its key and meaning), ``surface`` and ``std``."""
+    rows = [*ENTRY_FIRST, *(f"| `{m.key}` | {m.meaning} |" for m in METRICS), *ENTRY_LAST]
+    return ["| key | meaning |", "|---|---|", *rows]
+
+
+def update_schema_doc(path) -> bool:
+    """Rewrite the METRICS rows between the markers of ``path``; whether anything changed."""
+    from pathlib import Path
+
+    path = Path(path)
+    text = path.read_text()
+    head, rest = text.split(SCHEMA_BEGIN + "\n", 1)
+    _, tail = rest.split(SCHEMA_END, 1)
+    new = head + SCHEMA_BEGIN + "\n" + "\n".join(schema_rows()) + "\n" + SCHEMA_END + tail
+    if new != text:
+        path.write_text(new)
+    return new != text
+
+
+if __name__ == "__main__":
+    import sys
+
+    changed = update_schema_doc(sys.argv[1] if len(sys.argv) > 1 else "docs/results-schema.md")
+    print("docs/results-schema.md updated" if changed else "docs/results-schema.md is up to date")
