@@ -135,12 +135,13 @@ def occlusion_rows(occ: np.ndarray, errors: dict) -> list:
     rows = []
     for lo, hi in zip(OCCLUSION_BINS[:-1], OCCLUSION_BINS[1:]):
         sel = (occ >= lo) & ((occ < hi) | (hi == 1.0)) & ~np.isnan(errors["rotation_max"])
-        geo = errors["geodesic"][sel]
-        geo = geo[np.isfinite(geo)]
+        geo, t = errors["geodesic"][sel], errors["translation"][sel]
+        geo, t = geo[np.isfinite(geo)], t[np.isfinite(t)]
         rows.append({"low": float(lo), "high": float(hi), "frames": int(sel.sum()),
                      "success_tol5": tolerance_rate(errors["rotation_max"][sel], TOLERANCE_DEG),
                      **{f"success_sum{th:g}": success_rate(errors["rotation_sum"][sel], th) for th in SUM_THRESHOLDS},
-                     "geodesic_median_deg": float(np.median(geo)) if len(geo) else None})
+                     "geodesic_median_deg": float(np.median(geo)) if len(geo) else None,
+                     "translation_median_mm": 1000.0 * float(np.median(t)) if len(t) else None})
     return rows
 
 

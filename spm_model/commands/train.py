@@ -41,7 +41,7 @@ def load_estimators(specs) -> dict:
             for spec, cls in classes.items()}
 
 
-def train(shards, report_dir=None, *, protocol: str = "loco", runs: int = 3,
+def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3,
           features: FeatureConfig = FeatureConfig(), model_params: dict | None = None, progress=None,
           log=lambda message: None, command: str = "spm train", executor=None, estimators=(),
           allow_partial: bool = False, test=None, train_occluded: bool | None = None,
