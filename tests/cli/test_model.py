@@ -39,3 +39,31 @@ def test_cli_train_predict_evaluate_and_bad_input(model_shards, tmp_path):
                            "model file not found")]:
         r = runner.invoke(model_cli, args)
         assert r.exit_code == 1 and message in r.output and "Traceback" not in r.output, r.output
+
+
+def test_cli_offgrid_writes_the_fig5_tables_and_refuses_bad_method_names(model_shards, tmp_path):
+    from spm_data.commands.occlude_jobs import occlude_dataset
+
+    runner = CliRunner()
+    shards = tmp_path / "train"
+    shutil.copytree(model_shards, shards)
+    occlude_dataset(shards, tmp_path / "test" / "occluded", low=0.0, high=0.95, copies=1, seed=3)
+    report = tmp_path / "report"
+    r = runner.invoke(model_cli, ["train", "--shards", str(shards), "--test", str(tmp_path / "test"), "--report",
+                                  str(report), "--runs", "1", "--ellipse", "direct", "--methods", "template,chance"])
+    assert r.exit_code == 0, r.output
+    assert "Fig. 5 (sum < 5° %, bins" in r.output
+    payload = json.loads((report / "results.json").read_text())
+    summary = payload["summary"]
+    assert summary["protocol"] == "offgrid" and payload["context"]["test"] == str(tmp_path / "test")
+    assert set(summary["methods"]) == {"template"} and set(summary["fig5"]) == {"all", "seen"}
+    rows = summary["fig5"]["seen"]["rectangles"]["template"]
+    assert sum(row["frames"] for row in rows) == 144 and payload["evaluation"]["train_occluded"] is False
+    # The template matcher trained on these very views finds them while little is hidden.
+    assert rows[0]["success_tol5"] == 100.0 and rows[0]["frames"] > 0
+    text = (report / "results.md").read_text()
+    assert "## Fig. 5 as the paper ran it" in text and "### seen instances, rectangles (spm-data occlude)" in text
+    r = runner.invoke(model_cli, ["train", "--shards", str(shards), "--methods", "template,nope"])
+    assert r.exit_code == 1 and "--methods: unknown nope" in r.output and "Traceback" not in r.output
+    r = runner.invoke(model_cli, ["train", "--shards", str(shards), "--protocol", "views", "--test", str(shards)])
+    assert r.exit_code == 1 and "--test goes with --protocol offgrid" in r.output
