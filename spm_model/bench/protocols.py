@@ -30,16 +30,13 @@ import numpy as np
 
 from spm_data.errors import ModelError
 from spm_model.base.frames import Frames, camera_chunks, read_camera_frames
-from spm_model.bench.feature_cache import FeatureTable
-from spm_model.bench.metrics import SUM_THRESHOLDS, TOLERANCE_DEG, accuracy_curve, pose_errors, summarise, \
-    success_rate, tolerance_rate
-from spm_model.bench.surface_metrics import frame_surface_errors, mesh_keys
-from spm_model.bench.symmetry_errors import instance_symmetries, symmetric_errors
+from spm_model.bench.feature_cache import FeatureTable, load_features, offgrid_table
+from spm_model.bench.scoring import eccentricity, run_summary
+from spm_model.bench.surface_metrics import mesh_keys
+from spm_model.bench.symmetry_errors import instance_symmetries
 from spm_model.methods.registry import builtin_methods, check_predictions
 
 PROTOCOLS = ("loco", "views", "instances", "offgrid")
-OCCLUSION_BINS = np.linspace(0.0, 1.0, 11)  # tenths of the object hidden; the last bin includes 1
-OCCLUDERS = ("none", "rectangles", "distractors")
 
 
 def _instances_splits(table: FeatureTable, seed: int):
@@ -112,130 +109,98 @@ def fit_predict(methods: dict, table: FeatureTable, train: np.ndarray, test: np.
     return out
 
 
-def frame_errors(table: FeatureTable, index: np.ndarray, pred: np.ndarray, keys: list,
-                 symmetries: list | None = None) -> dict:
-    """Per-frame pose errors (spm_model/bench/metrics.py), surface errors
-    (spm_model/bench/surface_metrics.py) and errors up to the declared symmetries
-    (spm_model/bench/symmetry_errors.py) of predictions for the frames ``index``."""
-    errors = pose_errors(pred, table.pose[index], table.label_measured[index])
-    errors.update(frame_surface_errors(pred, table.pose[index], table.K[index], table.width[index],
-                                       [keys[i] for i in index]))
-    symmetries = instance_symmetries(keys) if symmetries is None else symmetries
-    errors.update(symmetric_errors(pred, table.pose[index], [symmetries[i] for i in index]))
-    return errors
+_TABLES: dict = {}  # per process: the feature tables split jobs read, by source
 
 
-def _select(errors: dict, sel) -> dict:
-    return {k: v[sel] for k, v in errors.items()}
+def _table(source) -> FeatureTable:
+    """The feature table of ``source`` (shards, test folder or None, FeatureConfig, allow_partial),
+    loaded once per process from the feature cache."""
+    if source not in _TABLES:
+        shards, test, config, allow_partial = source
+        table = load_features(shards, config, allow_partial=allow_partial)
+        if test is not None:
+            table = offgrid_table(table, load_features(test, config, allow_partial=allow_partial))
+        _TABLES.clear()  # one table per process at a time
+        _TABLES[source] = table
+    return _TABLES[source]
 
 
-def occlusion_rows(occ: np.ndarray, errors: dict) -> list:
-    """Per tenth of occlusion: frames, the paper's criteria (sum < 5°, sum < 3°, ±5°) and
-    the geodesic median, over the frames of that bin (the last bin includes 1)."""
-    rows = []
-    for lo, hi in zip(OCCLUSION_BINS[:-1], OCCLUSION_BINS[1:]):
-        sel = (occ >= lo) & ((occ < hi) | (hi == 1.0)) & ~np.isnan(errors["rotation_max"])
-        geo, t = errors["geodesic"][sel], errors["translation"][sel]
-        geo, t = geo[np.isfinite(geo)], t[np.isfinite(t)]
-        rows.append({"low": float(lo), "high": float(hi), "frames": int(sel.sum()),
-                     "success_tol5": tolerance_rate(errors["rotation_max"][sel], TOLERANCE_DEG),
-                     **{f"success_sum{th:g}": success_rate(errors["rotation_sum"][sel], th) for th in SUM_THRESHOLDS},
-                     "geodesic_median_deg": float(np.median(geo)) if len(geo) else None,
-                     "translation_median_mm": 1000.0 * float(np.median(t)) if len(t) else None})
-    return rows
+def make_methods(seed: int, model_params: dict, builtins=None, estimators=None) -> dict:
+    """Fresh built-in methods (``builtins``: their names, default all) and plug-ins ({name: class})."""
+    params = dict(model_params)
+    features = params.pop("features")
+    methods = {k: v for k, v in builtin_methods(seed, features, params).items() if builtins is None or k in builtins}
+    methods.update({name: cls() for name, cls in (estimators or {}).items()})
+    return methods
 
 
-def _occlusion_curves(table, index, errors) -> dict:
-    """{group: {occluder: {method: rows}}}: every frame under "all"/"all"; by seen/unseen
-    instance (offgrid) and by occluder kind where the test frames have them."""
-    occ = table.occlusion_fraction[index]
-    groups = {"all": np.ones(len(index), bool)}
-    if "seen" in table.arrays:
-        groups.update({"seen": table.seen[index], "unseen": ~table.seen[index]})
-    occluder = table.arrays.get("occluder")
-    out = {}
-    for g, gsel in groups.items():
-        if not gsel.any():
-            continue
-        kinds = {"all": gsel}
-        if occluder is not None:
-            for kind in OCCLUDERS[1:]:
-                ksel = gsel & ((occluder[index] == kind) | (occluder[index] == "none"))
-                if (occluder[index][gsel] == kind).any():
-                    kinds[kind] = ksel  # this occluder's curve, starting from the unoccluded frames
-        out[g] = {k: {m: occlusion_rows(occ[sel], _select(e, sel)) for m, e in errors.items()}
-                  for k, sel in kinds.items()}
-    return out
-
-
-def _run(table, protocol, run, make_methods, keys, symmetries, report, train_occluded):
-    index_parts, prediction_parts = [], []
-    for tested, train, test in splits(table, protocol, seed=run):
-        train = training_rows(table, train, train_occluded)
-        if len(train) == 0:
-            raise ModelError(f"{protocol} protocol, run {run + 1}: nothing left to train on when testing {tested}")
-        if len(test) == 0:
-            continue
-        report(f"run {run + 1}: {protocol} test {tested} ({len(train)} train / {len(test)} test frames)")
-        index_parts.append(test)
-        prediction_parts.append(fit_predict(make_methods(run), table, train, test, seed=run))
-    if not index_parts:
-        raise ModelError(f"{protocol} protocol, run {run + 1}: no frame was held out for testing "
-                         f"({len(table)} frames); add views or instances, or use another protocol")
-    index = np.concatenate(index_parts)
-    names = list(prediction_parts[0])
-    # Each method's per-frame errors once; the tables, curves and bins slice them.
-    errors = {m: frame_errors(table, index, np.concatenate([p[m] for p in prediction_parts]), keys, symmetries)
-              for m in names}
-    per_class = {}
-    for c in sorted(set(table.class_name.tolist())):
-        sel = table.class_name[index] == c
-        if sel.any():
-            per_class[c] = {m: summarise(_select(e, sel)) for m, e in errors.items()}
-    curves = {m: accuracy_curve(e["geodesic"], int(e["rotation_measured"].sum())).tolist()
-              if e["rotation_measured"].any() else None for m, e in errors.items()}
-    curves_by = _occlusion_curves(table, index, errors)
-    out = {"seed": run, "classes": per_class, "overall": {m: summarise(e) for m, e in errors.items()},
-           "occlusion": curves_by["all"]["all"], "accuracy_curve": curves}
-    if protocol == "offgrid":
-        out["fig5"] = curves_by
-        out["instances"] = {g: {m: summarise(_select(e, table.seen[index] == (g == "seen")))
-                                for m, e in errors.items()}
-                            for g in ("seen", "unseen") if (table.seen[index] == (g == "seen")).any()}
-    return out
+def split_job(job, report=lambda n: None):
+    """One (run, split) on any worker: fit every method, predict the test frames.
+    job = (source, protocol, run, split index, model_params, builtins, estimators, train_occluded).
+    Returns (what was tested, training frames, test index, {method: predictions})."""
+    source, protocol, run, index, model_params, builtins, estimators, train_occluded = job
+    table = _table(source)
+    tested, train, test = splits(table, protocol, seed=run)[index]
+    train = training_rows(table, train, train_occluded)
+    if len(train) == 0:
+        raise ModelError(f"{protocol} protocol, run {run + 1}: nothing left to train on when testing {tested}")
+    if len(test) == 0:
+        return tested, 0, test, {}
+    predictions = fit_predict(make_methods(run, model_params, builtins, estimators), table, train, test, seed=run)
+    report(len(test))
+    return tested, len(train), test, predictions
 
 
 def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_params: dict | None = None,
              estimators: dict | None = None, report=lambda message: None, builtins=None,
-             train_occluded: bool | None = None) -> dict:
+             train_occluded: bool | None = None, executor=None, source=None) -> dict:
     """Every run x split for the built-in methods (``builtins``: their names, default
     all) and ``estimators`` ({name: class}, instantiated fresh per split): per-class
     and overall summaries per method, the geodesic accuracy curve and the occlusion
     bins (offgrid: also per seen/unseen instance and occluder, "fig5").
     train_occluded: None for the protocol's default (module docstring).
+    executor, source: the splits of every run as jobs on ``executor`` (spm_data.jobs), each
+    worker reading the table from the feature cache of ``source`` = (shards, test folder or
+    None, FeatureConfig, allow_partial); the results are those of one worker. Without them,
+    in this process.
     Returns {"protocol", "runs": [...], "eccentricity", "classes", "methods", "train_occluded"}."""
     if protocol not in PROTOCOLS:
         raise ModelError(f"protocol must be one of {PROTOCOLS}, got {protocol!r}")
     train_occluded = (protocol != "offgrid") if train_occluded is None else bool(train_occluded)
-    params = dict(model_params or {})
-    features = params.pop("features")
-
-    def make_methods(seed):
-        methods = {k: v for k, v in builtin_methods(seed, features, params).items()
-                   if builtins is None or k in builtins}
-        methods.update({name: cls() for name, cls in (estimators or {}).items()})
-        return methods
-
+    key = source if source is not None else ("in-process", id(table))
+    _TABLES.clear()
+    _TABLES[key] = table
+    jobs = [(key, protocol, run, i, dict(model_params or {}), builtins, estimators, train_occluded)
+            for run in range(runs) for i in range(len(splits(table, protocol, seed=run)))]
+    outputs = _run_jobs(jobs, executor if source is not None else None, report)
     keys = mesh_keys(table.shard, table.instance_id)
     symmetries = instance_symmetries(keys)
-    results = [_run(table, protocol, run, make_methods, keys, symmetries, report, train_occluded)
-               for run in range(runs)]
-    classes = sorted(set(table.class_name.tolist()))
-    eccentricity = {}
-    for c in classes:
-        e = table.query_eccentricity[(table.class_name == c)]
-        e = e[np.isfinite(e)]
-        eccentricity[c] = {"mean": float(e.mean()) if len(e) else None, "std": float(e.std()) if len(e) else None,
-                           "frames": int(len(e))}
-    return {"protocol": protocol, "runs": results, "eccentricity": eccentricity, "classes": classes,
-            "methods": list(results[0]["overall"]), "train_occluded": train_occluded}
+    results = []
+    for run in range(runs):
+        parts = [outputs[i] for i, job in enumerate(jobs) if job[2] == run and len(outputs[i][2])]
+        if not parts:
+            raise ModelError(f"{protocol} protocol, run {run + 1}: no frame was held out for testing "
+                             f"({len(table)} frames); add views or instances, or use another protocol")
+        results.append(run_summary(table, protocol, run, parts, keys, symmetries))
+    return {"protocol": protocol, "runs": results, "eccentricity": eccentricity(table),
+            "classes": sorted(set(table.class_name.tolist())), "methods": list(results[0]["overall"]),
+            "train_occluded": train_occluded}
+
+
+def _run_jobs(jobs: list, executor, report) -> list:
+    """Outputs of split_job for every job, in order; in this process without an executor."""
+    def said(job, output):
+        if len(output[2]):
+            report(f"run {job[2] + 1}: {job[1]} test {output[0]} ({output[1]} train / {len(output[2])} test frames)")
+
+    if executor is None:
+        outputs = []
+        for job in jobs:
+            outputs.append(split_job(job))
+            said(job, outputs[-1])
+        return outputs
+    outcomes = executor.run(split_job, jobs, on_outcome=lambda o: o.error or said(o.job, o.result))
+    failed = [o for o in outcomes if o.error]
+    if failed:
+        raise ModelError(failed[0].error if failed[0].error.count("\n") == 0 else failed[0].error.splitlines()[-1])
+    return [o.result for o in outcomes]

@@ -9,7 +9,7 @@ from spm_model.base.frames import Frames
 from spm_model.base.model_files import load_model_file
 from spm_model.bench.feature_cache import load_features
 from spm_model.bench.metrics import summarise
-from spm_model.bench.protocols import frame_errors
+from spm_model.bench.scoring import frame_errors
 from spm_model.bench.surface_metrics import mesh_keys
 from spm_model.methods.template import TemplatePose
 from spm_model.spm.estimator import SPMEstimator

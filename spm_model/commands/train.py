@@ -74,8 +74,9 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
         log(f"{alone} frames have no 5-degree path neighbour in their shard; their training features "
             "use every keypoint in the mask (docs/method.md)")
     model_params = dict(model_params or {}, features=features)
+    source = (str(shards), None if test is None else str(test), features, allow_partial)
     evaluation = evaluate(table, protocol, runs, model_params, estimators=plugins, report=log, builtins=builtins,
-                          train_occluded=train_occluded)
+                          train_occluded=train_occluded, executor=executor, source=source)
     final = np.flatnonzero(~table.test) if "test" in table.arrays else np.arange(len(table))
     final = training_rows(table, final, evaluation["train_occluded"])
     usable = final[np.isfinite(table.train_vector[final]).all(axis=1)]

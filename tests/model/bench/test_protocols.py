@@ -1,6 +1,7 @@
 """spm_model.bench.protocols: protocols (splits), the plug-in path and the reference estimator against chance."""
 
 import json
+import shutil
 import textwrap
 
 import numpy as np
@@ -128,3 +129,20 @@ def test_the_reference_estimator_beats_chance_on_new_views_and_instances(instanc
     # New instances of a class: still far above a random training pose.
     assert instances["template"]["success_tol5"] >= instances["chance"]["success_tol5"] + 20, instances["template"]
     assert instances["template"]["surface"]["add_s_recall"] > instances["chance"]["surface"]["add_s_recall"]
+
+
+def test_splits_on_two_workers_give_the_results_of_one(model_shards, tmp_path):
+    from spm_data.jobs import make_executor
+    from spm_model.bench.feature_cache import load_features as load
+
+    shards = tmp_path / "s"
+    shutil.copytree(model_shards, shards)
+    table = load(shards, FAST)
+    params = {"features": FAST, "projection_samples": 60}
+    kwargs = dict(runs=2, model_params=params, builtins=["spm", "template", "pca", "chance"])
+    one = evaluate(table, "loco", **kwargs)
+    said = []
+    two = evaluate(table, "loco", **kwargs, executor=make_executor(workers=2),
+                   source=(str(shards), None, FAST, False), report=said.append)
+    assert json.dumps(one["runs"], sort_keys=True) == json.dumps(two["runs"], sort_keys=True)
+    assert len(said) == 6 and all(line.startswith("run ") for line in said)

@@ -24,7 +24,7 @@ def test_train_loco_writes_the_report_and_model(model_shards, tmp_path):
     assert sorted(p.name for p in report.iterdir()) == ["accuracy.png", "model.npz", "occlusion.png",
                                                         "reference-model.npz", "results.json", "results.md"]
     payload = json.loads((report / "results.json").read_text())
-    assert payload["schema"] == "spm-results" and payload["schema_version"] == 2
+    assert payload["schema"] == "spm-results" and payload["schema_version"] == 3
     assert payload["context"]["frames"] == 144 and len(payload["evaluation"]["runs"]) == 2
     summary = payload["summary"]
     assert set(summary["methods"]) == {"spm", "knn1", "knn3", "pca", "ls", "template"}
