@@ -72,10 +72,10 @@ class SMMPose(PoseEstimator):
     FITTED = ("codebook_", "selected_", "presence_", "location_", "poses_", "bins_",
               "centroids_", "scales_", "intrinsics_", "objective_")
 
-    def __init__(self, *, n_bins: int = PAPER_BINS, candidate_parts: int = 64, parts: int = 24,
+    def __init__(self, *, n_bins: int = PAPER_BINS, candidate_parts: int = 96, parts: int = 48,
                  alignment_weight: float = 1.0, neighbours: int = 5, max_features: int = 80,
                  codebook_frames: int = 600, align_tolerance: float = 5.0, max_pairs: int = 4000,
-                 geometry_weight: float = 2.0, seed: int = 0):
+                 geometry_weight: float = 4.0, seed: int = 0):
         self.n_bins = n_bins
         self.candidate_parts = candidate_parts
         self.parts = parts
@@ -126,7 +126,8 @@ class SMMPose(PoseEstimator):
         presence, location = self._detect(feats, codebook)
         bins = pose_bins(poses, self.n_bins)
         quaternions = Rotation.from_matrix(label_to_pose(poses)[0]).as_quat()
-        align, expand = training_pairs(quaternions, sequences, bins, self.align_tolerance, self.max_pairs, self.seed)
+        align, expand = training_pairs(quaternions, sequences, bins, self.align_tolerance, self.max_pairs, self.seed,
+                                       presence, location)
         if len(align) == 0 or len(expand) == 0:
             raise ModelError(f"SMMPose.fit: found {len(align)} same-pose pairs across sequences and {len(expand)} "
                              "different-pose pairs within one; train on at least two sequences (camera paths) "

@@ -164,17 +164,32 @@ def _rotation_angles(qa, qb) -> np.ndarray:
     return np.degrees(2.0 * np.arccos(dots))
 
 
-def training_pairs(quaternions, sequences, bins, tolerance: float = 5.0, max_pairs: int = 4000, seed: int = 0):
+def _align_partner(i, candidates, presence, location):
+    """Of ``candidates`` (frames of other sequences at frame i's pose), the one nearest
+    to frame i under every part's manifold distance (the first without parts)."""
+    if presence is None or len(candidates) == 1:
+        return int(candidates[0])
+    d = manifold_distances(presence[[i]], location[[i]], presence[candidates], location[candidates])[0]
+    return int(candidates[np.argmin(d)])
+
+
+def training_pairs(quaternions, sequences, bins, tolerance: float = 5.0, max_pairs: int = 4000, seed: int = 0,
+                   presence=None, location=None):
     """The frame pairs the objective averages over.
 
     quaternions (n, 4) unit (the frames' rotations), sequences (n,) ids, bins (n,) pose
     classes. Alignment pairs: each of up to ``max_pairs`` frames (drawn at random) with
-    the frame of another sequence whose rotation is nearest, if within ``tolerance``
-    degrees. Expansion pairs: each of up to ``max_pairs`` frames with a random frame of
-    its own sequence in another pose class. Returns two (q, 2) int64 arrays."""
+    a frame of another sequence whose rotation is within ``tolerance`` degrees: the
+    nearest under the manifold distance over every part when ``presence`` (n, P) and
+    ``location`` (n, P, 2) are given (the other instance most like it: the manifold it
+    is to be aligned with), else the nearest in rotation. Expansion pairs: each of those
+    frames with a random frame of its own sequence in another pose class. Returns two
+    (q, 2) int64 arrays."""
     rng = np.random.default_rng(seed)
     q = np.asarray(quaternions, dtype=np.float64)
     sequences, bins = np.asarray(sequences), np.asarray(bins)
+    if presence is not None:
+        presence, location = np.asarray(presence, np.float64), np.asarray(location, np.float64)
     n = len(q)
     chosen = np.sort(rng.choice(n, size=min(n, max_pairs), replace=False))
     align, expand = [], []
@@ -182,9 +197,11 @@ def training_pairs(quaternions, sequences, bins, tolerance: float = 5.0, max_pai
         rows = chosen[start:start + 512]
         angles = _rotation_angles(q[rows], q)
         angles[sequences[rows][:, None] == sequences[None, :]] = np.inf
-        nearest = angles.argmin(axis=1)
-        ok = angles[np.arange(len(rows)), nearest] <= tolerance
-        align += list(zip(rows[ok], nearest[ok]))
+        for r, i in enumerate(rows):
+            candidates = np.flatnonzero(angles[r] <= tolerance)
+            candidates = candidates[np.argsort(angles[r, candidates], kind="stable")]
+            if len(candidates):
+                align.append((i, _align_partner(i, candidates, presence, location)))
     for i in chosen:
         others = np.flatnonzero((sequences == sequences[i]) & (bins != bins[i]))
         if len(others):

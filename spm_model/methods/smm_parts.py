@@ -19,7 +19,7 @@ from scipy.cluster.vq import kmeans2
 from spm_data.errors import ModelError
 
 UPSAMPLE_BELOW = 200   # images whose longest side is shorter are doubled before SIFT
-PRESENCE_QUANTILE = 0.9  # a part's radius: this quantile of its members' Mahalanobis distances
+PRESENCE_QUANTILE = 0.5  # a part's radius: this quantile of its members' Mahalanobis distances
 
 
 def mask_frame(mask: np.ndarray):
@@ -103,14 +103,14 @@ class PartCodebook:
         return presence, location
 
 
-def fit_codebook(geometry, appearance, parts: int, dims: int = 16, geometry_weight: float = 2.0,
+def fit_codebook(geometry, appearance, parts: int, dims: int = 16, geometry_weight: float = 4.0,
                  seed: int = 0) -> PartCodebook:
     """Learn ``parts`` candidate parts from pooled training features: geometry (N, 2),
     appearance (N, 128). Appearance is reduced to ``dims`` PCA components and scaled to
     unit mean variance per component; geometry to unit variance per axis times
     ``geometry_weight``; k-means (k-means++, seeded) then gives each part its centre,
-    per-axis spread (variance of its members plus a 1e-3 floor) and radius (the 0.9
-    quantile of its members' squared Mahalanobis distances)."""
+    per-axis spread (variance of its members plus a 1e-3 floor) and radius (the median
+    of its members' squared Mahalanobis distances)."""
     geometry = np.asarray(geometry, np.float64)
     appearance = np.asarray(appearance, np.float64)
     if len(geometry) < 2 * parts:
