@@ -77,21 +77,24 @@ def main(argv=None) -> None:
     ap.add_argument("--views", type=int, default=40, help="random test views per instance")
     ap.add_argument("--bins", type=int, default=8)
     ap.add_argument("--unseen", action="store_true",
-                    help="train on instance 0 of each class, test on the others (unseen instances of seen classes)")
+                    help="train on every instance but the last of each class, test on the last (unseen instances)")
+    ap.add_argument("--parts", type=int, default=48, help="parts kept by the selection")
+    ap.add_argument("--candidate-parts", type=int, default=96)
     args = ap.parse_args(argv)
     out = Path(args.out)
     render(out, args.classes.split(","), args.instances, args.views)
     train, train_poses = load(out / "grid")
     test, test_poses = load(out / "random")
     if args.unseen:
-        keep = np.array([f["sequence"] % 1000 == 0 for f in train])
+        last = args.instances - 1
+        keep = np.array([f["sequence"] % 1000 != last for f in train])
         train, train_poses = [f for f, k in zip(train, keep) if k], train_poses[keep]
-        new = np.array([f["sequence"] % 1000 != 0 for f in test])
+        new = np.array([f["sequence"] % 1000 == last for f in test])
         test, test_poses = [f for f, k in zip(test, new) if k], test_poses[new]
     test = [{k: f[k] for k in ("rgb", "mask", "K")} for f in test]
     order = np.random.default_rng(0).permutation(len(test))
     test, test_poses = [test[i] for i in order], test_poses[order]
-    model = SMMPose(n_bins=args.bins)
+    model = SMMPose(n_bins=args.bins, parts=args.parts, candidate_parts=args.candidate_parts)
     start = time.perf_counter()
     model.fit(train, train_poses)
     fit_s = time.perf_counter() - start

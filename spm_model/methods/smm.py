@@ -60,7 +60,7 @@ def _check_frame(frame, keys, i: int, call: str) -> None:
 class SMMPose(PoseEstimator):
     """Statistical manifold modelling, built from its paper (module docstring).
 
-    n_bins: pose classes (azimuth bins; the paper's 8). candidate_parts: parts learned
+    n_bins: pose classes (azimuth bins; 8, our reading of the paper's). candidate_parts: parts learned
     from the joint appearance-geometry distribution; parts: how many the graph
     selection keeps. alignment_weight: weight of the intra-class (alignment) term
     against the inter-pose (expansion) term. neighbours: training frames voting for a
@@ -161,12 +161,8 @@ class SMMPose(PoseEstimator):
             d = manifold_distances(presence[rows], location[rows], self.presence_, self.location_)
             nearest = np.argsort(d, axis=1, kind="stable")[:, :k]
             for r, near in zip(rows, nearest):
-                if presence[r].sum() == 0:
-                    continue
-                votes = np.bincount(self.bins_[near], minlength=self.n_bins)
-                top = np.flatnonzero(votes == votes.max())
-                klass[r] = next(self.bins_[j] for j in near if self.bins_[j] in top)
-                match[r] = next(j for j in near if self.bins_[j] == klass[r])
+                if presence[r].any():
+                    klass[r], match[r] = vote(self.bins_, near, self.n_bins)
         return klass, match, centroids, scales, Ks
 
     def predict_bins(self, frames) -> np.ndarray:
@@ -184,6 +180,15 @@ class SMMPose(PoseEstimator):
             out[i, 3:] = scaled_translation(self.poses_[j, 3:], self.intrinsics_[j], self.centroids_[j],
                                             self.scales_[j], Ks[i], centroids[i], scales[i])
         return out
+
+
+def vote(bins, nearest, n_bins: int):
+    """Pose class voted by training rows ``nearest`` (nearest first) with classes
+    ``bins``: the most votes, a tie going to the class of the nearest voter among the
+    tied; returns (class, the nearest row of that class)."""
+    votes = np.bincount(bins[nearest], minlength=n_bins)
+    winner = next(bins[j] for j in nearest if votes[bins[j]] == votes.max())
+    return int(winner), int(next(j for j in nearest if bins[j] == winner))
 
 
 def scaled_translation(t_train, K_train, centroid_train, scale_train, K, centroid, scale) -> np.ndarray:

@@ -10,7 +10,7 @@ import pytest
 from spm_data.core.poses import camera_poses, pose_to_label, project_points
 from spm_data.errors import ModelError
 from spm_data.io.shards import read_shard
-from spm_model.methods.smm import SMMPose, bin_centres, pose_bins, scaled_translation
+from spm_model.methods.smm import SMMPose, bin_centres, pose_bins, scaled_translation, vote
 
 
 def _labels(azimuth, elevation=20.0, roll=0.0):
@@ -29,6 +29,13 @@ def test_pose_bins_on_constructed_labels():
     np.testing.assert_allclose(bin_centres(8), [0, 45, 90, 135, 180, -135, -90, -45])
     # Every bin centre falls in its own bin.
     np.testing.assert_array_equal(pose_bins(_labels(bin_centres(16)), 16), np.arange(16))
+
+
+def test_vote():
+    bins = np.array([3, 1, 1, 3, 5, 5])
+    assert vote(bins, np.array([0, 1, 2, 4]), 8) == (1, 1)         # two votes for class 1
+    assert vote(bins, np.array([4, 0, 3, 1, 2]), 8) == (3, 0)      # tie 3-1 (2 each): the nearest's class
+    assert vote(bins, np.array([5]), 8) == (5, 5)
 
 
 def test_scaled_translation_recovers_a_view_twice_as_far():
