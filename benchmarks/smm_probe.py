@@ -80,6 +80,7 @@ def main(argv=None) -> None:
                     help="train on every instance but the last of each class, test on the last (unseen instances)")
     ap.add_argument("--parts", type=int, default=48, help="parts kept by the selection")
     ap.add_argument("--candidate-parts", type=int, default=96)
+    ap.add_argument("--alignment-weight", type=float, default=1.0)
     args = ap.parse_args(argv)
     out = Path(args.out)
     render(out, args.classes.split(","), args.instances, args.views)
@@ -94,7 +95,8 @@ def main(argv=None) -> None:
     test = [{k: f[k] for k in ("rgb", "mask", "K")} for f in test]
     order = np.random.default_rng(0).permutation(len(test))
     test, test_poses = [test[i] for i in order], test_poses[order]
-    model = SMMPose(n_bins=args.bins, parts=args.parts, candidate_parts=args.candidate_parts)
+    model = SMMPose(n_bins=args.bins, parts=args.parts, candidate_parts=args.candidate_parts,
+                    alignment_weight=args.alignment_weight)
     start = time.perf_counter()
     model.fit(train, train_poses)
     fit_s = time.perf_counter() - start
