@@ -111,3 +111,22 @@ def test_selection_picks_the_consistent_parts_of_a_toy_manifold():
     sel = [0, 1, 2, 3, 4, 5]
     d = manifold_distances(presence[:72, sel], location[:72, sel], presence[72:144, sel], location[72:144, sel])
     assert np.all(d.argmin(axis=1) == np.arange(72))
+
+
+def test_alignment_partner_is_the_most_similar_sequence():
+    # Three sequences at the same 72 views; sequence 2 shows sequence 0's constellation,
+    # sequence 1 another one: frames of 0 align with 2, not with 1 (nearer in rotation).
+    az = np.arange(0, 360, 5.0)
+    q = np.vstack([_views(az), _views(az + 0.5), _views(az + 1.0)])
+    sequences = np.repeat([0, 1, 2], len(az))
+    bins = np.tile((az // 45).astype(int), 3)
+    rng = np.random.default_rng(2)
+    mine, other = rng.normal(size=(len(az), 5, 2)), rng.normal(size=(len(az), 5, 2))
+    location = np.concatenate([mine, other, mine])
+    presence = np.ones((3 * len(az), 5), dtype=bool)
+    align, _ = training_pairs(q, sequences, bins, tolerance=2.0, max_pairs=1000, presence=presence, location=location)
+    from_0 = align[sequences[align[:, 0]] == 0]
+    assert len(from_0) == len(az)
+    assert np.all(from_0[:, 1] == from_0[:, 0] + 2 * len(az))
+    rotation_only, _ = training_pairs(q, sequences, bins, tolerance=2.0, max_pairs=1000)
+    assert np.all(sequences[rotation_only[sequences[rotation_only[:, 0]] == 0, 1]] == 1)
