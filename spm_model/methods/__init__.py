@@ -1,0 +1,1 @@
+"""Pose estimators built into the benchmark (SPM beside the methods it is compared with)."""

@@ -1,0 +1,135 @@
+"""SMM's part-based representation (Mei, Liu, Hero & Savarese, CVPR 2011; docs/method.md).
+
+A *local feature* is a SIFT keypoint inside the object's (visible) mask: its
+appearance (RootSIFT, reduced by PCA) and its geometry (its image position in an
+object-centred frame: minus the mask's centroid, over the square root of the
+mask's area, so translation and scale of the object drop out). A *part* is one
+component of the joint appearance-geometry distribution of the training
+features: a Gaussian with diagonal covariance found by k-means in the joint
+space ("a PDF of the joint appearance and geometry", as the SPM paper describes
+SMM's parts). In an image a part is *present* when some feature lies within its
+Mahalanobis radius, and is then located at the nearest such feature.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.cluster.vq import kmeans2
+
+from spm_data.errors import ModelError
+
+UPSAMPLE_BELOW = 200   # images whose longest side is shorter are doubled before SIFT
+PRESENCE_QUANTILE = 0.5  # a part's radius: this quantile of its members' Mahalanobis distances
+
+
+def mask_frame(mask: np.ndarray):
+    """(H, W) bool -> centroid (2,) pixels (x, y; OpenCV centres) and scale (float,
+    pixels: sqrt of the mask's area); None when the mask is empty."""
+    rows, cols = np.nonzero(np.asarray(mask))
+    if rows.size == 0:
+        return None
+    return np.array([cols.mean(), rows.mean()]), float(np.sqrt(rows.size))
+
+
+def local_features(rgb: np.ndarray, mask: np.ndarray, max_features: int = 80):
+    """One image's local features: ``geometry`` (N, 2) object-centred positions (pixels
+    minus the mask centroid, over sqrt(mask area); dimensionless) and ``appearance``
+    (N, 128) float32 RootSIFT descriptors, the ``max_features`` strongest keypoints
+    inside ``mask``. Images under 200 px are doubled first (SIFT finds few keypoints
+    on small objects). Empty arrays when the mask is empty or nothing is found."""
+    import cv2
+
+    frame = mask_frame(mask)
+    if frame is None:
+        return np.zeros((0, 2)), np.zeros((0, 128), np.float32)
+    gray = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)
+    cv_mask = np.asarray(mask, dtype=np.uint8) * 255
+    scale = 2.0 if max(gray.shape) < UPSAMPLE_BELOW else 1.0
+    if scale != 1.0:
+        gray = cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_LINEAR)
+        cv_mask = cv2.resize(cv_mask, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+    keypoints, desc = cv2.SIFT_create(nfeatures=max_features).detectAndCompute(gray, cv_mask)
+    if not keypoints:
+        return np.zeros((0, 2)), np.zeros((0, 128), np.float32)
+    # OpenCV centres: pixel x in the doubled image is at (x + 0.5) / 2 - 0.5 in the original.
+    xy = (np.array([k.pt for k in keypoints]) + 0.5) / scale - 0.5
+    centroid, size = frame
+    return (xy - centroid) / size, root_sift(desc)
+
+
+def root_sift(desc: np.ndarray) -> np.ndarray:
+    """(N, 128) SIFT -> RootSIFT (Arandjelovic & Zisserman 2012): l1-normalised, square
+    root; (N, 128) float32 of unit l2 norm."""
+    desc = np.asarray(desc, dtype=np.float32)
+    desc = desc / np.maximum(desc.sum(axis=1, keepdims=True), 1e-12)
+    return np.sqrt(desc)
+
+
+class PartCodebook:
+    """The candidate parts: PCA of the appearance, the joint space's scaling, and per
+    part a centre and a diagonal spread in that space (learned state, arrays only)."""
+
+    def __init__(self, mean, basis, appearance_scale, geometry_scale, centres, spreads, radii):
+        self.mean, self.basis = mean, basis                     # (128,), (128, d)
+        self.appearance_scale, self.geometry_scale = appearance_scale, geometry_scale
+        self.centres, self.spreads, self.radii = centres, spreads, radii  # (P, d+2) x2, (P,)
+
+    @property
+    def size(self) -> int:
+        return len(self.centres)
+
+    def joint(self, geometry: np.ndarray, appearance: np.ndarray) -> np.ndarray:
+        """(N, 2) geometry and (N, 128) appearance -> (N, d + 2) joint coordinates."""
+        a = (np.asarray(appearance, np.float64) - self.mean) @ self.basis / self.appearance_scale
+        return np.hstack([a, np.asarray(geometry, np.float64) * self.geometry_scale])
+
+    def mahalanobis(self, joint: np.ndarray) -> np.ndarray:
+        """(N, d + 2) -> (N, P) squared Mahalanobis distances to every part."""
+        diff = joint[:, None, :] - self.centres[None]
+        return np.einsum("npd,pd->np", diff * diff, 1.0 / self.spreads)
+
+    def detect(self, geometry: np.ndarray, appearance: np.ndarray):
+        """One image's parts: ``presence`` (P,) bool (some feature within the part's
+        radius) and ``location`` (P, 2) object-centred position of the nearest such
+        feature (0 where absent)."""
+        presence = np.zeros(self.size, dtype=bool)
+        location = np.zeros((self.size, 2))
+        if len(geometry) == 0:
+            return presence, location
+        d2 = self.mahalanobis(self.joint(geometry, appearance))
+        best = d2.argmin(axis=0)
+        presence = d2[best, np.arange(self.size)] <= self.radii
+        location[presence] = np.asarray(geometry)[best[presence]]
+        return presence, location
+
+
+def fit_codebook(geometry, appearance, parts: int, dims: int = 16, geometry_weight: float = 4.0,
+                 seed: int = 0) -> PartCodebook:
+    """Learn ``parts`` candidate parts from pooled training features: geometry (N, 2),
+    appearance (N, 128). Appearance is reduced to ``dims`` PCA components and scaled to
+    unit mean variance per component; geometry to unit variance per axis times
+    ``geometry_weight``; k-means (k-means++, seeded) then gives each part its centre,
+    per-axis spread (variance of its members plus a 1e-3 floor) and radius (the median
+    of its members' squared Mahalanobis distances)."""
+    geometry = np.asarray(geometry, np.float64)
+    appearance = np.asarray(appearance, np.float64)
+    if len(geometry) < 2 * parts:
+        raise ModelError(f"SMM needs at least {2 * parts} local features to learn {parts} parts, got "
+                         f"{len(geometry)}; give more training frames with textured objects, or fewer parts")
+    mean = appearance.mean(axis=0)
+    _, _, vt = np.linalg.svd(appearance - mean, full_matrices=False)
+    basis = vt[:dims].T
+    reduced = (appearance - mean) @ basis
+    appearance_scale = float(np.sqrt(reduced.var(axis=0).mean())) or 1.0
+    geometry_scale = geometry_weight / max(float(geometry.std(axis=0).mean()), 1e-6)
+    joint = np.hstack([reduced / appearance_scale, geometry * geometry_scale])
+    centres, labels = kmeans2(joint, parts, minit="++", seed=np.random.default_rng(seed), iter=20)
+    spreads = np.full_like(centres, 1e-3)
+    radii = np.zeros(parts)
+    for k in range(parts):
+        members = joint[labels == k]
+        if len(members) >= 2:
+            spreads[k] += members.var(axis=0)
+            d2 = np.sum((members - centres[k]) ** 2 / spreads[k], axis=1)
+            radii[k] = np.quantile(d2, PRESENCE_QUANTILE)
+    return PartCodebook(mean, basis, appearance_scale, geometry_scale, centres, spreads, radii)
