@@ -28,6 +28,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from spm_data.core.poses import label_to_pose, label_to_view, pose_to_label, wrap_degrees
+from spm_model.methods.smm import PAPER_BINS, pose_bins
 
 SUM_THRESHOLDS = (5.0, 3.0)
 TOLERANCE_DEG = 5.0
@@ -100,6 +101,9 @@ def pose_errors(pred: np.ndarray, true: np.ndarray, measured: np.ndarray | None 
     for k, axis in enumerate(AXES):  # Figs. 6-7: per camera axis
         errors[f"translation_{axis}"] = np.where(has_t, np.abs(pred[:, 3 + k] - true[:, 3 + k]), np.nan)
     errors.update(_view_errors(pred, true, full & has_t))
+    # SMM's own pose classes (8 azimuth bins of 45°): hit or miss where the rotation is measured.
+    hit = (pose_bins(pred) == pose_bins(true)).astype(np.float64)
+    errors["pose_class_hit"] = np.where(measured[:, :3].all(axis=1), np.where(estimated, hit, 0.0), np.nan)
     return errors
 
 
@@ -174,6 +178,9 @@ METRICS = (
            "median of the rotation's geodesic error", "geo med"),
     Metric("geodesic_p90_deg", lambda e: _stat(e["geodesic"], _p90), "p90 °",
            "90th percentile of the rotation's geodesic error"),
+    Metric("pose_class_accuracy", lambda e: _stat(e["pose_class_hit"], np.mean, 100.0), "Pose class %",
+           f"% whose azimuth falls in the true azimuth's class of SMM's {PAPER_BINS} pose classes "
+           f"({360 // PAPER_BINS}° bins centred on 0°, {360 // PAPER_BINS}°, …; Mei et al. 2011): SMM's own criterion"),
     Metric("success_tol5_sym", _sym("rotation_max_sym", tolerance_rate), "±5° sym. %",
            "`success_tol5` against the symmetric equivalent of the truth nearest the estimate, under the "
            "symmetries the spec or generator declares (bench/symmetry_errors.py); `null` where no mesh is known"),

@@ -1,1 +1,2 @@
-"""Pose estimators built into the benchmark (SPM beside the methods it is compared with)."""
+"""Every method the benchmark runs, behind fit(frames, poses) / predict(frames): SPM and KNN on
+its vectors, PCA, LS, the reference HOG templates, N3M, SMM, chance; registry.py lists them."""

@@ -6,8 +6,9 @@ Learned state ends in ``_`` (each class's ``FITTED``); predict before fit raises
 ModelError (spm_model/base/estimator.py).
 
 Built in: SPM and KNN on its re-projected vectors (the paper's Tables 1 and 2),
-the PCA- and LS-based raw-image baselines (§3.3-3.4), the reference template
-matcher (spm_model/methods/template.py) and chance (a random training pose). Any class
+the PCA- and LS-based raw-image baselines (§3.3-3.4), N3M and SMM (the paper's
+Fig. 5 comparisons, spm_model/methods/n3m*.py and smm*.py), the reference
+template matcher (spm_model/methods/template.py) and chance (a random training pose). Any class
 with the same contract joins them: ``spm train --estimator MODULE:CLASS``
 (docs/estimators.md).
 """
@@ -21,20 +22,22 @@ import numpy as np
 
 from spm_data.errors import ModelError
 from spm_model.methods.baselines import ChancePose, RawImagePose
+from spm_model.methods.smm import SMMPose
 from spm_model.methods.spm_pose import SPMNeighbours, SPMPose
 from spm_model.methods.template import TemplatePose
 from spm_model.spm.features import FeatureConfig
 
 METHOD_NAMES = {"spm": "SPM", "knn1": "KNN K=1", "knn3": "KNN K=3", "pca": "PCA-based", "ls": "LS-based",
-                "template": "HOG templates (reference)", "chance": "chance (random training pose)"}
+                "smm": "SMM (Mei et al. 2011)", "template": "HOG templates (reference)",
+                "chance": "chance (random training pose)"}
 
 
 def builtin_methods(seed: int, features: FeatureConfig, model_params: dict | None = None) -> dict:
     """Fresh, unfitted instances of every built-in method, in report order."""
     spm = SPMPose(seed=seed, features=features, params=model_params)
     return {"spm": spm, "knn1": SPMNeighbours(k=1, spm=spm), "knn3": SPMNeighbours(k=3, spm=spm),
-            "pca": RawImagePose(kind="pca"), "ls": RawImagePose(kind="ls"), "template": TemplatePose(),
-            "chance": ChancePose(seed=seed)}
+            "pca": RawImagePose(kind="pca"), "ls": RawImagePose(kind="ls"), "smm": SMMPose(seed=seed),
+            "template": TemplatePose(), "chance": ChancePose(seed=seed)}
 
 
 def load_estimator_class(spec: str):

@@ -1,0 +1,1 @@
+"""What spm train, spm evaluate and spm predict call: one library function each."""

@@ -1,0 +1,40 @@
+"""spm_model.bench.report_tables: results.md renders as GFM tables; docs/results-schema.md is made
+from METRICS."""
+
+from spm_model.bench.report import aggregate
+from spm_model.bench.report_tables import markdown
+from tests.model.bench.test_report import CONTEXT, tiny_evaluation
+
+
+def test_results_md_tables_render_as_gfm_tables():
+    from markdown_it import MarkdownIt
+
+    evaluation = tiny_evaluation()
+    text = markdown(evaluation, aggregate(evaluation), CONTEXT)
+    tokens = MarkdownIt("commonmark").enable("table").parse(text)
+    tables = [t for t in tokens if t.type == "table_open"]
+    pipe_blocks = [b for b in text.split("\n\n") if b.startswith("| ")]
+    assert len(tables) == len(pipe_blocks) >= 6          # every pipe block is a table, none left as text
+    header = next(i for i, t in enumerate(tokens) if t.type == "thead_open")
+    cells = [t for t in tokens[header:] if t.type == "th_open"]
+    assert len(cells) > 10
+
+
+def test_a_table_with_one_cell_too_many_in_its_delimiter_is_not_a_table():
+    from markdown_it import MarkdownIt
+
+    bad = "| a | b |\n|---|---|---|\n| 1 | 2 |\n"       # the shape results.md had before
+    assert not any(t.type == "table_open" for t in MarkdownIt("commonmark").enable("table").parse(bad))
+
+
+def test_the_schema_doc_lists_every_metric_as_made_from_the_list(tmp_path):
+    from pathlib import Path
+
+    from spm_model.bench.metrics import METRICS
+    from spm_model.bench.report_tables import schema_rows, update_schema_doc
+
+    doc = Path(__file__).resolve().parents[3] / "docs" / "results-schema.md"
+    copy = tmp_path / "schema.md"
+    copy.write_text(doc.read_text())
+    assert update_schema_doc(copy) is False, "run: python -m spm_model.bench.report_tables"
+    assert all(f"| `{m.key}` |" in doc.read_text() for m in METRICS) and len(schema_rows()) == len(METRICS) + 6
