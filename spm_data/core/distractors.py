@@ -22,7 +22,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from spm_data.errors import SpecError, SpmError
-from spm_data.core.meshes import CLASSES, load_mesh_file, procedural_mesh
+from spm_data.core.mesh_files import load_mesh_file
+from spm_data.core.shapes import CLASSES, procedural_mesh
 from spm_data.core.randomize import frame_stream
 from spm_data.core.raster import CLIP_NEAR, silhouette
 

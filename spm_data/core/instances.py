@@ -17,7 +17,8 @@ from functools import lru_cache
 from pathlib import Path
 
 from spm_data.errors import MeshError, SpecError
-from spm_data.core.meshes import load_mesh_file, procedural_mesh
+from spm_data.core.mesh_files import load_mesh_file
+from spm_data.core.shapes import procedural_mesh
 from spm_data.core.symmetries import declared_symmetries
 from spm_data.io.files import file_sha256
 from spm_data.core.specs import RenderSpec

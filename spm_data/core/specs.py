@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from spm_data.errors import MeshError, SpecError
-from spm_data.core.meshes import CLASSES
+from spm_data.core.shapes import CLASSES
 from spm_data.core.symmetries import declared_symmetries, parse_symmetry
 from spm_data.core.paths import SAMPLER_KEYS, AngleRange, CameraGrid, camera_path
 from spm_data.core.distractors import DistractorSpec, validate_distractors

@@ -5,7 +5,7 @@ scene (camera with the spec's intrinsics, lights that move with the camera,
 world, render settings) is built once per renderer and the mesh once per
 instance; a frame moves the camera (and sets the frame's draws and distractors)
 and renders one multi-layer EXR (Combined, Depth, Object Index, Normal when asked)
-that is read back with the OpenEXR package. Cycles keeps its synced scene between
+that blender_exr.py reads back with the OpenEXR package. Cycles keeps its synced scene between
 frames (persistent data) and, with a transparent film, renders only a border
 around the objects (blender_scene.border_box); Blender 5.0.1 headless offers no
 way to read a render without a file.
@@ -27,11 +27,8 @@ from spm_data.errors import RenderError
 from spm_data.core.poses import K_to_corner_origin, cv_to_gl_camera_to_world
 from spm_data.core.raster import CLIP_FAR, CLIP_NEAR
 from spm_data.render import Renderer, light_rotations, rotate_normals
-from spm_data.render.blender_scene import (border_box, captured_output, cycles_device, mesh_data, remove_mesh_data,
-                                           srgb_encode, tail, uncrop)
-
-NO_HIT_DEPTH = 1e9  # Blender writes 1e10 where no surface was hit
-INSTALL_HINT = "install it with: pip install 'spm[blender]' (bpy 5.0.x, Python 3.11)"
+from spm_data.render.blender_exr import INSTALL_HINT, import_openexr, read_frame
+from spm_data.render.blender_scene import border_box, captured_output, cycles_device, mesh_data, remove_mesh_data, tail
 
 
 def _import_bpy():
@@ -43,15 +40,6 @@ def _import_bpy():
     return bpy, mathutils
 
 
-def _import_openexr():
-    try:
-        import OpenEXR
-    except ImportError as exc:
-        raise RenderError(f"the OpenEXR package is not installed ({exc}); {INSTALL_HINT}") from None
-    return OpenEXR
-
-
-
 class BlenderRenderer(Renderer):
     """bpy renderer for one spec (engine, samples, image size, intrinsics, lights)."""
 
@@ -60,7 +48,7 @@ class BlenderRenderer(Renderer):
     def __init__(self, spec):
         super().__init__(spec)
         self._bpy, self._mathutils = _import_bpy()
-        self._exr = _import_openexr()
+        self._exr = import_openexr()
         settings = spec.render.blender
         self.engine = settings.engine
         if self.engine == "eevee":
@@ -309,35 +297,8 @@ class BlenderRenderer(Renderer):
             r.border_min_y, r.border_max_y = (H - y1 + 0.5) / H, min(1.0, (H - y0 + 0.5) / H)
 
     def _read_exr(self) -> dict:
-        try:
-            with self._exr.File(self._exr_path) as f:
-                # Blender 5 writes one EXR part per pass.
-                channels = {name: ch for part in f.parts for name, ch in part.channels.items()}
-                combined = np.asarray(channels["ViewLayer.Combined"].pixels, dtype=np.float32)
-                z = np.asarray(channels["ViewLayer.Depth.Z"].pixels, dtype=np.float32)
-                index = channels.get("ViewLayer.Object Index.X")
-                index = None if index is None else np.asarray(index.pixels)
-                normals = None
-                if self.outputs.normals:
-                    normals = np.stack([np.asarray(channels[f"ViewLayer.Normal.{c}"].pixels, np.float32)
-                                              for c in "XYZ"], axis=-1)
-        except (OSError, KeyError, RuntimeError) as exc:
-            raise RenderError(f"could not read Blender's EXR output ({type(exc).__name__}: {exc})") from None
-        hit = z < NO_HIT_DEPTH
-        ids = np.where(hit, np.rint(index), 0).astype(np.uint8) if index is not None else hit.astype(np.uint8)
-        mask = ids == 1 if index is not None else hit
-        depth = np.where(hit if self._slots else mask, z, 0.0).astype(np.float32)
-        alpha = np.clip(combined[..., 3], 0.0, 1.0)
-        out = {"rgb": srgb_encode(combined[..., :3]), "alpha": alpha.astype(np.float32),
-               "depth": depth, "mask": mask.astype(np.uint8), "ids": ids}
-        if self.outputs.normals:
-            out["world_normals"] = normals
-        if z.shape != (self.height, self.width):
-            x0, y0, x1, y1 = self._crop or (0, 0, 0, 0)
-            if z.shape != (y1 - y0, x1 - x0):
-                raise RenderError(f"Blender's EXR is {z.shape[1]}x{z.shape[0]}, expected {self.width}x{self.height} "
-                                  f"or its render border {x1 - x0}x{y1 - y0}")
-            out = uncrop(out, self._crop, self.height, self.width)
+        out = read_frame(self._exr, self._exr_path, normals=self.outputs.normals, distractor_slots=bool(self._slots),
+                         crop=self._crop, height=self.height, width=self.width)
         self._instances, self._normals = out.pop("ids"), out.pop("world_normals", None)
         return out
 

@@ -1,7 +1,7 @@
 import pytest
 
 from spm_data.errors import SpecError
-from spm_data.core.meshes import CLASSES
+from spm_data.core.shapes import CLASSES
 from spm_data.core.specs import all_spec_paths, load_spec, parse_spec
 
 

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from spm_data.core.meshes import load_mesh_file, procedural_mesh
+from spm_data.core.mesh_files import load_mesh_file
+from spm_data.core.shapes import procedural_mesh
 from spm_data.core.paths import AngleRange, CameraGrid, camera_path
 from spm_data.render import make_renderer
 from spm_data.commands.render_jobs import load_run_specs, render_dataset

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from spm_data.core.meshes import procedural_mesh
+from spm_data.core.shapes import procedural_mesh
 from spm_data.core.paths import AngleRange, CameraGrid, camera_path
 from spm_data.core.poses import project_points
 from spm_data.render import make_renderer, spec_intrinsics

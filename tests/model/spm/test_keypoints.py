@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from spm_data.core.meshes import procedural_mesh
+from spm_data.core.shapes import procedural_mesh
 from spm_data.core.paths import camera_path
 from spm_data.render import make_renderer
 from spm_data.core.specs import parse_spec
