@@ -1,0 +1,226 @@
+"""Our shards out as a BOP dataset (Hodaň et al.): one scene per object instance.
+
+``camera.json``, ``models/`` and ``models_eval/`` (bop_models.py, for rendered meshes),
+``objects.json`` (obj_id -> class and instance), and per scene ``scene_camera.json``,
+``scene_gt.json``, ``scene_gt_info.json`` (bop_gt.py: calc_gt_info's rules, objects cut by
+the image border included), ``scene_gt_coco.json``; rgb as JPEG in ``*_pbr`` splits, PNG
+otherwise; written to ``OUT.partial`` and renamed.
+
+Object ids: the export's objects sorted by (class name, instance number, instance name)
+are numbered 1, 2, ...; with ``ids_from`` (a previous export, or its objects.json), the
+objects it lists keep their ids and new ones are numbered after its largest.
+
+K: BOP counts the principal point from the pixel corner (cx = W / 2 for a centred
+camera), our shards from the first pixel's centre (OpenCV): export adds 0.5 to cx and
+cy (poses.K_to_corner_origin). docs/datasets.md compares the conventions.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from spm_data.errors import SpmError
+from spm_data.core.instances import shard_mesh
+from spm_data.core.poses import K_to_corner_origin
+from spm_data.formats.bop_gt import (DEPTH_SCALES, depth_scale_for, depth_units, depth_with_occluders,
+                                     full_silhouette, gt_info)
+from spm_data.formats.bop_models import save_bop_model, save_models_info
+from spm_data.formats.coco import FILE_NAME as COCO_FILE
+from spm_data.formats.coco import save_scene_gt_coco, scene_coco
+from spm_data.io.folders import open_folder
+from spm_data.io.outputs import check_creatable, space_fix, top_created
+from spm_data.io.shards import read_attrs, read_shard
+
+SPLIT_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")  # one folder inside the dataset, never a path
+RGB_SUFFIX = {True: ".jpg", False: ".png"}  # keyed by "a PBR split": BOP stores PBR renders as JPEG
+JPEG_QUALITY = 95  # BlenderProc's BOP writer's setting
+OBJECTS_FILE = "objects.json"  # obj_id -> {"class", "instance", "instance_id"}, at the dataset's root
+
+
+def _encode(path: Path, array: np.ndarray) -> None:
+    import cv2
+
+    img = cv2.cvtColor(array, cv2.COLOR_RGB2BGR) if array.ndim == 3 else array
+    params = [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY] if path.suffix == ".jpg" else []
+    ok, data = cv2.imencode(path.suffix, img, params)
+    if not ok:
+        raise SpmError(f"could not encode {path}")
+    path.write_bytes(data.tobytes())  # an OSError (disk full, read-only) names its errno, unlike cv2.imwrite
+
+
+def _check_out(out_dir: Path) -> None:
+    if out_dir.exists() and not out_dir.is_dir():
+        raise SpmError(f"{out_dir} is a file; give --out a new folder to export into")
+    if out_dir.exists() and any(out_dir.iterdir()):
+        raise SpmError(f"{out_dir} exists and is not empty; export into a new folder")
+    check_creatable(out_dir, "create", "give --out a new folder to export into",
+                    "give --out a folder in a writable place")
+
+
+def read_objects(path) -> dict[int, dict]:
+    """obj_id -> {"class", "instance", "instance_id"} from an export's objects.json (``path``: the
+    file or the export folder); SpmError naming the file when it is missing or malformed."""
+    path = Path(path)
+    path = path / OBJECTS_FILE if path.is_dir() else path
+    try:
+        table = json.loads(path.read_text())
+        return {int(k): {"class": str(v["class"]), "instance": str(v["instance"]),
+                         "instance_id": int(v["instance_id"])} for k, v in table.items()}
+    except FileNotFoundError:
+        raise SpmError(f"{path}: no such file; give an export folder or its {OBJECTS_FILE}") from None
+    except (OSError, ValueError, TypeError, KeyError, AttributeError) as exc:
+        raise SpmError(f"{path}: not an {OBJECTS_FILE} (obj_id -> class, instance, instance_id): "
+                       f"{type(exc).__name__}: {exc}") from None
+
+
+def object_ids(objects, ids_from=None) -> dict[tuple, int]:
+    """(class name, instance name) -> obj_id for ``objects``, an iterable of (class name, instance
+    number, instance name), by the module's rule (sorted; ``ids_from`` keeps a previous export's)."""
+    given = {(v["class"], v["instance"]): k for k, v in read_objects(ids_from).items()} if ids_from else {}
+    ids, next_id = {}, max(given.values(), default=0) + 1
+    for cls, _, name in sorted(set(objects)):
+        if (cls, name) in given:
+            ids[(cls, name)] = given[(cls, name)]
+        elif (cls, name) not in ids:
+            ids[(cls, name)], next_id = next_id, next_id + 1
+    return ids
+
+
+class _Export:
+    """The BOP dataset being written into ``root`` (OUT.partial): one scene per object."""
+
+    def __init__(self, root: Path, split: str, ids: dict, meshes_from=None):
+        self.root, self.split, self.ids, self.meshes_from = root, split, ids, meshes_from
+        self.rgb_suffix = RGB_SUFFIX[split.endswith("_pbr")]
+        self.meshes: dict[int, object] = {}
+        self.scenes: dict[int, dict] = {}
+        self.models_info, self.no_model, self.frames, self.scales = {}, set(), 0, {DEPTH_SCALES[0]}
+        self.names: dict[int, dict] = {}
+        for sub in ("models", "models_eval"):
+            (root / sub).mkdir(parents=True)
+
+    def object_id(self, key: tuple, attrs: dict, instance_id: int) -> int:
+        obj_id = self.ids[key]
+        if obj_id not in self.meshes:
+            self.names[obj_id] = {"class": key[0], "instance": key[1], "instance_id": int(instance_id)}
+            mesh = self.meshes[obj_id] = shard_mesh(attrs, instance_id, spec_dir=self.meshes_from)
+            if mesh is None:
+                self.no_model.add(key)
+            else:
+                self.models_info[obj_id] = save_bop_model(self.root, obj_id, mesh)
+        return obj_id
+
+    def add_frame(self, data: dict, i: int, obj_id: int) -> None:
+        scene = self.scenes.setdefault(obj_id, {"camera": {}, "gt": {}, "info": {}, "coco": []})
+        im = len(scene["gt"])
+        sdir = self.root / self.split / f"{obj_id - 1:06d}"
+        if im == 0:
+            for sub in ("rgb", "depth", "mask", "mask_visib"):
+                (sdir / sub).mkdir(parents=True)
+        mask = data["mask"][i] > 0
+        visible = data["visible_mask"][i] > 0 if "visible_mask" in data else mask
+        rgb_name = f"rgb/{im:06d}{self.rgb_suffix}"
+        _encode(sdir / rgb_name, data["rgb"][i])
+        # Rendered distractors are in the depth already; only 2-D rectangles need a stand-in.
+        depth = data["depth"][i] if "distractor_mesh" in data else depth_with_occluders(data["depth"][i], mask, visible)
+        scale = depth_scale_for(depth)
+        self.scales.add(scale)
+        _encode(sdir / "depth" / f"{im:06d}.png", depth_units(depth, scale))
+        _encode(sdir / "mask" / f"{im:06d}_000000.png", mask.astype(np.uint8) * 255)
+        _encode(sdir / "mask_visib" / f"{im:06d}_000000.png", visible.astype(np.uint8) * 255)
+        R, t_mm = data["R"][i].ravel().tolist(), (data["t"][i] * 1000.0).tolist()
+        # One object a scene, in its own frame: the world is the object's frame, w2c = m2c.
+        scene["camera"][str(im)] = {"cam_K": K_to_corner_origin(data["K"][i]).ravel().tolist(),
+                                    "cam_R_w2c": R, "cam_t_w2c": t_mm, "depth_scale": scale}
+        scene["gt"][str(im)] = [{"cam_R_m2c": R, "cam_t_m2c": t_mm, "obj_id": obj_id}]
+        canvas = full_silhouette(mask, self.meshes[obj_id], data["K"][i], data["R"][i], data["t"][i])
+        info = gt_info(canvas, visible, depth)
+        scene["info"][str(im)] = [info]
+        # Masks kept a bit a pixel until the scene's COCO file is written.
+        scene["coco"].append((im, rgb_name, mask.shape, np.packbits(mask), np.packbits(visible), info["visib_fract"]))
+        self.frames += 1
+
+    def _coco_frames(self, entries, obj_id):
+        for im, name, (h, w), mask, visible, fract in entries:
+            unpack = lambda bits: np.unpackbits(bits, count=h * w).reshape(h, w)  # noqa: E731
+            yield {"im_id": im, "file_name": name, "width": w, "height": h,
+                   "objects": [{"obj_id": obj_id, "mask": unpack(mask), "mask_visib": unpack(visible),
+                                "visib_fract": fract}]}
+
+    def finish(self, first_shard) -> None:
+        every_id = sorted(self.ids.values())   # COCO files list every category of the dataset, as bop_toolkit's
+        for obj_id, scene in self.scenes.items():
+            sdir = self.root / self.split / f"{obj_id - 1:06d}"
+            for name in ("camera", "gt", "info"):
+                key = {"camera": "scene_camera", "gt": "scene_gt", "info": "scene_gt_info"}[name]
+                (sdir / f"{key}.json").write_text(json.dumps(scene[name], indent=1))
+            coco = scene_coco(self._coco_frames(scene.pop("coco"), obj_id), dataset="spm", split=self.split,
+                              obj_ids=every_id, bbox_type="amodal")
+            save_scene_gt_coco(sdir / COCO_FILE, coco)
+        first = read_shard(first_shard, ["K", "rgb"], frames=slice(0, 1))
+        K, (h, w) = K_to_corner_origin(first["K"][0]), first["rgb"].shape[1:3]
+        (self.root / "camera.json").write_text(json.dumps({"cx": K[0, 2], "cy": K[1, 2], "fx": K[0, 0],
+                                                           "fy": K[1, 1], "width": int(w), "height": int(h),
+                                                           "depth_scale": max(self.scales)}))
+        (self.root / OBJECTS_FILE).write_text(json.dumps({str(k): self.names[k] for k in sorted(self.names)},
+                                                         indent=1))
+        save_models_info(self.root / "models" / "models_info.json", self.models_info)
+        save_models_info(self.root / "models_eval" / "models_info.json", self.models_info)
+
+
+def _objects(shards):
+    """(class name, instance number, instance name) of every frame of ``shards``."""
+    for path in shards:
+        d = read_shard(path, ["class_name", "instance_id", "instance_name"])
+        yield from zip(map(str, d["class_name"]), map(int, d["instance_id"]), map(str, d["instance_name"]))
+
+
+def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=False, meshes_from=None,
+               ids_from=None) -> dict:
+    """Write the shards of ``in_dir`` as a BOP dataset at ``out_dir``. Returns counts.
+    split: one folder name (BOP's: train, train_pbr, val, test...). meshes_from: the folder
+    a mesh-file spec's paths start from, when not the spec folder its shards recorded
+    (spm_data.core.instances.shard_mesh). ids_from: a previous export (or its objects.json)
+    whose obj_ids to keep (the module's docstring)."""
+    out_dir = Path(out_dir)
+    if not SPLIT_NAME.fullmatch(str(split)):
+        raise SpmError(f"--split {split!r}: expected one folder name of letters, digits, '_' or '-' "
+                       "(BOP's are train, train_pbr, val, test)")
+    if meshes_from is not None and not Path(meshes_from).is_dir():
+        raise SpmError(f"--meshes-from {meshes_from}: no such folder; give the folder the spec file is in")
+    _check_out(out_dir)
+    # Every shard read below is verified as it is read; the export is built in OUT.partial, so a
+    # corrupt shard (or a full disk) leaves nothing behind.
+    shards = open_folder(in_dir, allow_partial=allow_partial).shards
+    ids = object_ids(_objects(shards), ids_from)
+    tmp = out_dir.with_name(out_dir.name + ".partial")
+    shutil.rmtree(tmp, ignore_errors=True)
+    made = top_created(tmp / "models")  # what this export creates: removed on failure
+    try:
+        export = _Export(tmp, split, ids, meshes_from)
+        for path in shards:
+            attrs, data = read_attrs(path), read_shard(path)
+            for i in range(len(data["pose"])):
+                key = (str(data["class_name"][i]), str(data["instance_name"][i]))
+                export.add_frame(data, i, export.object_id(key, attrs, int(data["instance_id"][i])))
+                if progress:
+                    progress(1)
+        export.finish(shards[0])
+        if out_dir.exists():
+            out_dir.rmdir()
+        os.replace(tmp, out_dir)
+    except BaseException as exc:
+        shutil.rmtree(made, ignore_errors=True)
+        if isinstance(exc, OSError):
+            fix = space_fix(exc, "give --out a folder in a writable place")
+            raise SpmError(f"could not export to {out_dir}: {exc.strerror or exc}; nothing was written; "
+                           f"{fix}") from None
+        raise
+    return {"frames": export.frames, "objects": len(export.scenes), "scenes": len(export.scenes),
+            "without_model": sorted(f"{c}/{n}" for c, n in export.no_model)}
