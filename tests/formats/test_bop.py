@@ -71,6 +71,18 @@ def test_render_export_import_round_trip(small_specs_dir, tmp_path):
     np.testing.assert_allclose(back["depth"], src["depth"], atol=0.00005 + 1e-7)  # 0.1 mm steps
     np.testing.assert_allclose(back["K"], src["K"])
     assert not (tmp_path / "bop.partial").exists()
+    # objects.json gives the names back, not bop-objN.
+    names = [{k: [str(v) for p in list_shards(folder) for v in read_shard(p)[k]]
+              for k in ("class_name", "instance_name", "instance_id")} for folder in (tmp_path / "r", tmp_path / "back")]
+    assert names[1] == names[0] and names[1]["class_name"][0] == "cup"
+    import_bop(tmp_path / "bop", tmp_path / "renamed", split="train", classes_csv=_csv(tmp_path, "2,mug\n"))
+    renamed = read_shard(list_shards(tmp_path / "renamed")[0], ["class_name", "instance_name"])
+    assert set(map(str, renamed["class_name"])) == {"cup", "mug"} and "bop-obj2" not in set(map(str, renamed["instance_name"]))
+
+
+def _csv(folder, text):
+    (folder / "map.csv").write_text(text)
+    return folder / "map.csv"
 
 
 def test_bop_poses_survive_import_then_export_exactly(tmp_path):

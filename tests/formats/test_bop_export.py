@@ -13,7 +13,7 @@ from cli import data_cli
 from spm_data.formats.bop import import_bop
 from spm_data.formats.bop_export import export_bop
 from spm_data.formats.coco import load_scene_gt_coco, rle_to_mask
-from spm_data.errors import MeshError
+from spm_data.errors import MeshError, SpmError
 from spm_data.formats.ply import load_ply
 from spm_data.core.poses import cv_to_gl_camera_to_world
 from spm_data.render.pyrender_backend import _offscreen
@@ -263,3 +263,51 @@ def test_a_cluttered_export_keeps_the_rendered_depth_and_visible_masks(tmp_path)
         np.testing.assert_array_equal(visib, d["visible_mask"][i] > 0)
         info = json.loads((sdir / "scene_gt_info.json").read_text())[str(im)][0]
         assert info["visib_fract"] == pytest.approx(d["visible_mask"][i].sum() / d["mask"][i].sum())
+
+
+# --------------------------------------------------------------------------- ids, depth scale, cameras
+
+def test_object_ids_are_stable_across_exports_and_named_in_objects_json(small_specs_dir, tmp_path):
+    render_dataset(load_run_specs(["cup", "box"], specs_dir=small_specs_dir), tmp_path / "all", limit=8)
+    render_dataset(load_run_specs(["cup"], specs_dir=small_specs_dir), tmp_path / "cup", limit=4)
+    export_bop(tmp_path / "all", tmp_path / "bop_all")
+    objects = json.loads((tmp_path / "bop_all" / "objects.json").read_text())
+    # Sorted by class, then instance: box first although the cup was rendered first.
+    assert [(v["class"], v["instance_id"]) for v in objects.values()] == [("box", 0), ("box", 1), ("cup", 0), ("cup", 1)]
+    assert list(objects) == ["1", "2", "3", "4"] and objects["3"]["instance"] == "cup-000"
+    export_bop(tmp_path / "cup", tmp_path / "bop_cup_alone")
+    export_bop(tmp_path / "cup", tmp_path / "bop_cup", ids_from=tmp_path / "bop_all")
+    alone = json.loads((tmp_path / "bop_cup_alone" / "objects.json").read_text())
+    kept = json.loads((tmp_path / "bop_cup" / "objects.json").read_text())
+    assert list(alone) == ["1", "2"]                                  # numbered afresh alone,
+    assert kept == {"3": objects["3"], "4": objects["4"]}              # kept with ids_from
+    gt = json.loads((tmp_path / "bop_cup" / "train" / "000002" / "scene_gt.json").read_text())
+    assert gt["0"][0]["obj_id"] == 3
+    with pytest.raises(SpmError, match="objects.json: no such file"):
+        export_bop(tmp_path / "cup", tmp_path / "bop_bad", ids_from=tmp_path / "cup")
+
+
+def test_depth_beyond_6_5_m_gets_a_coarser_scale_not_clipped(tmp_path):
+    (tmp_path / "far.toml").write_text('class = "far"\n[mesh]\ngenerator = "cup"\ninstances = 1\n'
+                                       '[camera]\nazimuth = [0, 5, 5]\nelevation = 0\ndistances = [7.0]\n'
+                                       '[image]\nwidth = 64\nheight = 64\nfov = 5.0\n[render]\nrenderer = "pyrender"\n')
+    render_dataset(load_run_specs(spec_files=[tmp_path / "far.toml"]), tmp_path / "r")
+    export_bop(tmp_path / "r", tmp_path / "bop")
+    ours = read_shard(list_shards(tmp_path / "r")[0], ["depth"])["depth"]
+    sdir = tmp_path / "bop" / "train" / "000000"
+    cams = json.loads((sdir / "scene_camera.json").read_text())
+    for im in range(2):
+        scale = cams[str(im)]["depth_scale"]
+        depth = cv2.imread(str(sdir / "depth" / f"{im:06d}.png"), cv2.IMREAD_UNCHANGED) * scale / 1000
+        assert scale == 0.2 and ours[im].max() > 6.8
+        np.testing.assert_allclose(depth, ours[im], atol=scale / 2000 + 1e-6)   # half a step, not 0.4 m
+    assert json.loads((tmp_path / "bop" / "camera.json").read_text())["depth_scale"] == 0.2
+
+
+def test_scene_camera_has_world_to_camera_poses(exported):
+    _, bop = exported
+    for scene, im, _, gt in scenes(bop):
+        cam = json.loads((scene / "scene_camera.json").read_text())[str(im)]
+        # One object a scene, in its own frame: world to camera is model to camera.
+        assert cam["cam_R_w2c"] == gt["cam_R_m2c"] and cam["cam_t_w2c"] == gt["cam_t_m2c"]
+        assert cam["depth_scale"] == 0.1
