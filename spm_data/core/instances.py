@@ -50,7 +50,7 @@ def load_instance(spec: RenderSpec, instance: int):
     if m.source == "procedural":
         return procedural_mesh(m.generator or spec.class_name, instance, seed=spec.seed, size=m.size)
     return load_mesh_file(mesh_files(spec)[instance], size=m.size, seed=spec.seed, instance=instance,
-                          texture=m.texture, symmetries=declared_symmetries(m.symmetries))
+                          texture=m.texture, symmetries=declared_symmetries(m.symmetries), up=m.up)
 
 
 @lru_cache(maxsize=256)
@@ -118,4 +118,4 @@ def shard_mesh(attrs: dict, instance_id: int, spec_dir=None):
 def _load_recorded(spec: RenderSpec, path: str, instance: int):
     m = spec.mesh
     return load_mesh_file(path, size=m.size, seed=spec.seed, instance=instance, texture=m.texture,
-                          symmetries=declared_symmetries(m.symmetries))
+                          symmetries=declared_symmetries(m.symmetries), up=m.up)

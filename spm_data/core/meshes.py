@@ -111,7 +111,8 @@ def _box_projected_uv(corners: np.ndarray, face_normals: np.ndarray, size: float
 def to_textured(mesh: trimesh.Trimesh, name: str, size: float, rng: np.random.Generator,
                 keep_texture: bool = False) -> TexturedMesh:
     """Normalise ``mesh`` and give it UVs and a texture (its own if ``keep_texture``
-    and it has an image texture with UVs, else a seeded procedural one)."""
+    and it has an image texture with UVs, else a seeded procedural one; a 2x2 image
+    of one colour is trimesh's placeholder for UVs without an image, so none)."""
     mesh = normalise(mesh, size)
     visual = getattr(mesh, "visual", None)
     own_image = None
@@ -119,6 +120,8 @@ def to_textured(mesh: trimesh.Trimesh, name: str, size: float, rng: np.random.Ge
         image = getattr(visual.material, "baseColorTexture", None) or getattr(visual.material, "image", None)
         if image is not None:
             own_image = np.asarray(image.convert("RGB"), dtype=np.uint8)
+            if own_image.shape[0] * own_image.shape[1] <= 4 and (own_image == own_image[:1, :1]).all():
+                own_image = None  # trimesh's 2x2 placeholder of one colour for UVs without an image
     faces = np.asarray(mesh.faces, dtype=np.int64)
     if own_image is not None:
         uv = np.asarray(visual.uv, dtype=np.float64)[faces.reshape(-1)]

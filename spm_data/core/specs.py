@@ -35,6 +35,7 @@ class MeshSpec:
     size: float = 0.25              # longest bounding-box side, metres
     texture: str = "auto"           # "auto" (keep a file's own image texture) | "procedural"
     symmetries: tuple[str, ...] = ()  # for files: "z" (every turn about z), "x/180" (n-fold turns)
+    up: str = "z"                   # for files: the axis that is up in them, "z" or "y" (glTF: always y)
 
 
 @dataclass(frozen=True)
@@ -112,6 +113,8 @@ class RenderSpec:
         payload = dataclasses.asdict(self)
         payload.pop("text"), payload.pop("base_dir")
         payload["mesh"].pop("symmetries")  # metadata for the BOP export: the pixels do not change
+        if self.mesh.up == "z":  # the default: a spec without the key keeps its fingerprint
+            payload["mesh"].pop("up")
         if self.render.blender.device == "cpu":  # the default: a CPU spec's fingerprint stays as it was
             payload["render"]["blender"].pop("device")
         for key, default in OPTIONAL_TABLES.items():
@@ -245,6 +248,8 @@ def _validate(spec: RenderSpec) -> RenderSpec:
         raise SpecError(f"mesh.symmetries: {exc}") from None
     _check(m.size > 0, f"mesh.size: expected metres > 0, got {m.size}")
     _check(m.texture in ("auto", "procedural"), f"mesh.texture: expected 'auto' or 'procedural', got {m.texture!r}")
+    _check(m.up in ("y", "z"), f"mesh.up: expected \"z\" or \"y\" (the axis up in the mesh files), got {m.up!r}")
+    _check(m.source == "files" or m.up == "z", "mesh.up: only for mesh files; built-in classes stand on +z")
     im = spec.image
     _check(im.width >= 1 and im.height >= 1, f"image: width and height must be >= 1 pixel, got {im.width}x{im.height}")
     _check(im.width <= 8192 and im.height <= 8192, f"image: at most 8192 pixels a side, got {im.width}x{im.height}")

@@ -62,6 +62,10 @@ def test_non_watertight_mesh_loads(tmp_path):
     ("garbage.ply", b"\x00\x01 this is not a ply file at all", "not a readable mesh"),
     ("points.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\n", "no faces"),
     ("model.xyz", b"1 2 3", "unsupported mesh type"),
+    ("header.ply", b"ply\n", r"header.ply: not a readable mesh; trimesh could not parse it as .ply"),
+    ("faces.ply", b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
+                  b"element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n3 0 1 5\n",
+     "faces.ply: not a readable mesh; a face refers to vertex 5, the file has 2 vertices"),
 ])
 def test_bad_mesh_files_give_clear_errors(tmp_path, name, content, message):
     (tmp_path / name).write_bytes(content)
@@ -82,6 +86,32 @@ def test_gltf_meshes_are_turned_to_z_up_and_front_x(tmp_path):
     np.testing.assert_allclose(gltf.extents, [0.2, 0.1, 0.4], atol=1e-9)   # front x, width y, up z
     other = load_mesh_file(tmp_path / "tall.obj", size=0.4)
     np.testing.assert_allclose(other.extents, [0.1, 0.4, 0.2], atol=1e-9)  # other formats as they are
+
+
+def test_y_up_files_are_turned_as_gltf_is_when_the_spec_says_so(tmp_path):
+    from spm_data.errors import SpecError
+    from spm_data.core.specs import parse_spec
+
+    trimesh.creation.box(extents=(0.1, 0.4, 0.2)).export(tmp_path / "tall.ply")
+    turned = load_mesh_file(tmp_path / "tall.ply", size=0.4, up="y")
+    np.testing.assert_allclose(turned.extents, [0.2, 0.1, 0.4], atol=1e-9)   # as the glTF above
+    base = 'class = "t"\n[mesh]\nsource = "files"\nfiles = ["tall.ply"]\n'
+    plain, y_up = (parse_spec(base + extra, base_dir=str(tmp_path)) for extra in ("", 'up = "y"\n'))
+    assert y_up.mesh.up == "y" and plain.fingerprint() != y_up.fingerprint()
+    assert plain.fingerprint() == parse_spec(base + 'up = "z"\n', base_dir=str(tmp_path)).fingerprint()
+    with pytest.raises(SpecError, match='mesh.up: expected "z" or "y"'):
+        parse_spec(base + 'up = "x"\n', base_dir=str(tmp_path))
+    with pytest.raises(SpecError, match="mesh.up: only for mesh files"):
+        parse_spec('class = "cup"\n[mesh]\nup = "y"\n')
+
+
+def test_uvs_without_an_image_get_the_procedural_texture(tmp_path):
+    box = trimesh.creation.box(extents=(1, 1, 1))
+    box.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((len(box.vertices), 2)))
+    box.export(tmp_path / "uv.ply")   # texture_u/v, no TextureFile: trimesh reads a 2x2 grey placeholder
+    mesh = load_mesh_file(tmp_path / "uv.ply")
+    assert mesh.texture.shape[0] > 2 and mesh.texture.std() > 20
+    np.testing.assert_array_equal(mesh.texture, load_mesh_file(tmp_path / "uv.ply", texture="procedural").texture)
 
 
 def test_gltf_box_stands_upright_at_elevation_zero(tmp_path):
