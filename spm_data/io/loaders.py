@@ -10,19 +10,24 @@ Process safety: an h5py handle must not cross a fork (pytorch/pytorch#11929).
 The dataset opens no handle in ``__init__``; each process opens a shard on its
 first read of it and keeps it, keyed by the process id, so a forked worker
 (DataLoader's default on Linux) reopens instead of using its parent's handle,
-and pickling (spawn workers) carries no handle at all.
+and pickling (spawn workers) carries no handle at all. A process keeps at most
+``max_open`` shards open (the least recently read is closed first), so a folder
+of thousands of shards never runs into the open-file limit.
 """
 
 from __future__ import annotations
 
 import operator
 import os
+from collections import OrderedDict
 
 import numpy as np
 
 from spm_data.errors import ShardError
 from spm_data.io.folders import open_folder
 from spm_data.io.shards import FIELDS, OPTIONAL_FIELDS, ShardReader
+
+MAX_OPEN = 64  # shards a process keeps open: well under the usual open-file limit (1024)
 
 
 class ShardDataset:
@@ -44,12 +49,16 @@ class ShardDataset:
     fields: names from FIELDS / OPTIONAL_FIELDS; default every field all its shards
     have. transform: ``item -> item``, applied after reading (in the worker).
     allow_partial: read the complete shards of an unfinished folder (warnings).
+    max_open: at most this many shards open at once in a process (default MAX_OPEN).
 
     Process-safe as described in the module docstring; ``close()`` (or ``with``)
     closes this process's handles, and garbage collection does too.
     """
 
-    def __init__(self, folder, fields=None, transform=None, allow_partial: bool = False):
+    def __init__(self, folder, fields=None, transform=None, allow_partial: bool = False, max_open: int = 0):
+        self.max_open = int(max_open) or MAX_OPEN
+        if self.max_open < 1:
+            raise ShardError(f"ShardDataset max_open: expected an integer >= 1 (0 for {MAX_OPEN}), got {max_open}")
         self.shards = open_folder(folder, allow_partial=allow_partial).shards
         self.transform = transform
         counts, present = [], []
@@ -60,7 +69,7 @@ class ShardDataset:
         self.frames = np.asarray(counts, dtype=np.int64)
         self._ends = np.cumsum(self.frames)
         self.fields = _resolve_fields(fields, self.shards, present)
-        self._readers: dict[int, ShardReader] = {}
+        self._readers: OrderedDict[int, ShardReader] = OrderedDict()
         self._pid = os.getpid()
 
     def __len__(self) -> int:
@@ -86,15 +95,19 @@ class ShardDataset:
         """This process's open reader of a shard, opened on first use. After a fork
         the handles inherited from the parent are dropped, never read through."""
         if self._pid != os.getpid():
-            self._readers, self._pid = {}, os.getpid()
+            self._readers, self._pid = OrderedDict(), os.getpid()
         reader = self._readers.get(shard)
-        if reader is None:
-            reader = self._readers[shard] = ShardReader(self.shards[shard])
+        if reader is not None:
+            self._readers.move_to_end(shard)
+            return reader
+        while len(self._readers) >= self.max_open:   # the least recently read first
+            self._readers.popitem(last=False)[1].close()
+        reader = self._readers[shard] = ShardReader(self.shards[shard])
         return reader
 
     def close(self) -> None:
         """Close the shards this process opened (a later read opens them again)."""
-        readers, self._readers = self._readers, {}
+        readers, self._readers = self._readers, OrderedDict()
         if self._pid == os.getpid():
             for reader in readers.values():
                 reader.close()
@@ -115,7 +128,7 @@ class ShardDataset:
     def __getstate__(self) -> dict:
         """Pickled without open handles (spawn workers open their own)."""
         state = dict(self.__dict__)
-        state["_readers"], state["_pid"] = {}, None
+        state["_readers"], state["_pid"] = OrderedDict(), None
         return state
 
     def __repr__(self) -> str:

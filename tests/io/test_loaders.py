@@ -141,6 +141,36 @@ def test_close_closes_this_process_handles(folder):
     assert open_files() == before
 
 
+def test_open_shards_are_bounded_least_recently_read_closed_first(folder):
+    before = open_files()
+    with ShardDataset(folder, max_open=2) as ds:
+        want = direct_read(folder)
+        for i in list(range(len(ds))) + list(range(len(ds)))[::-1]:
+            assert_item_equal(ds[i], want[i])
+            assert open_files() <= before + 2
+        ds[0], ds[3], ds[0], ds[7]            # shards 0, 2, 0, 3: shard 2 was read least recently
+        assert list(ds._readers) == [0, 3]
+    with pytest.raises(ShardError, match="max_open: expected an integer >= 1"):
+        ShardDataset(folder, max_open=-1)
+
+
+def test_running_out_of_file_descriptors_says_so(folder):
+    import resource
+
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    ds = ShardDataset(folder)
+    lowest_free = os.dup(0)
+    os.close(lowest_free)
+    try:   # no descriptor left: the first read cannot open its shard
+        resource.setrlimit(resource.RLIMIT_NOFILE, (lowest_free, hard))
+        with pytest.raises(ShardError, match="cannot open, too many open files in this process .the limit is ulimit -n"):
+            ds[0]
+    finally:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
+        ds.close()
+    assert_item_equal(ds[0], direct_read(folder)[0])   # and nothing else went wrong
+
+
 # Pool workers: top-level functions, so spawn can import them.
 _DATASET = None
 

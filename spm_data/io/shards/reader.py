@@ -8,6 +8,7 @@ ShardError naming the shard and the field or attribute.
 
 from __future__ import annotations
 
+import errno
 import os
 from pathlib import Path
 
@@ -26,7 +27,16 @@ def open_h5(path):
     try:
         return h5py.File(path, "r")
     except OSError as exc:
+        if exc.errno in (errno.EMFILE, errno.ENFILE) or "Too many open files" in str(exc):
+            raise ShardError(f"{path}: cannot open, too many open files in this process (the limit is "
+                             f"ulimit -n, {_open_file_limit()}); close readers or raise the limit") from None
         raise ShardError(f"{path}: not a readable HDF5 shard ({exc})") from None
+
+
+def _open_file_limit() -> str:
+    import resource
+
+    return str(resource.getrlimit(resource.RLIMIT_NOFILE)[0])
 
 
 # What h5py raises for a damaged file besides OSError (a bad object header is a KeyError).
