@@ -14,15 +14,17 @@ otherwise) below 10% of the object's diameter; BOP's average recalls AR_MSSD
 pixels times width / 640).
 
 Models: ``POINTS`` points sampled uniformly (seeded) on the mesh surface, the
-diameter as the largest distance between two mesh vertices. Symmetries are
-found from the geometry alone (BOP declares them for shape too): every rotation
-of a candidate set (the 24 rotations mapping the axes onto the axes, and
-rotations about z in 10° steps) that maps the sampled points onto the surface
-within ``SYMMETRY_TOLERANCE`` of the diameter. A continuous symmetry is thus
-sampled every 10° (BOP samples it finer, so that no point moves more than 1% of
-the diameter): an estimate between two samples keeps an MSSD of up to about 4%
-of the diameter that BOP would forgive. A frame whose mesh cannot be
-rebuilt (imported data) gets NaN for all four.
+diameter as the largest distance between two mesh vertices. Symmetries are the
+ones the spec or the generator declares (spm_data/core/symmetries.py), the same
+ones the BOP export writes to models_info.json; a mesh file without declared
+symmetries has none (as in BOP). They are combined as bop_toolkit's
+get_symmetry_transformations combines them: every discrete one (the identity
+included) after every step of a continuous one, the continuous axis sampled in
+ceil(π / 0.01) = 315 steps, so no point moves more than 1% of the diameter between
+two steps; a ball turned over and turned about its axis is thus its own symmetry.
+Two or more continuous axes make every rotation a symmetry (a sphere): MSSD is then
+the distance between the centres. A frame whose mesh cannot be rebuilt (imported
+data) gets NaN for all four.
 """
 
 from __future__ import annotations
@@ -32,9 +34,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from spm_data.core.meshes import diameter
+from spm_data.core.symmetries import NO_SYMMETRY
 
 POINTS = 256
-SYMMETRY_TOLERANCE = 0.01
+CONTINUOUS_STEP = 0.01   # bop_toolkit's max_sym_disc_step: a fraction of the diameter per step
+CHUNK = 1 << 21          # points x symmetries x frames held at once (memory bound)
 ADD_THRESHOLD = 0.1
 MSSD_THRESHOLDS = np.arange(0.05, 0.51, 0.05)
 MSPD_THRESHOLDS = np.arange(5.0, 51.0, 5.0)
@@ -44,61 +48,46 @@ SURFACE_ERRORS = ("add", "adds", "mssd", "mspd", "diameter", "symmetric", "mspd_
 @dataclass(frozen=True)
 class ObjectModel:
     """points (P, 3) float64 metres, object frame; diameter metres;
-    symmetries (S, 3, 3) float64 rotations, the identity first."""
+    symmetries (S, 3, 3) float64 rotations, the identity first (symmetry_transforms);
+    any_rotation: every rotation is a symmetry (a sphere; ``symmetries`` is then the identity)."""
 
     points: np.ndarray
     diameter: float
     symmetries: np.ndarray
+    any_rotation: bool = False
+
+    @property
+    def symmetric(self) -> bool:
+        return self.any_rotation or len(self.symmetries) > 1
 
 
-def _axis_rotations() -> np.ndarray:
-    """The 24 proper rotations that permute the coordinate axes (with signs)."""
-    import itertools
+def symmetry_transforms(symmetries) -> np.ndarray | None:
+    """(S, 3, 3) float64 rotations for MSSD and MSPD, the identity first, from a
+    spm_data.core.symmetries.Symmetries (module docstring); None when every rotation is
+    one (two or more continuous axes)."""
+    group = [np.eye(3), *[np.asarray(D, np.float64) for D in symmetries.discrete]]
+    axes = [np.asarray(a, np.float64) for a in symmetries.continuous]
+    if len(axes) >= 2:
+        return None
+    if not axes:
+        return np.array(group)
+    from scipy.spatial.transform import Rotation
 
-    out = []
-    for perm in itertools.permutations(range(3)):
-        for signs in itertools.product((1, -1), repeat=3):
-            M = np.zeros((3, 3))
-            M[range(3), perm] = signs
-            if np.linalg.det(M) > 0:
-                out.append(M)
-    return np.array(out)
-
-
-def _z_rotations(step_deg: float = 10.0) -> np.ndarray:
-    a = np.radians(np.arange(step_deg, 360.0, step_deg))
-    c, s = np.cos(a), np.sin(a)
-    R = np.zeros((len(a), 3, 3))
-    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, 1.0
-    return R
+    steps = int(np.ceil(np.pi / CONTINUOUS_STEP))
+    turns = Rotation.from_rotvec(np.outer(np.arange(steps) * 2.0 * np.pi / steps, axes[0])).as_matrix()
+    return np.einsum("kij,gjl->kgil", turns, np.array(group)).reshape(-1, 3, 3)
 
 
-def object_model(mesh, seed: int = 0) -> ObjectModel:
-    """A trimesh.Trimesh (object frame, metres) -> its ObjectModel."""
+def object_model(mesh, symmetries=NO_SYMMETRY, seed: int = 0) -> ObjectModel:
+    """A trimesh.Trimesh (object frame, metres) and its declared Symmetries -> its ObjectModel."""
     import trimesh
-    from scipy.spatial import cKDTree
 
     size = diameter(mesh.vertices)
     points, _ = trimesh.sample.sample_surface(mesh, POINTS, seed=seed)
-    points = np.asarray(points, dtype=np.float64)
-    # The surface, densely: samples with their face normals; a point's distance to
-    # it is its distance to the tangent plane of the nearest sample.
-    dense, faces = trimesh.sample.sample_surface(mesh, 50 * POINTS, seed=seed + 1)
-    normals = np.asarray(mesh.face_normals)[faces]
-    tree = cKDTree(dense)
-    found = [np.eye(3)]
-    for S in np.concatenate([_axis_rotations(), _z_rotations()]):
-        if any(np.allclose(S, F) for F in found):
-            continue
-        moved = points @ S.T
-        gap, nearest = tree.query(moved, k=8)
-        plane = np.abs(np.einsum("nki,nki->nk", moved[:, None] - dense[nearest], normals[nearest]))
-        # Near an edge the nearest sample may lie on the other face: take the best of 8,
-        # but never a plane whose sample is itself farther than the tolerance allows.
-        distance = np.where(gap <= 5 * SYMMETRY_TOLERANCE * size, plane, np.inf).min(axis=1)
-        if distance.max() <= SYMMETRY_TOLERANCE * size:
-            found.append(S)
-    return ObjectModel(points=points, diameter=size, symmetries=np.array(found))
+    transforms = symmetry_transforms(symmetries)
+    return ObjectModel(points=np.asarray(points, dtype=np.float64), diameter=size,
+                       symmetries=np.eye(3)[None] if transforms is None else transforms,
+                       any_rotation=transforms is None)
 
 
 def _project(K, cam):
@@ -127,13 +116,29 @@ def surface_errors(pred_R, pred_t, true_R, true_t, K, model: ObjectModel, width:
     # ADD-S in the estimated pose's object frame: the nearest estimated point of each true point.
     local = np.einsum("nji,npj->npi", pred_R[ok], gt - pred_t[ok][:, None])
     out["adds"][ok] = cKDTree(x).query(local.reshape(-1, 3))[0].reshape(local.shape[:2]).mean(axis=1)
-    sym_x = np.einsum("sij,pj->spi", model.symmetries, x)                             # (S, P, 3)
-    gt_sym = np.einsum("nij,spj->nspi", true_R[ok], sym_x) + true_t[ok][:, None, None]
-    out["mssd"][ok] = np.linalg.norm(est[:, None] - gt_sym, axis=3).max(axis=2).min(axis=1)
     Kok = np.asarray(K, dtype=np.float64)[ok]
-    pix = np.linalg.norm(_project(Kok, est)[:, None] - _project(Kok, gt_sym), axis=3)
-    out["mspd"][ok] = pix.max(axis=2).min(axis=1)
+    out["mssd"][ok], out["mspd"][ok] = _symmetric_errors(est, true_R[ok], true_t[ok], pred_R[ok], Kok, model)
     return out
+
+
+def _symmetric_errors(est, true_R, true_t, pred_R, K, model: ObjectModel):
+    """MSSD (metres) and MSPD (pixels) of m frames: est (m, P, 3) the estimated points in the
+    camera, poses and K (m, ...); the minimum over the model's symmetries, in chunks of frames."""
+    x = model.points
+    if model.any_rotation:   # the truth turned to the estimate's rotation: only the centres differ
+        sym = np.einsum("nji,njk->nik", true_R, pred_R)[:, None]                      # (m, 1, 3, 3)
+    else:
+        sym = np.broadcast_to(model.symmetries, (len(est),) + model.symmetries.shape)  # (m, S, 3, 3)
+    mssd, mspd = np.empty(len(est)), np.empty(len(est))
+    step = max(1, CHUNK // (sym.shape[1] * len(x)))
+    for lo in range(0, len(est), step):
+        sl = slice(lo, lo + step)
+        sym_x = np.einsum("nsij,pj->nspi", sym[sl], x)
+        gt_sym = np.einsum("nij,nspj->nspi", true_R[sl], sym_x) + true_t[sl][:, None, None]
+        mssd[sl] = np.linalg.norm(est[sl][:, None] - gt_sym, axis=3).max(axis=2).min(axis=1)
+        pix = np.linalg.norm(_project(K[sl], est[sl])[:, None] - _project(K[sl], gt_sym), axis=3)
+        mspd[sl] = pix.max(axis=2).min(axis=1)
+    return mssd, mspd
 
 
 def _recall(errors, thresholds) -> float | None:
@@ -186,7 +191,7 @@ def _model(key) -> ObjectModel:
         from spm_data.core.instances import shard_mesh
 
         mesh = shard_mesh(dict(key[0]), key[1])
-        _MODELS[key] = object_model(mesh.to_trimesh())
+        _MODELS[key] = object_model(mesh.to_trimesh(), mesh.symmetries)
     return _MODELS[key]
 
 
@@ -219,7 +224,7 @@ def frame_surface_errors(pred: np.ndarray, true: np.ndarray, K: np.ndarray, widt
             for k, v in errors.items():
                 out[k][sel] = v
             out["diameter"][sel] = model.diameter
-            out["symmetric"][sel] = float(len(model.symmetries) > 1)
+            out["symmetric"][sel] = float(model.symmetric)
             out["mspd_scale"][sel] = width[sel] / 640.0
     return out
 
