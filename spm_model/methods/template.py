@@ -111,10 +111,13 @@ class TemplatePose(PoseEstimator):
         """(m, 7) query geometry -> (m,) metres: median distance of the training frames of closest apparent size."""
         size_t = np.log(self.geometry_[:, 2] / self.geometry_[:, 3])
         order = np.argsort(size_t)
-        k = min(self.size_neighbours, len(order))
+        n = len(order)
+        k = min(self.size_neighbours, n)
         pos = np.searchsorted(size_t[order], np.log(geometry[:, 2] / geometry[:, 3]))
-        # The k nearest on a line lie in the 2k-window around the insertion point.
-        window = np.clip(pos[:, None] + np.arange(-k, k)[None], 0, len(order) - 1)
+        # The k nearest on a line lie in the 2k-window around the insertion point; at either end
+        # of the sizes the window slides inwards (never clipped, which would repeat one frame).
+        start = np.clip(pos - k, 0, max(n - 2 * k, 0))
+        window = start[:, None] + np.arange(min(2 * k, n))[None]
         gap = np.abs(size_t[order][window] - np.log(geometry[:, 2] / geometry[:, 3])[:, None])
         nearest = np.take_along_axis(window, np.argsort(gap, axis=1, kind="stable")[:, :k], axis=1)
         return np.median(self.distance_[order][nearest], axis=1)

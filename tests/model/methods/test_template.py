@@ -64,3 +64,16 @@ def test_descriptor_of_an_empty_mask_is_nan_and_gives_no_estimate(frames):
     assert np.isnan(model.predict([empty])).all()
     out = model.predict_image(f[3]["rgb"], f[3]["mask"])
     assert out["pose"].shape == (6,) and np.isfinite(out["pose"]).all()
+
+
+def test_the_size_window_never_reuses_a_frame_at_the_ends_of_the_sizes():
+    model = TemplatePose(size_neighbours=3)
+    sizes = np.array([10.0, 11, 12, 13, 14, 15, 16, 17])           # apparent sizes, focal 1
+    model.geometry_ = np.column_stack([np.zeros(8), np.zeros(8), sizes, np.ones(8), np.zeros((8, 3))])
+    model.distance_ = np.array([0.90, 0.80, 0.70, 0.65, 0.60, 0.55, 0.50, 0.45])
+    query = np.column_stack([np.zeros(3), np.zeros(3), [5.0, 13.4, 30.0], np.ones(3), np.zeros((3, 3))])
+    # Smaller than every frame: the 3 smallest (0.9, 0.8, 0.7), not the smallest three times;
+    # in the middle: 13, 14, 12; larger than every frame: the 3 largest.
+    np.testing.assert_allclose(model._distance(query), [0.80, 0.65, 0.50])
+    model.size_neighbours = 15                                      # more neighbours than frames: all of them
+    np.testing.assert_allclose(model._distance(query), np.median(model.distance_))
