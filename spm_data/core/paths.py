@@ -18,6 +18,7 @@ themselves (the paths' points per index) are in walks.py.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -71,6 +72,20 @@ def _check_distances(grid: CameraGrid) -> None:
         raise SpecError("camera.distances: empty list; give at least one distance in metres")
     if np.any(~np.isfinite(distances)) or np.any(distances <= 0):
         raise SpecError(f"camera.distances: every distance must be a finite number > 0 metres, got {list(grid.distances)}")
+    if grid.sampler == "grid" and len(set(distances.tolist())) < len(distances):
+        raise SpecError(f"camera.distances: {list(grid.distances)} lists a distance twice, so views would repeat; "
+                        "list each distance once")
+
+
+def _check_full_turn(angles: AngleRange, key: str) -> None:
+    """SpecError when an angle grid reaches a full turn: its first and last values (or more) are the
+    same view, rendered twice (azimuth 0..360 repeats 0)."""
+    n = angles.count(key)
+    if n > 1 and angles.step * (n - 1) >= 360.0 - _EPS:
+        last = angles.start + angles.step * math.floor((360.0 - _EPS) / angles.step)
+        raise SpecError(f"{key}: {angles.start:g}..{angles.stop:g} reaches a full turn, so "
+                        f"{angles.start:g} and {angles.start + 360:g} degrees are the same view, rendered twice; "
+                        f"stop at {last:g}")
 
 
 def sampled_path(grid: CameraGrid, seed: int = 0) -> SampledPath:
@@ -99,9 +114,9 @@ def camera_path(grid: CameraGrid, seed: int = 0) -> CameraPath | SampledPath:
         if getattr(grid, key) != getattr(defaults, key):
             raise SpecError(f"camera.{key}: only for sampler = \"sphere\" or \"so3\" (this spec walks the grid); "
                             "set camera.sampler or remove the key")
-    grid.azimuth.count("camera.azimuth")
+    for key in ("azimuth", "roll"):
+        _check_full_turn(getattr(grid, key), f"camera.{key}")
     n_el = grid.elevation.count("camera.elevation")
-    grid.roll.count("camera.roll")
     # The values increase, so the largest |elevation| is at an end.
     lo, hi = grid.elevation.value_at(0), grid.elevation.value_at(n_el - 1)
     if max(abs(lo), abs(hi)) > 90 + _EPS:

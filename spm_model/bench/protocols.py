@@ -3,8 +3,9 @@
 
 - ``loco`` (the paper's): for each class, train on the other classes, test on it.
 - ``views``: new views of seen objects; a seeded 20% of the (instance, view)
-  groups is held out per run. Occluded copies of a view share its group, so a
-  view is never on both sides of a split.
+  groups is held out per run. Occluded copies of a view share its group, and so
+  do frames of an instance with the same pose (a grid that repeats a view), so a
+  view is never on both sides of a split (view_groups).
 - ``instances``: category-level pose; fold f tests the f-th instance of every
   class (in a seeded order per run) and trains on the others, so every frame
   is tested once per run and no instance is on both sides of a split.
@@ -56,6 +57,21 @@ def _instances_splits(table: FeatureTable, seed: int):
     return out
 
 
+def view_groups(table: FeatureTable) -> np.ndarray:
+    """(n,) str: the view of each frame, "instance#path_index", where frames of an instance with
+    the same pose (rotation and translation to 1e-6) share the smallest path index among them:
+    occluded copies of a view, and a grid that repeats a view (azimuth 0 and 360), are one view."""
+    from spm_data.core.poses import label_to_pose
+
+    R, t = label_to_pose(np.asarray(table.pose, dtype=np.float64))
+    pose = np.round(np.concatenate([R.reshape(len(R), 9), t], axis=1), 6) + 0.0   # + 0.0: no -0.0
+    keys = np.char.add(np.char.add(table.instance.astype(str), "#"), [",".join(map(repr, p)) for p in pose.tolist()])
+    _, same_pose = np.unique(keys, return_inverse=True)
+    first = np.full(same_pose.max() + 1 if len(keys) else 0, np.iinfo(np.int64).max)
+    np.minimum.at(first, same_pose, np.asarray(table.path_index, dtype=np.int64))
+    return np.char.add(np.char.add(table.instance.astype(str), "#"), first[same_pose].astype(str))
+
+
 def splits(table: FeatureTable, protocol: str, seed: int, held_out: float = 0.2):
     """[(what is tested, train index, test index)]: per class for loco, per fold
     for instances, one split for views and offgrid (offgrid: the table's ``test`` column)."""
@@ -66,8 +82,7 @@ def splits(table: FeatureTable, protocol: str, seed: int, held_out: float = 0.2)
                              "add shards of other classes or use --protocol views")
         return [(c, np.flatnonzero(table.class_name != c), np.flatnonzero(table.class_name == c)) for c in classes]
     if protocol == "views":
-        groups = np.char.add(np.char.add(table.instance, "#"), table.path_index.astype(str))
-        unique, inverse = np.unique(groups, return_inverse=True)
+        unique, inverse = np.unique(view_groups(table), return_inverse=True)
         test_groups = np.random.default_rng(seed).random(len(unique)) < held_out
         test = test_groups[inverse]
         return [("all", np.flatnonzero(~test), np.flatnonzero(test))]

@@ -69,3 +69,17 @@ def test_poses_follow_the_path():
 def test_bad_sampler_keys_name_the_key(keys, message):
     with pytest.raises(SpecError, match=message.replace("[", r"\[").replace("]", r"\]")):
         camera_path(CameraGrid(**keys))
+
+
+@pytest.mark.parametrize("grid, message", [
+    (CameraGrid(azimuth=AngleRange(0, 360, 5)), "camera.azimuth: 0..360 reaches a full turn, so 0 and 360 degrees "
+                                                "are the same view, rendered twice; stop at 355"),
+    (CameraGrid(azimuth=AngleRange(-180, 180, 30)), "camera.azimuth: -180..180 reaches a full turn.*stop at 150"),
+    (CameraGrid(azimuth=AngleRange(0, 720, 90)), "camera.azimuth: 0..720 reaches a full turn"),
+    (CameraGrid(roll=AngleRange(-180, 180, 45)), "camera.roll: -180..180 reaches a full turn.*stop at 135"),
+    (CameraGrid(distances=(0.6, 0.7, 0.6)), r"camera.distances: \[0.6, 0.7, 0.6\] lists a distance twice"),
+])
+def test_a_grid_that_repeats_a_view_is_refused(grid, message):
+    with pytest.raises(SpecError, match=message):
+        camera_path(grid)
+    assert len(camera_path(CameraGrid(azimuth=AngleRange(0, 355, 5)))) == 72 * 13   # the default walk: no repeat

@@ -46,8 +46,9 @@ def test_splits_never_share_a_view():
     from spm_model.bench.feature_cache import FeatureTable
 
     n = 40
+    poses = np.column_stack([np.zeros((n, 2)), np.tile(np.arange(10) * 5.0, 4), np.tile([[0, 0, 0.6]], (n, 1))])
     t = FeatureTable({"class_name": np.array(["a"] * 20 + ["b"] * 20), "instance": np.array(["i"] * 20 + ["j"] * 20),
-                      "path_index": np.tile(np.arange(10), 4)})            # each view twice (an occluded copy)
+                      "path_index": np.tile(np.arange(10), 4), "pose": poses})   # each view twice (an occluded copy)
     (_, train, test), = splits(t, "views", seed=3)
     key = lambda i: (t.instance[i], t.path_index[i])  # noqa: E731
     assert len(train) + len(test) == n and not {key(i) for i in train} & {key(i) for i in test}
@@ -55,6 +56,25 @@ def test_splits_never_share_a_view():
     assert [c for c, _, _ in loco] == ["a", "b"] and set(t.class_name[loco[0][1]]) == {"b"}
     with pytest.raises(ModelError, match="at least 2 classes"):
         splits(t.subset(t.class_name == "a"), "loco", seed=0)
+
+
+def test_identical_poses_of_an_instance_are_one_view():
+    from spm_data.core.poses import camera_pose, pose_to_label
+
+    # A grid with azimuth 0..360 in 30-degree steps: views 0 and 12 are the same pose.
+    labels = np.array([pose_to_label(*(x[None] for x in camera_pose(az, 10.0, 0.0, 0.6)))[0]
+                       for az in range(0, 361, 30)])
+    t = FeatureTable({"class_name": np.array(["a"] * 13), "instance": np.array(["i"] * 13),
+                      "path_index": np.arange(13), "pose": labels})
+    apart = 0
+    for seed in range(60):
+        (_, train, test), = splits(t, "views", seed=seed, held_out=0.3)
+        apart += (0 in test) != (12 in test)
+    assert apart == 0
+    from spm_model.bench.protocols import view_groups
+
+    groups = view_groups(t)
+    assert groups[12] == groups[0] == "i#0" and len(set(groups)) == 12
 
 
 PLUGIN = '''
