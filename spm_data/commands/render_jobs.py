@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from spm_data import __version__
-from spm_data.errors import SpecError
+from spm_data.errors import RenderError, SpecError
 from spm_data.core.instances import instance_count, load_instance, mesh_attrs, mesh_record
 from spm_data.core.paths import camera_path
 from spm_data.core.poses import pose_to_label
@@ -243,5 +243,11 @@ def render_dataset(specs: list[RenderSpec], out_dir, *, limit=None, progress=Non
         raise SpecError("two specs share a class name; each class needs its own name")
     in_process = all(j.spec.render.renderer == "pyrender" for j in jobs)
     executor = executor or LocalExecutor(workers=1, retries=1, recycle_after=RECYCLE_AFTER)
-    return run_shard_jobs(render_shard, jobs, out_dir, executor=executor, in_process=in_process,
-                          progress=progress, verb="rendered")
+    summary = run_shard_jobs(render_shard, jobs, out_dir, executor=executor, in_process=in_process,
+                             progress=progress, verb="rendered")
+    errors = {error for _, error in summary.failed}
+    if len(errors) == 1 and not (summary.done or summary.skipped or summary.interrupted):
+        # Nothing rendered, and every shard says the same (a GPU that is not there, a broken
+        # mesh): that is the run's one error, not a summary of a folder that holds nothing.
+        raise RenderError(errors.pop())
+    return summary

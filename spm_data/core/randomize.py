@@ -75,14 +75,16 @@ class FrameDraws:
     def labels(self, max_lights: int) -> dict:
         """The shard's per-frame randomisation fields: lights (max_lights, 7) float32
         (direction 3, colour 3, strength; zero rows for lights not drawn), material
-        (5,) float32 (base colour factor 3, roughness, metallic), ambient () float32."""
+        (5,) float32 (base colour factor 3, roughness, metallic), ambient () float32,
+        background: the frame's background kind (str)."""
         lights = np.zeros((max_lights, 7), np.float32)
         n = len(self.light_strengths)
         lights[:n, :3] = self.light_directions()
         lights[:n, 3:6] = self.light_colors
         lights[:n, 6] = self.light_strengths
         material = np.array([*self.base_color, self.roughness, self.metallic], np.float32)
-        return {"lights": lights, "material": material, "ambient": np.float32(self.ambient)}
+        return {"lights": lights, "material": material, "ambient": np.float32(self.ambient),
+                "background": str(self.background)}
 
 
 def cone_rotations(tilts, azimuths) -> np.ndarray:

@@ -53,6 +53,21 @@ class Renderer(abc.ABC):
         self.outputs = spec.outputs
         self.max_lights = max_lights(spec)
 
+    def lighting_settings(self) -> dict:
+        """The spec's lighting as every frame has it: ``ambient``, ``lights`` (count) and
+        ``strength``, each the fixed value, or its ``[low, high]`` range where ``[randomize]``
+        draws it per frame; with ``[randomize]``, ``randomized``: the keys drawn per frame."""
+        li, rz = self.spec.lighting, self.spec.randomize
+        out = {"ambient": li.ambient, "lights": li.lights, "strength": li.strength}
+        if not rz.enabled:
+            return out
+        for key, drawn in (("ambient", rz.ambient), ("lights", rz.lights), ("strength", rz.light_strength)):
+            if drawn:
+                out[key] = list(drawn)
+        default = type(rz)()
+        out["randomized"] = sorted(k for k in vars(default) if getattr(rz, k) != getattr(default, k))
+        return out
+
     @abc.abstractmethod
     def version(self) -> str:
         """The backend and its version, e.g. ``pyrender 0.1.45`` (recorded in every shard)."""

@@ -203,8 +203,7 @@ class BlenderRenderer(Renderer):
     def settings(self) -> dict:
         s = self.spec.render.blender
         out = {"engine": self.engine, "film_transparent": s.film_transparent, "threads": s.threads,
-               "ambient": self.spec.lighting.ambient, "lights": self.spec.lighting.lights,
-               "strength": self.spec.lighting.strength}
+               **self.lighting_settings()}
         if self.engine == "cycles":
             out.update(samples=s.samples, denoise=s.denoise, filter_width=0.01, device=self.device)
         return out

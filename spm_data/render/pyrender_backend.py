@@ -112,8 +112,7 @@ class PyrenderRenderer(Renderer):
         return f"pyrender {self._pr.__version__ if hasattr(self._pr, '__version__') else ''}".strip()
 
     def settings(self) -> dict:
-        return {"ambient": self.lighting.ambient, "lights": self.lighting.lights,
-                "strength": self.lighting.strength}
+        return self.lighting_settings()
 
     def _pyrender_meshes(self, mesh):
         """(lit, normals) pyrender meshes of ``mesh``: the textured one, and, when the spec

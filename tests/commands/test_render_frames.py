@@ -111,6 +111,24 @@ def test_the_shard_records_the_draws_and_the_distractors(cluttered):
     assert np.all(d["distractor_t"][:, :, 2] > 0) and np.all(d["distractor_size"] > 0)
 
 
+def test_the_shard_says_what_was_randomised_and_each_frame_s_background(cluttered):
+    import json
+
+    from spm_data.core.randomize import frame_draws
+    from spm_data.core.specs import parse_spec
+
+    path = list_shards(cluttered)[0]
+    d, attrs = read_shard(path), read_attrs(path)
+    settings = json.loads(attrs["renderer_settings"])
+    # The drawn ones as their ranges (the spec's fixed 3 lights at 1.6 lit no frame); ambient stays fixed.
+    assert settings["lights"] == [1, 3] and settings["strength"] == [1.0, 2.0] and settings["ambient"] == 0.3
+    assert settings["randomized"] == ["backgrounds", "base_color", "focal", "light_strength", "lights",
+                                      "principal_point", "roughness"]
+    spec = parse_spec(attrs["spec"])
+    want = [frame_draws(spec, int(i), int(p)).background for i, p in zip(d["instance_id"], d["path_index"])]
+    assert [str(b) for b in d["background"]] == want and set(want) == {"gradient", "noise"}
+
+
 def test_two_workers_and_a_rerun_give_the_same_shards(cluttered_specs, cluttered, tmp_path):
     two = render_dataset(cluttered_specs, tmp_path / "two", limit=16, executor=LocalExecutor(workers=2))
     assert two.failed == []

@@ -52,7 +52,8 @@ def test_a_run_that_makes_no_shard_leaves_no_manifest_and_no_folder(tmp_path):
     out = tmp_path / "out"
     r = CliRunner().invoke(data_cli, ["render", "--spec", str(tmp_path / "specs" / "cup.toml"), "--out", str(out)])
     assert r.exit_code == 1 and "Traceback" not in r.output
-    assert "failed cup-00000.h5" in r.output
+    # Every shard failed alike and none was made: that one error, not a summary of an empty folder.
+    assert r.output.startswith("error: ") and r.output.count("\n") == 1 and "broken.obj" in r.output
     assert not out.exists()
 
 

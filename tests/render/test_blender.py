@@ -196,6 +196,19 @@ def test_device_auto_falls_back_to_the_cpu_and_gpu_without_one_is_one_line(tmp_p
         renderer.close()
     with pytest.raises(RenderError, match=r'device = "gpu": Blender finds no GPU here \(tried OPTIX, CUDA'):
         make_renderer(parse_spec(base.format("gpu")))
+    # A run of several shards: one error line, no summary of a folder that was never made.
+    from click.testing import CliRunner
+
+    from cli import data_cli
+
+    (tmp_path / "gpu.toml").write_text(base.format("gpu").replace("samples = 1", "samples = 1\n") +
+                                       "[camera]\nazimuth = [0, 15, 5]\nelevation = 0\n")
+    (tmp_path / "gpu.toml").write_text((tmp_path / "gpu.toml").read_text().replace(
+        '[render]\nrenderer = "blender"\n', '[render]\nrenderer = "blender"\nframes_per_shard = 2\n'))
+    r = CliRunner().invoke(data_cli, ["render", "--spec", str(tmp_path / "gpu.toml"), "--out", str(tmp_path / "out")])
+    assert r.exit_code == 1 and r.output.count("\n") == 1, r.output
+    assert r.output.startswith('error: render.blender.device = "gpu": Blender finds no GPU here')
+    assert not (tmp_path / "out").exists()
 
 
 def test_blender_and_pyrender_agree_on_a_randomised_cluttered_spec(tmp_path):

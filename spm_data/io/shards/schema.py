@@ -60,6 +60,7 @@ OPTIONAL_FIELDS: dict[str, tuple[str, tuple]] = {
     "lights": ("float32", ("L", 7)),         # direction (camera frame) 3, colour 3, strength; zero rows unused
     "material": ("float32", (5,)),           # base-colour factor 3, roughness, metallic
     "ambient": ("float32", ()),              # 0..1 of white
+    "background": ("str", ()),               # the frame's background kind (randomize.backgrounds or the spec's)
 }
 
 
