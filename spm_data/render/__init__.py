@@ -63,7 +63,7 @@ class Renderer(abc.ABC):
             return out
         for key, drawn in (("ambient", rz.ambient), ("lights", rz.lights), ("strength", rz.light_strength)):
             if drawn:
-                out[key] = list(drawn)
+                out[key] = [int(v) for v in drawn] if key == "lights" else list(drawn)
         default = type(rz)()
         out["randomized"] = sorted(k for k in vars(default) if getattr(rz, k) != getattr(default, k))
         return out

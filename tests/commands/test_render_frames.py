@@ -121,7 +121,8 @@ def test_the_shard_says_what_was_randomised_and_each_frame_s_background(cluttere
     d, attrs = read_shard(path), read_attrs(path)
     settings = json.loads(attrs["renderer_settings"])
     # The drawn ones as their ranges (the spec's fixed 3 lights at 1.6 lit no frame); ambient stays fixed.
-    assert settings["lights"] == [1, 3] and settings["strength"] == [1.0, 2.0] and settings["ambient"] == 0.3
+    assert settings["lights"] == [1, 3] and type(settings["lights"][0]) is int
+    assert settings["strength"] == [1.0, 2.0] and settings["ambient"] == 0.3
     assert settings["randomized"] == ["backgrounds", "base_color", "focal", "light_strength", "lights",
                                       "principal_point", "roughness"]
     spec = parse_spec(attrs["spec"])
