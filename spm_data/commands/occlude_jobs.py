@@ -19,7 +19,7 @@ from spm_data.errors import ShardError, SpmError
 from spm_data.io.folders import open_folder
 from spm_data.core.occlusion import apply_occlusion, check_range, occlude_mask
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
-from spm_data.io.shards import manifest_entry, read_attrs, read_shard, shard_layout, verify_shard, write_shard
+from spm_data.io.shards import ShardReader, manifest_entry, verify_shard, write_shard
 
 DERIVED_FIELDS = ("visible_mask", "source_shard", "source_frame")
 
@@ -44,38 +44,41 @@ def occlusion_report(summary: RunSummary) -> str:
                            "they keep the closest coverage found"])
 
 
-def check_inputs(in_dir, out_dir, allow_partial=False) -> list[Path]:
-    """Every input shard (as the folder's manifest lists them), checked before anything is written."""
+def check_inputs(in_dir, out_dir, allow_partial=False) -> dict:
+    """Every input shard (as the folder's manifest lists them), checked before anything is
+    written: {path: its verified attributes}."""
     in_dir, out_dir = Path(in_dir), Path(out_dir)
     if not in_dir.is_dir():
         raise ShardError(f"input folder not found: {in_dir}")
     if out_dir.exists() and out_dir.resolve() == in_dir.resolve():
         raise ShardError(f"--out {out_dir} is the input folder; occlusion never modifies its input, "
                          "give another --out")
-    shards = list(open_folder(in_dir, allow_partial=allow_partial).shards)
-    for path in shards:
-        attrs = verify_shard(path)  # every checksum, before anything is written
-        try:
-            data = read_shard(path, ["mask", "occlusion_rects"])
-        except ShardError as exc:
-            raise ShardError(f"{path}: cannot occlude a shard without masks ({exc})") from None
+    shards = {}
+    for path in open_folder(in_dir, allow_partial=allow_partial).shards:
+        attrs = shards[path] = verify_shard(path)  # every checksum, before anything is written
+        with ShardReader(path) as reader:  # one open for the reads and the layout
+            try:
+                data = reader.read(["mask", "occlusion_rects"])
+            except ShardError as exc:
+                raise ShardError(f"{path}: cannot occlude a shard without masks ({exc})") from None
+            layout = reader.layout()
         if int(attrs["frames"]) and not data["mask"].any():
             raise ShardError(f"{path}: every mask is empty, so there is no object to occlude")
         if data["occlusion_rects"].any():
             raise ShardError(f"{path}: already occluded; occlude the unoccluded shards instead")
-        if "visible_mask" in shard_layout(path):
+        if "visible_mask" in layout:
             raise ShardError(f"{path}: already occluded (it has a visible_mask, e.g. from [distractors]); "
                              "occlude shards rendered without distractors")
     return shards
 
 
-def plan_occlusion(shards, out_dir, low, high, copies=1, rects=1, seed=0) -> list[OccludeJob]:
+def plan_occlusion(shards: dict, out_dir, low, high, copies=1, rects=1, seed=0) -> list[OccludeJob]:
+    """One job per (shard, copy); shards: {path: verified attributes} (check_inputs)."""
     check_range(low, high)
     if copies < 1 or rects < 1:
         raise SpmError(f"--copies and --rects must be >= 1, got {copies} and {rects}")
     jobs = []
-    for path in shards:
-        attrs = read_attrs(path)
+    for path, attrs in shards.items():
         stamp = f"{path.name}:{attrs.get('plan_key', '')}:{path.stat().st_size}"
         for k in range(copies):
             key = hashlib.sha256(json.dumps([stamp, low, high, rects, seed, k]).encode()).hexdigest()
@@ -87,8 +90,8 @@ def plan_occlusion(shards, out_dir, low, high, copies=1, rects=1, seed=0) -> lis
 
 def occlude_shard(job: OccludeJob, report=lambda n: None) -> dict:
     """Occlude every frame of one input shard; write the output shard atomically."""
-    data = read_shard(job.source, ["rgb", "mask"])
-    attrs = read_attrs(job.source)
+    with ShardReader(job.source) as reader:  # one open (each verifies the attributes and layout)
+        data, attrs, layout = reader.read(["rgb", "mask"]), reader.attrs, reader.layout()
     n = int(attrs["frames"])
     h, w = data["mask"].shape[1:]
     rgb = data["rgb"].copy()
@@ -107,7 +110,7 @@ def occlude_shard(job: OccludeJob, report=lambda n: None) -> dict:
     changed = dict(rgb=rgb, visible_mask=visible, occlusion_rects=rects, occlusion_fraction=fractions,
                    source_shard=np.asarray([Path(job.source).name] * n, dtype=object),
                    source_frame=np.arange(n, dtype=np.int64))
-    unchanged = [name for name in shard_layout(job.source) if name not in changed]
+    unchanged = [name for name in layout if name not in changed]
     out_attrs = {k: v for k, v in attrs.items() if k not in ("schema_version", "frames", "height", "width")}
     out_attrs.update(plan_key=job.plan_key, occlusion_seed=job.seed, occlusion_min=job.low,
                      occlusion_max=job.high, occlusion_rects=job.rects, occlusion_copy=job.copy,

@@ -36,26 +36,30 @@ def _summed_area(mask: np.ndarray) -> np.ndarray:
     return table
 
 
-def _best_rect_at(table, cx, cy, need, band, rng, box):
+def _best_rect_at(table, cx, cy, need, band, rng, box, size):
     """Among rectangles centred on (cx, cy), one covering ``need`` pixels of the
     table's mask: a random one covering a count in ``band`` (lo, hi), else the
-    closest to ``need``. Sizes reach
-    the object's bounding box ``box`` (x0, y0, x1, y1) and no further: beyond
-    it a rectangle covers no more of the object. Returns (x0, y0, x1, y1, covered)."""
-    h, w = table.shape[0] - 1, table.shape[1] - 1
+    closest to ``need``. Sizes reach the object's bounding box ``box`` (x0, y0,
+    x1, y1) and no further: beyond it a rectangle covers no more of the object.
+    ``table`` is the summed-area table of the mask inside ``box`` (the mask is
+    empty outside it); ``size`` the image's (H, W). Returns (x0, y0, x1, y1, covered),
+    in image pixels."""
+    h, w = size
     reach_w = max(cx - box[0], box[2] - 1 - cx)
     reach_h = max(cy - box[1], box[3] - 1 - cy)
-    half_w = np.arange(0, reach_w + 1)[:, None]  # every rectangle half-size at once
-    half_h = np.arange(0, reach_h + 1)[None, :]
-    x0 = np.clip(cx - half_w, 0, w)
-    x1 = np.clip(cx + half_w + 1, 0, w)
-    y0 = np.clip(cy - half_h, 0, h)
-    y1 = np.clip(cy + half_h + 1, 0, h)
-    covered = table[y1, x1] - table[y0, x1] - table[y1, x0] + table[y0, x0]
+    half_w = np.arange(0, reach_w + 1)  # every rectangle half-size at once
+    half_h = np.arange(0, reach_h + 1)
+    x0, x1 = np.clip(cx - half_w, 0, w), np.clip(cx + half_w + 1, 0, w)
+    y0, y1 = np.clip(cy - half_h, 0, h), np.clip(cy + half_h + 1, 0, h)
+    # The table's indices: the same rectangles clipped to the box (nothing to count outside).
+    tx0, tx1 = np.clip(x0, box[0], box[2]) - box[0], np.clip(x1, box[0], box[2]) - box[0]
+    ty0, ty1 = np.clip(y0, box[1], box[3]) - box[1], np.clip(y1, box[1], box[3]) - box[1]
+    rows0, rows1 = table[ty0], table[ty1]  # (len(half_h), box width + 1)
+    covered = (rows1[:, tx1] - rows0[:, tx1] - rows1[:, tx0] + rows0[:, tx0]).T  # (len(half_w), len(half_h))
     ok = np.flatnonzero((covered >= band[0]) & (covered <= band[1]))
     pick = rng.choice(ok) if len(ok) else int(np.argmin(np.abs(covered - need)))
     i, j = np.unravel_index(pick, covered.shape)
-    return int(x0[i, 0]), int(y0[0, j]), int(x1[i, 0]), int(y1[0, j]), int(covered[i, j])
+    return int(x0[i]), int(y0[j]), int(x1[i]), int(y1[j]), int(covered[i, j])
 
 
 def occlude_mask(mask: np.ndarray, target: float, rng: np.random.Generator, rects: int = 1,
@@ -101,8 +105,8 @@ def occlude_mask(mask: np.ndarray, target: float, rng: np.random.Generator, rect
             rows = np.flatnonzero(visible.any(axis=1))
             cols = np.flatnonzero(visible.any(axis=0))
             box = (int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1)
-            table = _summed_area(visible)
-            x0, y0, x1, y1, got = _best_rect_at(table, cx, cy, need, band, rng, box)
+            table = _summed_area(visible[box[1]:box[3], box[0]:box[2]])
+            x0, y0, x1, y1, got = _best_rect_at(table, cx, cy, need, band, rng, box, visible.shape)
             placed[k] = (x0, y0, x1, y1)
             visible[y0:y1, x0:x1] = False
             covered += got

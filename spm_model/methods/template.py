@@ -59,20 +59,31 @@ def _rays(K: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return r / np.linalg.norm(r, axis=1, keepdims=True)
 
 
+def _top_eigh(sym: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The k largest eigenpairs of a symmetric (s, s) matrix, largest first: (k,), (s, k).
+    Only those are computed (LAPACK's MRRR, dsyevr, on an index range): the same pairs as a
+    full eigendecomposition to rounding, without the s - k others nobody uses."""
+    from scipy.linalg import eigh
+
+    s = len(sym)
+    values, vectors = eigh(sym, subset_by_index=[s - k, s - 1], driver="evr", check_finite=False)
+    return values[::-1], vectors[:, ::-1]
+
+
 def _principal_axes(centred: np.ndarray, k: int) -> np.ndarray:
     """(d, k') orthonormal principal axes of ``centred`` (n, d) rows, largest variance first,
     k' = min(k, d, n). With fewer rows than dimensions the n x n Gram matrix is decomposed
     instead of the d x d scatter matrix (d = 3528: seconds, and minutes on a loaded machine,
     where a threaded eigensolver stalls), and each axis is ``centred.T @ u`` normalised;
-    axes the rows do not span (zero variance) are left out."""
+    axes the rows do not span (zero variance) are left out. Only the top k' eigenpairs are
+    computed (_top_eigh)."""
     n, d = centred.shape
+    k = min(k, n, d)
     if n >= d:
-        _, vectors = np.linalg.eigh(centred.T @ centred)
-        return vectors[:, ::-1][:, :min(k, d)].copy()
-    values, u = np.linalg.eigh(centred @ centred.T)
-    values, u = values[::-1], u[:, ::-1]
-    keep = values > values[0] * 1e-10 if values[0] > 0 else np.zeros(n, bool)
-    axes = centred.T @ u[:, keep][:, :k]
+        return _top_eigh(centred.T @ centred, k)[1].copy()
+    values, u = _top_eigh(centred @ centred.T, k)
+    keep = values > values[0] * 1e-10 if values[0] > 0 else np.zeros(k, bool)
+    axes = centred.T @ u[:, keep]
     return axes / np.linalg.norm(axes, axis=0)
 
 

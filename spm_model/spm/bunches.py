@@ -41,10 +41,15 @@ def _kmeans_pp(x, k, rng):
 def _log_gauss(x, means, covs):
     """(N, k) log densities of (N, 2) points under k 2-D Gaussians; closed-form 2x2
     inverses and determinants (LAPACK per 2x2 matrix dominated the run time)."""
-    a, b, c = covs[:, 0, 0], covs[:, 0, 1], covs[:, 1, 1]
+    return _log_gauss_xy(x[:, 0][:, None], x[:, 1][:, None], means, covs[:, 0, 0], covs[:, 0, 1], covs[:, 1, 1])
+
+
+def _log_gauss_xy(px, py, means, a, b, c):
+    """_log_gauss from the points' columns px, py (N, 1) and the covariances' entries
+    a = s_xx, b = s_xy, c = s_yy (k,): the same arithmetic, fewer temporaries."""
     det = a * c - b * b
-    d = x[:, None, :] - means[None]  # (N, k, 2)
-    quad = (c * d[..., 0] ** 2 - 2 * b * d[..., 0] * d[..., 1] + a * d[..., 1] ** 2) / det
+    d0, d1 = px - means[:, 0], py - means[:, 1]  # (N, k)
+    quad = (c * d0 ** 2 - 2 * b * d0 * d1 + a * d1 ** 2) / det
     return -0.5 * (quad + np.log(det) + 2 * np.log(2 * np.pi))
 
 
@@ -61,22 +66,24 @@ def fit_bunches(locations, gamma: int = GAMMA, seed: int = 0, tol: float = 1e-2,
     spread = np.cov(x.T) / gamma + ridge * np.eye(2)
     covs = np.repeat(spread[None], gamma, axis=0)
     weights = np.full(gamma, 1.0 / gamma)
+    px, py = x[:, 0][:, None], x[:, 1][:, None]
+    a, b, c = covs[:, 0, 0], covs[:, 0, 1], covs[:, 1, 1]
     for it in range(1, max_iter + 1):  # noqa: B007 - the count is reported after the loop
         # E-step: P(b_k | v) for every keypoint (log-sum-exp for stability).
-        log_p = np.log(weights) + _log_gauss(x, means, covs)
+        log_p = np.log(weights) + _log_gauss_xy(px, py, means, a, b, c)
         log_p -= log_p.max(axis=1, keepdims=True)
         resp = np.exp(log_p)
         resp /= resp.sum(axis=1, keepdims=True)
         # M-step: Eq. 8 for the means and covariances, Eq. 9 for the priors.
         nk = resp.sum(axis=0) + 1e-12
         new_means = (resp.T @ x) / nk[:, None]
-        dx, dy = x[:, 0][:, None] - new_means[:, 0], x[:, 1][:, None] - new_means[:, 1]  # (N, k)
+        dx, dy = px - new_means[:, 0], py - new_means[:, 1]  # (N, k)
         sxx, sxy, syy = ((resp * dx * dx).sum(0), (resp * dx * dy).sum(0), (resp * dy * dy).sum(0))
-        covs = np.stack([np.stack([sxx, sxy], -1), np.stack([sxy, syy], -1)], -2) / nk[:, None, None] \
-            + ridge * np.eye(2)
+        a, b, c = sxx / nk + ridge, sxy / nk + 0.0, syy / nk + ridge
         weights = nk / len(x)
         moved = np.abs(new_means - means).max()
         means = new_means
         if moved < tol:
             break
+    covs = np.stack([np.stack([a, b], -1), np.stack([b, c], -1)], -2)
     return Bunches(means=means, covariances=covs, weights=weights, iterations=it)

@@ -78,12 +78,18 @@ def dataset_layout(ds) -> list:
     return [ds.dtype.str, list(ds.shape), list(ds.chunks or []), filters]
 
 
-def file_checksums(f) -> dict:
-    """{"attrs": {name: crc}, "layout": {dataset: crc}} of an open h5py file."""
+def file_checksums(f, layouts=None) -> dict:
+    """{"attrs": {name: crc}, "layout": {dataset: crc}} of an open h5py file (layouts:
+    _layouts(f), when the caller has them)."""
     attrs = {k: item_crc(v) for k, v in f.attrs.items() if k != CHECKSUMS_ATTR}
-    # A damaged link gives None for its object: no layout, so it fails its checksum.
-    layout = {name: item_crc(dataset_layout(ds) if ds is not None else None) for name, ds in f.items()}
+    layout = {name: item_crc(value) for name, value in (_layouts(f) if layouts is None else layouts).items()}
     return {"attrs": attrs, "layout": layout}
+
+
+def _layouts(f) -> dict:
+    """{dataset: dataset_layout}; a damaged link gives None for its object: no layout, so
+    it fails its checksum."""
+    return {name: dataset_layout(ds) if ds is not None else None for name, ds in f.items()}
 
 
 def checksum_mismatch(f) -> str | None:
@@ -95,7 +101,8 @@ def checksum_mismatch(f) -> str | None:
         stored["attrs"], stored["layout"]
     except (TypeError, ValueError, KeyError):
         return "no readable checksums attribute"
-    now = file_checksums(f)
+    layouts = _layouts(f)  # once: the checksums and the Fletcher-32 check below
+    now = file_checksums(f, layouts)
     for kind, label in (("attrs", "attribute"), ("layout", "field")):
         for name in sorted(set(now[kind]) | set(stored[kind])):
             if now[kind].get(name) != stored[kind].get(name):
@@ -104,6 +111,6 @@ def checksum_mismatch(f) -> str | None:
                 if name not in stored[kind]:
                     return f"{label} {name!r} was added after writing"
                 return f"{label} {name!r} fails its checksum" + (" (dtype, shape or filters)" if kind == "layout" else "")
-    if any(ds is not None and FLETCHER32 not in dataset_layout(ds)[3] for ds in f.values()):
+    if any(value is not None and FLETCHER32 not in value[3] for value in layouts.values()):
         return "a field without a Fletcher-32 checksum"
     return None

@@ -9,7 +9,7 @@ import numpy as np
 
 from spm_data.errors import ShardError
 from spm_data.io.files import PARTIAL_PREFIX, PARTIAL_SUFFIX, file_sha256, write_json_atomic
-from spm_data.io.shards.reader import read_attrs, read_shard
+from spm_data.io.shards.reader import ShardReader
 from spm_data.io.shards.schema import MANIFEST, SCHEMA_VERSION, SHARD_SUFFIX
 
 def no_shards(where, hint: str = "make some with `spm-data render` or `spm-data import`") -> ShardError:
@@ -31,8 +31,8 @@ def list_shards(folder) -> list[Path]:
 def manifest_entry(path) -> dict:
     """One manifest row for a complete shard: counts per class and a checksum."""
     path = Path(path)
-    attrs = read_attrs(path)
-    names = read_shard(path, ["class_name"])["class_name"]
+    with ShardReader(path) as reader:  # one open: attributes verified once
+        attrs, names = reader.attrs, reader.read(["class_name"])["class_name"]
     classes, counts = np.unique(names.astype(str), return_counts=True) if len(names) else ([], [])
     return {"file": path.name, "frames": int(attrs["frames"]), "bytes": path.stat().st_size,
             "sha256": file_sha256(path), "classes": {str(c): int(k) for c, k in zip(classes, counts)},

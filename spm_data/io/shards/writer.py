@@ -28,6 +28,7 @@ GZIP_LEVEL = 1
 COMPRESS_NICE = 19  # niceness of the compression threads (_nice_thread)
 
 
+RUN = 64  # frames per compression task of write_images
 LABEL_CHUNK = 4096  # frames per chunk of a label field (read whole; verified per chunk)
 
 
@@ -90,7 +91,7 @@ class ShardWriter:
         self.images = tuple(images)
         self.tmp = partial_path(self.path)
         self._written = {f: 0 for f in self.images}
-        self._file = self._pool = None
+        self._file = self._pool = self._ahead_pool = None
         self._ahead = {}  # (field, frame index) -> Future of its encoded chunk (encode_ahead)
         self._done = False
 
@@ -110,7 +111,7 @@ class ShardWriter:
             if isinstance(exc, OSError):
                 raise self._os_error(exc) from None
             raise
-        self._pool = ThreadPoolExecutor(max_workers=2, initializer=_nice_thread)
+        self._pool = ThreadPoolExecutor(max_workers=2)  # write_images: its caller waits, so normal priority
         return self
 
     def encode_ahead(self, index: int, frames: dict) -> None:
@@ -118,8 +119,10 @@ class ShardWriter:
         writer's threads now, while the caller renders the next frame; the write_images call
         that covers ``index`` stores these chunks (the same bytes, in the same order). The
         frames must stay unchanged until then."""
+        if self._ahead_pool is None:
+            self._ahead_pool = ThreadPoolExecutor(max_workers=2, initializer=_nice_thread)
         for field, frame in frames.items():
-            self._ahead[(field, int(index))] = self._pool.submit(encode_chunk, frame)
+            self._ahead[(field, int(index))] = self._ahead_pool.submit(encode_chunk, frame)
 
     def write_images(self, start: int, block: dict) -> None:
         """Frames ``start .. start + k`` of some image fields: {field: (k, ...) array}.
@@ -136,16 +139,34 @@ class ShardWriter:
         # chunks come back, and are stored, in field-major order.
         # Frames given to encode_ahead are compressed already (or being compressed).
         where = [(field, start + i) for field, frames in block.items() for i in range(len(frames))]
-        chunks = [self._ahead.pop(key, None) or self._pool.submit(encode_chunk, frame)
-                  for key, frame in zip(where, (frame for frames in block.values() for frame in frames))]
+        chunks = self._chunks(where, [frame for frames in block.values() for frame in frames])
         try:
             for (field, index), chunk in zip(where, chunks):
                 dsid, tail = targets[field]
-                dsid.write_direct_chunk((index,) + tail, chunk.result())
+                dsid.write_direct_chunk((index,) + tail, chunk)
             for field, frames in block.items():
                 self._written[field] += len(frames)
         except OSError as exc:
             raise self._os_error(exc) from None
+
+    def _chunks(self, where: list, frames: list):
+        """The encoded chunks of frames (at keys where), in order: those given to encode_ahead
+        from their futures, the others compressed on the pool in a few runs of consecutive
+        frames (one task per frame cost more than compressing a small frame)."""
+        todo = [i for i, key in enumerate(where) if key not in self._ahead]
+        runs = [todo[a: a + RUN] for a in range(0, len(todo), RUN)] if todo else []
+        done = {}
+        for run, future in zip(runs, [self._pool.submit(_encode_run, [frames[i] for i in r]) for r in runs]):
+            done[run[0]] = (run, future)
+        pending = {}
+        for i, key in enumerate(where):
+            if key in self._ahead:
+                yield self._ahead.pop(key).result()
+                continue
+            if i not in pending:
+                run, future = done.pop(i)
+                pending.update(zip(run, future.result()))
+            yield pending.pop(i)
 
     def finish(self, labels: dict, attrs: dict, copy_from=None, copied=None) -> Path:
         """Write the other fields and the attributes, then move the shard into place.
@@ -182,8 +203,9 @@ class ShardWriter:
         return ShardError(f"could not write shard {self.path}: {exc.strerror or exc}")
 
     def _abort(self):
-        if self._pool is not None:
-            self._pool.shutdown(cancel_futures=True)
+        for pool in (self._pool, self._ahead_pool):
+            if pool is not None:
+                pool.shutdown(cancel_futures=True)
         if self._file is not None:
             try:
                 self._file.close()
@@ -193,10 +215,16 @@ class ShardWriter:
 
     def __exit__(self, *exc):
         if self._done:
-            self._pool.shutdown()
+            for pool in (self._pool, self._ahead_pool):
+                if pool is not None:
+                    pool.shutdown()
         else:
             self._abort()
         return False
+
+
+def _encode_run(frames: list) -> list[bytes]:
+    return [encode_chunk(frame) for frame in frames]
 
 
 def _nice_thread() -> None:

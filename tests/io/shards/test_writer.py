@@ -56,6 +56,21 @@ def test_frames_encoded_ahead_give_the_same_bytes(tmp_path):
     np.testing.assert_array_equal(read_shard(plain)["depth"], arrays["depth"])
 
 
+def test_compression_runs_give_the_same_bytes(tmp_path, monkeypatch):
+    """write_images compresses the frames not encoded ahead in runs of RUN frames; runs
+    that straddle a frame encoded ahead still store every chunk in order."""
+    arrays = make_arrays(n=5, seed=5)
+    images = [f for f in IMAGE_FIELDS if f in arrays]
+    labels = {f: v for f, v in arrays.items() if f not in images}
+    plain = write_shard(tmp_path / "plain.h5", arrays, {"seed": 1, "renderer": "x"})
+    monkeypatch.setattr("spm_data.io.shards.writer.RUN", 2)
+    with ShardWriter(tmp_path / "runs.h5", frames=5, height=8, width=10, images=images) as writer:
+        writer.encode_ahead(2, {f: arrays[f][2] for f in images})  # runs: frames 0-1 and 3-4 of each field
+        writer.write_images(0, {f: arrays[f] for f in images})
+        runs = writer.finish(labels, {"seed": 1, "renderer": "x"})
+    assert file_sha256(runs) == file_sha256(plain)
+
+
 def test_failed_write_leaves_no_partial_and_keeps_the_old_shard(tmp_path, monkeypatch):
     good = write_shard(tmp_path / "a.h5", make_arrays(seed=1), {"seed": 1, "renderer": "x"})
     before = file_sha256(good)

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from spm_model.spm.sparse import SparseError, fit_projection, l1_weights, sparse_weights
+from spm_model.spm.sparse import SparseError, fit_projection, l1_simplex, l1_weights, sparse_weights
 
 
 def data(t=40, m=16, seed=0):
@@ -64,3 +64,51 @@ def test_projection_keeps_the_sparse_structure_better_than_random_directions():
 def test_too_few_samples():
     with pytest.raises(SparseError, match="at least 3 samples"):
         sparse_weights(np.ones((16, 2)))
+
+
+def test_batched_simplex_equals_the_linprog_reference_on_random_problems():
+    """Shared dictionary with one excluded column per problem (the exact solver's form)
+    and per-problem dictionaries (the knn form): the l1 norms equal HiGHS's to 1e-9; the
+    weights equal them to 1e-8 wherever the optimum is unique. It is not when the target
+    lies inside the others' convex hull: then every convex combination that reproduces it
+    has norm exactly 1 (sum r = 1), and each solver returns one vertex of that set."""
+    rng = np.random.default_rng(7)
+    m, n, P = 6, 40, 40
+    A = np.vstack([rng.normal(size=(m, n)), np.ones((1, n))])
+    b = A[:, :P].T + 0.05 * np.vstack([rng.normal(size=(m, P)), np.zeros((1, P))]).T
+    r, ok = l1_simplex(A, b, exclude=np.arange(P))
+    assert ok.all() and (r[np.arange(P), np.arange(P)] == 0).all()
+    refs = [np.insert(l1_weights(b[p, :m], np.delete(A[:m], p, axis=1)), p, 0.0) for p in range(P)]
+    check_against_reference(A, b, r, np.array(refs), unique_at_least=10)
+    per_problem = rng.normal(size=(P, m + 1, 12))
+    per_problem[:, m] = 1.0
+    b = np.einsum("pmn,pn->pm", per_problem, rng.normal(0.3, 1.0, size=(P, 12)))
+    b /= b[:, m:]
+    r, ok = l1_simplex(per_problem, b)
+    assert ok.all()
+    refs = np.array([l1_weights(b[p, :m], per_problem[p, :m]) for p in range(P)])
+    check_against_reference(per_problem, b, r, refs, unique_at_least=10)
+
+
+def check_against_reference(A, b, r, refs, unique_at_least):
+    Ar = np.einsum("mn,pn->pm", A, r) if A.ndim == 2 else np.einsum("pmn,pn->pm", A, r)
+    np.testing.assert_allclose(Ar, b, atol=1e-9)
+    np.testing.assert_allclose(np.abs(r).sum(axis=1), np.abs(refs).sum(axis=1), atol=1e-9)
+    unique = np.abs(refs).sum(axis=1) > 1 + 1e-6        # some weight is negative
+    assert unique.sum() >= unique_at_least
+    np.testing.assert_allclose(r[unique], refs[unique], atol=1e-8)
+    assert (np.count_nonzero(r, axis=1) <= A.shape[-2]).all()   # a vertex: at most m + 1 weights
+
+
+def test_batched_simplex_flags_what_it_cannot_solve_and_sparse_weights_falls_back():
+    """A target outside the dictionary's span is infeasible: not ok, zero weights; the
+    exact solver then uses the reference's least-squares fallback for that sample."""
+    D = np.array([[1.0, 0.0, 1.0], [0.0, 1.0, 1.0], [0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
+    r, ok = l1_simplex(D, np.array([[0.5, 0.5, 0.0, 1.0], [0.0, 0.0, 1.0, 1.0]]))
+    assert ok.tolist() == [True, False]
+    np.testing.assert_allclose(r[0], [0.5, 0.5, 0.0], atol=1e-12)
+    assert (r[1] == 0).all()
+    M = np.array([[0.0, 1.0, 0.0, 1.0], [0.0, 0.0, 1.0, 1.0], [0.0, 0.0, 0.0, 1.0]])  # sample 3 is off the others' plane
+    S = sparse_weights(M)
+    np.testing.assert_allclose(S[:3, 3], l1_weights(M[:, 3], M[:, :3]), atol=1e-9)
+    assert np.abs(S[:3, 3]).sum() > 0 and S[3, 3] == 0.0
