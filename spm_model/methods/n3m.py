@@ -1,0 +1,241 @@
+"""N3M: Natural 3D Markers (Hinterstoisser, Benhimane, Navab, ICCV 2007) as a pose
+estimator: 3-D feature points learnt from posed training views with depth, markers
+chosen among them, and a continuous 6-DoF pose per test image by matching, multi-level
+validation and PnP. The stages: n3m_points (points and scores), n3m_select (markers),
+n3m_pose (online); decisions where the paper is silent: docs/method.md, "N3M".
+
+Training frames are read for "rgb", "mask", "depth", "K" and (optionally) "sequence";
+test frames for "rgb", "mask", "K" only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from spm_data.core.poses import label_to_pose, pose_to_label
+from spm_data.errors import ModelError
+from spm_model.base.estimator import PoseEstimator
+from spm_model.methods import n3m_points as pts
+from spm_model.methods.n3m_pose import estimate, match
+from spm_model.methods.n3m_select import select_markers
+
+TRAIN_KEYS = ("rgb", "mask", "depth", "K")
+TEST_KEYS = ("rgb", "mask", "K")
+
+
+class N3MPose(PoseEstimator):
+    """N3M pose estimator. Parameters (keyword-only; pixels are the input image's):
+
+    sift_side: images whose shorter side is below it are upsampled to it before SIFT.
+    max_keypoints: SIFT keypoints kept per image (strongest).
+    max_train_frames: training frames used at most, evenly spaced over the input.
+    merge_pixels: observations closer than this many pixels (at the median training
+        depth and focal length) are one 3-D point.
+    descriptors_per_point: stored descriptors per 3-D point, spread over its views.
+    ratio: the nearest-descriptor ratio of matching and of distinctiveness.
+    marker_size: points per N3M (at least 4).
+    marker_radius: an N3M's points lie within this fraction of its object's extent.
+    min_relief: least flatness (smallest / largest singular value) of an N3M.
+    per_view: N3Ms each training view should see.
+    max_markers: N3Ms per object at most.
+    reprojection_error: pixels, the inlier threshold of every geometric check.
+    min_inliers: inliers the final pose needs (else a NaN row).
+    ransac_fallback: when no N3M passes, PnP with RANSAC over all matches proposes.
+    seed: RANSAC's seed.
+    """
+
+    FITTED = ("points_", "point_object_", "quality_", "descriptors_", "descriptor_point_",
+              "markers_", "merge_radius_")
+
+    def __init__(self, *, sift_side=256, max_keypoints=300, max_train_frames=2000, merge_pixels=1.5,
+                 descriptors_per_point=6, ratio=0.8, marker_size=5, marker_radius=0.3, min_relief=0.1,
+                 per_view=3, max_markers=150, reprojection_error=3.0, min_inliers=8,
+                 ransac_fallback=True, seed=0):
+        self.sift_side = sift_side
+        self.max_keypoints = max_keypoints
+        self.max_train_frames = max_train_frames
+        self.merge_pixels = merge_pixels
+        self.descriptors_per_point = descriptors_per_point
+        self.ratio = ratio
+        self.marker_size = marker_size
+        self.marker_radius = marker_radius
+        self.min_relief = min_relief
+        self.per_view = per_view
+        self.max_markers = max_markers
+        self.reprojection_error = reprojection_error
+        self.min_inliers = min_inliers
+        self.ransac_fallback = ransac_fallback
+        self.seed = seed
+
+    # ------------------------------------------------------------------ fit
+    def fit(self, frames, poses) -> "N3MPose":
+        """Learn the 3-D points and N3Ms from posed ``frames`` (keys TRAIN_KEYS, and
+        "sequence": one id per object/camera path, default 0) and ``poses`` (n, 6)."""
+        poses = _check_poses(frames, poses)
+        if int(self.marker_size) < 4:
+            raise ModelError(f"N3MPose: marker_size must be at least 4 (a pose needs 4 points), got {self.marker_size}")
+        obs = self._observe(frames, poses)
+        if len(obs["xyz"]) == 0:
+            raise ModelError("N3MPose: SIFT found no keypoint on the objects of the training frames; "
+                             "check their masks and depth, or raise sift_side")
+        radius = float(self.merge_pixels) * float(np.median(obs["footprint"]))
+        parts = [self._object_points(obs, o, radius) for o in np.unique(obs["object"])]
+        self._assemble(parts, radius)
+        return self
+
+    def _observe(self, frames, poses) -> dict:
+        """Keypoints of the used training frames, lifted: per observation xyz, desc
+        (uint8), view, object, footprint (metres per pixel); per view its camera and
+        small depth map."""
+        used = _spread(len(poses), int(self.max_train_frames))
+        Rs, ts = label_to_pose(poses[used])
+        sift = pts.make_sift(self.max_keypoints)
+        cols = {k: [] for k in ("xyz", "desc", "view", "object", "footprint")}
+        views = {"depth": [], "shape": [], "K": [], "R": Rs, "t": ts, "object": []}
+        for j, i in enumerate(used):
+            frame = frames[int(i)]
+            _check_keys(frame, TRAIN_KEYS, int(i), "training")
+            K, depth = np.asarray(frame["K"], dtype=np.float64), np.asarray(frame["depth"], dtype=np.float32)
+            obj = int(frame.get("sequence", 0))
+            uv, desc = pts.sift_features(frame["rgb"], frame["mask"], side=self.sift_side, sift=sift)
+            xyz, ok = pts.lift(uv, depth, K, Rs[j], ts[j])
+            z = (xyz[ok] @ Rs[j].T + ts[j])[:, 2]
+            cols["xyz"].append(xyz[ok])
+            cols["desc"].append(np.clip(np.rint(desc[ok]), 0, 255).astype(np.uint8))
+            cols["view"].append(np.full(ok.sum(), j))
+            cols["object"].append(np.full(ok.sum(), obj))
+            cols["footprint"].append(z / K[0, 0])
+            views["depth"].append(pts.small_depth(depth))
+            views["shape"].append(depth.shape)
+            views["K"].append(K)
+            views["object"].append(obj)
+        obs = {k: np.concatenate(v) if v else np.zeros(0) for k, v in cols.items()}
+        obs["xyz"] = obs["xyz"].reshape(-1, 3)
+        obs["desc"] = obs["desc"].reshape(-1, 128)
+        obs["views"] = views
+        return obs
+
+    def _object_points(self, obs, obj: int, radius: float) -> dict:
+        """One object's 3-D points (seen in at least 2 views): positions, repeatability,
+        visibility over its views, and stored descriptors (rows of obs)."""
+        rows = np.flatnonzero(obs["object"] == obj)
+        labels = pts.merge_observations(obs["xyz"][rows], np.zeros(len(rows)), radius)
+        view_ids = np.flatnonzero(np.asarray(obs["views"]["object"]) == obj)
+        keep, desc_rows = [], []
+        detected = np.zeros((labels.max() + 1, len(view_ids)), dtype=bool)
+        position = np.zeros((labels.max() + 1, 3))
+        order = np.argsort(labels, kind="stable")
+        starts = np.r_[0, np.flatnonzero(np.diff(labels[order])) + 1, len(order)]
+        column = {v: c for c, v in enumerate(view_ids)}
+        for p in range(len(starts) - 1):
+            members = rows[order[starts[p]:starts[p + 1]]]
+            seen = np.unique(obs["view"][members])
+            if len(seen) < 2:
+                continue
+            keep.append(p)
+            detected[p, [column[v] for v in seen]] = True
+            position[p] = np.median(obs["xyz"][members], axis=0)
+            pick = np.linspace(0, len(members) - 1, min(len(members), int(self.descriptors_per_point)))
+            desc_rows.append(members[np.unique(np.rint(pick).astype(int))])
+        keep = np.array(keep, dtype=np.int64)
+        v = obs["views"]
+        visible = pts.visibility(position[keep], [v["depth"][i] for i in view_ids], [v["shape"][i] for i in view_ids],
+                                 [v["K"][i] for i in view_ids], v["R"][view_ids], v["t"][view_ids])
+        visible |= detected[keep]
+        repeat = detected[keep].sum(axis=1) / np.maximum(visible.sum(axis=1), 1)
+        return {"position": position[keep], "repeat": repeat, "visible": visible, "desc_rows": desc_rows,
+                "object": obj, "desc": obs["desc"]}
+
+    def _assemble(self, parts, radius: float) -> None:
+        """Every object's points into one database; distinctiveness, quality, N3Ms."""
+        offsets = np.cumsum([0] + [len(p["position"]) for p in parts])
+        points = np.concatenate([p["position"] for p in parts]).reshape(-1, 3)
+        owner = [np.full(len(r), offsets[k] + i) for k, p in enumerate(parts) for i, r in enumerate(p["desc_rows"])]
+        if len(points) < 4:
+            raise ModelError(f"N3MPose: only {len(points)} 3-D points were seen in 2 or more training views; "
+                             "give more (or closer) training views")
+        descriptor_point = np.concatenate(owner)
+        descriptors = np.concatenate([p["desc"][r] for p in parts for r in p["desc_rows"]])
+        distinct = pts.distinctiveness(descriptors.astype(np.float32), points[descriptor_point],
+                                       same_radius=2 * radius, ratio=float(self.ratio))
+        per_point = np.bincount(descriptor_point, distinct, len(points)) / np.bincount(descriptor_point,
+                                                                                        minlength=len(points))
+        quality = np.concatenate([p["repeat"] for p in parts]) * per_point
+        markers = []
+        for k, p in enumerate(parts):
+            pos = p["position"]
+            extent = float(np.linalg.norm(pos.max(axis=0) - pos.min(axis=0))) if len(pos) else 0.0
+            found = select_markers(pos, quality[offsets[k]:offsets[k + 1]], p["visible"],
+                                   size=int(self.marker_size), radius=float(self.marker_radius) * extent,
+                                   min_gap=2 * radius, min_relief=float(self.min_relief),
+                                   per_view=int(self.per_view), max_markers=int(self.max_markers))
+            markers.append(found + offsets[k])
+        self.points_ = points
+        self.point_object_ = np.repeat([p["object"] for p in parts], np.diff(offsets))
+        self.quality_ = quality
+        self.descriptors_ = descriptors
+        self.descriptor_point_ = descriptor_point
+        self.markers_ = np.concatenate(markers).reshape(-1, int(self.marker_size))
+        self.merge_radius_ = radius
+
+    # ------------------------------------------------------------------ predict
+    def predict(self, frames) -> np.ndarray:
+        """(n, 6) labels of ``frames`` (keys TEST_KEYS); NaN rows where no pose passes."""
+        return self.predict_details(frames)[0]
+
+    def predict_details(self, frames) -> tuple[np.ndarray, list]:
+        """(labels (n, 6), per frame "n3m", "ransac" or None: which level gave the pose)."""
+        self.check_fitted()
+        index = self._index()
+        sift = pts.make_sift(self.max_keypoints)
+        out = np.full((len(frames), 6), np.nan)
+        sources = []
+        for i, frame in enumerate(frames):
+            _check_keys(frame, TEST_KEYS, i, "test")
+            found = self._predict_one(frame, index, sift)
+            sources.append(None if found is None else found[3])
+            if found is not None:
+                out[i] = pose_to_label(found[0], found[1])
+        return out, sources
+
+    def _predict_one(self, frame, index, sift):
+        uv, desc = pts.sift_features(frame["rgb"], frame["mask"], side=self.sift_side, sift=sift)
+        desc_xyz = self.points_[self.descriptor_point_]
+        keypoint, point = match(index, desc_xyz, self.descriptor_point_, desc, ratio=float(self.ratio),
+                                same_radius=2 * self.merge_radius_)
+        return estimate(self.markers_, point, self.points_[point], uv[keypoint], frame["K"],
+                        tol=float(self.reprojection_error), min_inliers=int(self.min_inliers),
+                        fallback=bool(self.ransac_fallback), seed=int(self.seed))
+
+    def _index(self):
+        """The FLANN index over the stored descriptors, built once per fitted model."""
+        cached = getattr(self, "_flann", None)
+        if cached is None or cached[0] is not self.descriptors_:
+            cached = (self.descriptors_, pts.build_index(self.descriptors_.astype(np.float32)))
+            self._flann = cached
+        return cached[1]
+
+
+def _spread(n: int, most: int) -> np.ndarray:
+    """At most ``most`` of ``range(n)``, evenly spaced (every frame when n <= most)."""
+    if n <= most or most <= 0:
+        return np.arange(n)
+    return np.unique(np.rint(np.linspace(0, n - 1, most)).astype(np.int64))
+
+
+def _check_keys(frame, keys, i: int, kind: str) -> None:
+    missing = [k for k in keys if k not in frame]
+    if missing:
+        raise ModelError(f"N3MPose: {kind} frame {i} has no {', '.join(missing)}; expected keys {list(keys)}")
+
+
+def _check_poses(frames, poses) -> np.ndarray:
+    poses = np.asarray(poses, dtype=np.float64)
+    if poses.ndim != 2 or poses.shape[1] != 6 or len(poses) == 0:
+        raise ModelError(f"N3MPose.fit: poses must be (n, 6) rx, ry, rz degrees and t metres with n >= 1, "
+                         f"got shape {poses.shape}")
+    if len(frames) != len(poses):
+        raise ModelError(f"N3MPose.fit: {len(frames)} frames but {len(poses)} poses; give one pose per frame")
+    if not np.all(np.isfinite(poses)):
+        raise ModelError("N3MPose.fit: poses contain NaN or inf; give finite training poses")
+    return poses
