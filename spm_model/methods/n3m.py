@@ -143,7 +143,8 @@ class N3MPose(PoseEstimator):
                                  [v["K"][i] for i in view_ids], v["R"][view_ids], v["t"][view_ids])
         visible |= detected[keep]
         repeat = detected[keep].sum(axis=1) / np.maximum(visible.sum(axis=1), 1)
-        return {"position": position[keep], "repeat": repeat, "visible": visible, "desc_rows": desc_rows,
+        return {"position": position[keep], "repeat": repeat, "visible": visible, "detected": detected[keep],
+                "desc_rows": desc_rows,
                 "object": obj, "desc": obs["desc"]}
 
     def _assemble(self, parts, radius: float) -> None:
@@ -165,7 +166,7 @@ class N3MPose(PoseEstimator):
         for k, p in enumerate(parts):
             pos = p["position"]
             extent = float(np.linalg.norm(pos.max(axis=0) - pos.min(axis=0))) if len(pos) else 0.0
-            found = select_markers(pos, quality[offsets[k]:offsets[k + 1]], p["visible"],
+            found = select_markers(pos, quality[offsets[k]:offsets[k + 1]], p["detected"],
                                    size=int(self.marker_size), radius=float(self.marker_radius) * extent,
                                    min_gap=2 * radius, min_relief=float(self.min_relief),
                                    per_view=int(self.per_view), max_markers=int(self.max_markers))

@@ -3,14 +3,17 @@
 An N3M is a small set of ``size`` points (at least 4) that is
 - photometrically distinctive: its points are stable ones (quality > 0: repeatable and
   distinctive, spm_model/methods/n3m_points.py), grown around a seed in quality order;
-- local: every point within ``radius`` metres of the seed, and co-visible with it, so
-  the whole marker tends to be seen (and to escape an occluder) together;
+- local: every point within ``radius`` metres of the seed, and detected together with
+  it in at least half of the seed's views, so the whole marker tends to be found (and
+  to escape an occluder) together;
 - geometrically sound: no two points closer than ``min_gap`` metres and not coplanar
   (:func:`flatness` >= ``min_relief``), so its pose is neither degenerate nor ambiguous;
-- well distributed: markers are picked greedily until every training view sees
-  ``per_view`` of them, preferring good markers that cover views still short, and no
-  two markers share more than one point.
-Arrays: positions (p, 3) metres in the object frame; visibility (p, v) bool over views.
+- well distributed: markers are picked greedily until every training view has
+  ``per_view`` of them detected (at least 4 of their points found in that view),
+  preferring good markers that cover views still short; no two markers share more
+  than one point.
+Arrays: positions (p, 3) metres in the object frame; detected (p, v) bool: whether a
+point was found in each of the object's training views.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 MIN_SEEN = 4           # points of a marker a view must see to count it (a PnP needs 4)
-COVISIBLE = 0.5        # a member must be visible in at least this fraction of the seed's views
+COVISIBLE = 0.5        # a member must be detected in at least this fraction of the seed's views
 MAX_NEIGHBOURS = 24    # best-quality neighbours a seed tries
 
 
@@ -34,17 +37,17 @@ def flatness(points) -> float:
     return float(s[2] / s[0]) if s[0] > 0 else 0.0
 
 
-def grow(seed: int, positions, quality, visible, *, size: int, radius: float, min_gap: float,
+def grow(seed: int, positions, quality, detected, *, size: int, radius: float, min_gap: float,
          min_relief: float, tree=None):
     """The marker grown around point ``seed``: neighbours within ``radius`` of it that
-    are stable and co-visible, taken in quality order when they keep every pair at least
+    are stable and co-detected (``detected`` (p, v), COVISIBLE), taken in quality order when they keep every pair at least
     ``min_gap`` apart and, from the fourth point on, keep the set's :func:`flatness` at
     least ``min_relief``. Returns (size,) int point indices, or None if none fits."""
     tree = cKDTree(positions) if tree is None else tree
     near = np.asarray(tree.query_ball_point(positions[seed], r=radius), dtype=np.int64)
     near = near[(near != seed) & (quality[near] > 0)]
-    seen = visible[seed]
-    shared = (visible[near] & seen).sum(axis=1)
+    seen = detected[seed]
+    shared = (detected[near] & seen).sum(axis=1)
     near = near[shared >= COVISIBLE * max(1, seen.sum())]
     near = near[np.argsort(-quality[near], kind="stable")][:MAX_NEIGHBOURS]
     chosen = [seed]
@@ -69,7 +72,7 @@ def _collinear(points, min_relief: float) -> bool:
     return s[1] < min_relief * s[0]
 
 
-def candidates(positions, quality, visible, *, size: int, radius: float, min_gap: float,
+def candidates(positions, quality, detected, *, size: int, radius: float, min_gap: float,
                min_relief: float) -> np.ndarray:
     """Every marker :func:`grow` finds, one per stable seed: (c, size) int point indices."""
     positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
@@ -79,24 +82,24 @@ def candidates(positions, quality, visible, *, size: int, radius: float, min_gap
     tree = cKDTree(positions)
     found = []
     for seed in np.flatnonzero(quality > 0):
-        marker = grow(int(seed), positions, quality, visible, size=size, radius=radius,
+        marker = grow(int(seed), positions, quality, detected, size=size, radius=radius,
                       min_gap=min_gap, min_relief=min_relief, tree=tree)
         if marker is not None:
             found.append(marker)
     return np.array(found, dtype=np.int64).reshape(-1, size)
 
 
-def choose(markers, quality, visible, *, per_view: int, max_markers: int) -> np.ndarray:
+def choose(markers, quality, detected, *, per_view: int, max_markers: int) -> np.ndarray:
     """The markers kept, greedily: each step takes the marker with the largest
     (mean member quality) x (views it covers that see fewer than ``per_view`` chosen
     markers yet), skipping any that shares more than one point with a chosen one,
     until no marker adds coverage or ``max_markers`` are chosen. A view covers a marker
-    when it sees at least MIN_SEEN of its points. Returns (m,) int indices into ``markers``."""
+    when at least MIN_SEEN of its points were detected in it (``detected`` (p, v)). Returns (m,) int indices into ``markers``."""
     markers = np.asarray(markers, dtype=np.int64)
     if len(markers) == 0:
         return np.zeros(0, dtype=np.int64)
     score = np.asarray(quality, dtype=np.float64)[markers].mean(axis=1)
-    seen = visible[markers].sum(axis=1) >= MIN_SEEN            # (c, v)
+    seen = detected[markers].sum(axis=1) >= MIN_SEEN            # (c, v)
     need = np.full(seen.shape[1], per_view, dtype=np.int64)
     open_ = np.ones(len(markers), dtype=bool)
     chosen = []
@@ -112,10 +115,10 @@ def choose(markers, quality, visible, *, per_view: int, max_markers: int) -> np.
     return np.array(chosen, dtype=np.int64)
 
 
-def select_markers(positions, quality, visible, *, size: int, radius: float, min_gap: float,
+def select_markers(positions, quality, detected, *, size: int, radius: float, min_gap: float,
                    min_relief: float, per_view: int, max_markers: int) -> np.ndarray:
     """One object's N3Ms: (m, size) int indices into ``positions`` (p, 3)
     (:func:`candidates`, then :func:`choose`)."""
-    found = candidates(positions, quality, visible, size=size, radius=radius, min_gap=min_gap,
+    found = candidates(positions, quality, detected, size=size, radius=radius, min_gap=min_gap,
                        min_relief=min_relief)
-    return found[choose(found, quality, visible, per_view=per_view, max_markers=max_markers)]
+    return found[choose(found, quality, detected, per_view=per_view, max_markers=max_markers)]
