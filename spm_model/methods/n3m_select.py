@@ -40,9 +40,10 @@ def flatness(points) -> float:
 def grow(seed: int, positions, quality, detected, *, size: int, radius: float, min_gap: float,
          min_relief: float, tree=None):
     """The marker grown around point ``seed``: neighbours within ``radius`` of it that
-    are stable and co-detected (``detected`` (p, v), COVISIBLE), taken in quality order when they keep every pair at least
-    ``min_gap`` apart and, from the fourth point on, keep the set's :func:`flatness` at
-    least ``min_relief``. Returns (size,) int point indices, or None if none fits."""
+    are stable and co-detected (``detected`` (p, v), COVISIBLE); each step adds the best
+    one (in quality order) that keeps every pair at least ``min_gap`` apart and the set
+    non-collinear, then non-coplanar (:func:`flatness` >= ``min_relief``). Returns
+    (size,) int point indices, or None if no such set exists among them."""
     tree = cKDTree(positions) if tree is None else tree
     near = np.asarray(tree.query_ball_point(positions[seed], r=radius), dtype=np.int64)
     near = near[(near != seed) & (quality[near] > 0)]
@@ -51,19 +52,24 @@ def grow(seed: int, positions, quality, detected, *, size: int, radius: float, m
     near = near[shared >= COVISIBLE * max(1, seen.sum())]
     near = near[np.argsort(-quality[near], kind="stable")][:MAX_NEIGHBOURS]
     chosen = [seed]
-    for j in near:
-        gaps = np.linalg.norm(positions[chosen] - positions[j], axis=1)
-        if gaps.min() < min_gap:
-            continue
-        trial = chosen + [int(j)]
-        if len(trial) >= 4 and flatness(positions[trial]) < min_relief:
-            continue
-        if len(trial) == 3 and _collinear(positions[trial], min_relief):
-            continue
-        chosen = trial
-        if len(chosen) == size:
-            return np.array(chosen, dtype=np.int64)
-    return None
+    while len(chosen) < size:
+        pick = next((int(j) for j in near if j not in chosen and _fits(positions, chosen, int(j), min_gap,
+                                                                      min_relief)), None)
+        if pick is None:
+            return None
+        chosen.append(pick)
+    return np.array(chosen, dtype=np.int64)
+
+
+def _fits(positions, chosen: list, j: int, min_gap: float, min_relief: float) -> bool:
+    """Whether point ``j`` may join ``chosen``: ``min_gap`` from each, and the set stays
+    non-collinear (3 points) or non-coplanar (4 and more) by ``min_relief``."""
+    if np.linalg.norm(positions[chosen] - positions[j], axis=1).min() < min_gap:
+        return False
+    trial = positions[chosen + [j]]
+    if len(trial) == 3:
+        return not _collinear(trial, min_relief)
+    return len(trial) < 3 or flatness(trial) >= min_relief
 
 
 def _collinear(points, min_relief: float) -> bool:

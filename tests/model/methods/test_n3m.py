@@ -1,0 +1,66 @@
+"""N3MPose end to end: fit on posed renders, predict views off the training grid."""
+
+import numpy as np
+import pytest
+
+from spm_data.core.poses import label_to_pose, wrap_degrees
+from spm_data.errors import ModelError
+from spm_data.io.shards import read_shard
+from spm_model.methods.n3m import N3MPose
+
+
+def split(folder):
+    """Training frames (even path steps: a 10-degree grid) with depth, and test frames
+    (odd steps, 5 degrees off every training view) with only rgb, mask, K."""
+    train, train_poses, test, test_poses = [], [], [], []
+    for s, path in enumerate(sorted(folder.glob("*.h5"))):
+        data = read_shard(path, ("rgb", "mask", "depth", "K", "pose", "path_index"))
+        for i, step in enumerate(data["path_index"]):
+            frame = {"rgb": data["rgb"][i], "mask": data["mask"][i] > 0, "K": data["K"][i]}
+            if step % 2 == 0:
+                train.append({**frame, "depth": data["depth"][i], "sequence": s})
+                train_poses.append(data["pose"][i])
+            elif step % 6 == 1:
+                test.append(frame)
+                test_poses.append(data["pose"][i])
+    return train, np.array(train_poses), test, np.array(test_poses)
+
+
+def test_fit_predict_recovers_views_off_the_training_grid(model_shards):
+    train, poses, test, truth = split(model_shards)
+    model = N3MPose(max_train_frames=500).fit(train, poses)
+    assert len(model.markers_) > 0 and model.markers_.shape[1] == 5
+    assert np.all(model.point_object_ < 3)
+    pred = model.predict(test)
+    assert pred.shape == (len(test), 6)
+    found = np.all(np.isfinite(pred), axis=1)
+    err = np.abs(wrap_degrees(pred[found, :3] - truth[found, :3]))
+    within = np.zeros(len(test), bool)
+    within[found] = np.all(err <= 5.0, axis=1)
+    assert within.mean() >= 0.8, (within.mean(), len(test))
+    Rp, tp = label_to_pose(pred[found])
+    Rt, tt = label_to_pose(truth[found])
+    geodesic = np.degrees(np.arccos(np.clip((np.einsum("nij,nij->n", Rp, Rt) - 1) / 2, -1, 1)))
+    assert np.median(geodesic) < 1.5
+    assert np.median(np.linalg.norm(tp - tt, axis=1)) < 0.006       # metres, at 128 px
+
+
+def test_errors_say_what_is_wrong():
+    frame = {"rgb": np.zeros((32, 32, 3), np.uint8), "mask": np.ones((32, 32), bool), "K": np.eye(3)}
+    with pytest.raises(ModelError, match="not fitted"):
+        N3MPose().predict([frame])
+    with pytest.raises(ModelError, match=r"\(n, 6\)"):
+        N3MPose().fit([frame], np.zeros((1, 5)))
+    with pytest.raises(ModelError, match="no depth"):
+        N3MPose().fit([frame], np.zeros((1, 6)))
+    with pytest.raises(ModelError, match="marker_size"):
+        N3MPose(marker_size=3).fit([frame], np.zeros((1, 6)))
+    depth_frame = {**frame, "depth": np.full((32, 32), 0.5, np.float32)}
+    with pytest.raises(ModelError, match="no keypoint"):                # a blank image has none
+        N3MPose().fit([depth_frame], np.array([[0, 0, 0, 0, 0, 0.5]]))
+
+
+def test_parameters_read_back():
+    model = N3MPose(sift_side=128, ratio=0.7)
+    assert model.get_params()["sift_side"] == 128 and model.get_params()["ratio"] == 0.7
+    assert "N3MPose(sift_side=128" in repr(model)
