@@ -88,6 +88,7 @@ def main(argv=None) -> int:
     parser.add_argument("--px", type=int, default=256)
     parser.add_argument("--write-specs", metavar="ROOT", help="write the render specs under ROOT and stop")
     parser.add_argument("--sift-side", type=int, default=256)
+    parser.add_argument("--no-fallback", action="store_true", help="N3M levels only (ransac_fallback=False)")
     args = parser.parse_args(argv)
     if args.write_specs:
         write_specs(Path(args.write_specs), args.px)
@@ -95,7 +96,7 @@ def main(argv=None) -> int:
     root = Path(args.root)
     frames, poses = load(root / f"train_{args.px}", with_depth=True)
     start = time.perf_counter()
-    model = N3MPose(sift_side=args.sift_side).fit(frames, poses)
+    model = N3MPose(sift_side=args.sift_side, ransac_fallback=not args.no_fallback).fit(frames, poses)
     fit_s = time.perf_counter() - start
     print(f"{args.px} px: fit {len(frames)} frames in {fit_s:.1f} s; {len(model.points_)} points, "
           f"{len(model.descriptors_)} descriptors, {len(model.markers_)} N3Ms")
