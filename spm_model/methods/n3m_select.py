@@ -53,29 +53,26 @@ def grow(seed: int, positions, quality, detected, *, size: int, radius: float, m
     near = near[np.argsort(-quality[near], kind="stable")][:MAX_NEIGHBOURS]
     chosen = [seed]
     while len(chosen) < size:
-        pick = next((int(j) for j in near if j not in chosen and _fits(positions, chosen, int(j), min_gap,
-                                                                      min_relief)), None)
-        if pick is None:
+        fits = np.flatnonzero(_fits(positions, chosen, near, min_gap, min_relief))
+        if len(fits) == 0:
             return None
-        chosen.append(pick)
+        chosen.append(int(near[fits[0]]))
+        near = np.delete(near, fits[0])
     return np.array(chosen, dtype=np.int64)
 
 
-def _fits(positions, chosen: list, j: int, min_gap: float, min_relief: float) -> bool:
-    """Whether point ``j`` may join ``chosen``: ``min_gap`` from each, and the set stays
-    non-collinear (3 points) or non-coplanar (4 and more) by ``min_relief``."""
-    if np.linalg.norm(positions[chosen] - positions[j], axis=1).min() < min_gap:
-        return False
-    trial = positions[chosen + [j]]
-    if len(trial) == 3:
-        return not _collinear(trial, min_relief)
-    return len(trial) < 3 or flatness(trial) >= min_relief
-
-
-def _collinear(points, min_relief: float) -> bool:
-    """Whether three points are nearly on one line (the second singular value small)."""
-    s = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
-    return s[1] < min_relief * s[0]
+def _fits(positions, chosen: list, near, min_gap: float, min_relief: float) -> np.ndarray:
+    """(len(near),) bool: whether each of the points ``near`` may join ``chosen``: at
+    least ``min_gap`` from each, and the set stays non-collinear (3 points: second over
+    first singular value) or non-coplanar (4 and more: :func:`flatness`) by ``min_relief``."""
+    base = positions[chosen]
+    trial = np.concatenate([np.broadcast_to(base, (len(near), *base.shape)), positions[near][:, None]], axis=1)
+    ok = np.linalg.norm(base[None] - positions[near][:, None], axis=2).min(axis=1) >= min_gap
+    if trial.shape[1] < 3:
+        return ok
+    s = np.linalg.svd(trial - trial.mean(axis=1, keepdims=True), compute_uv=False)
+    which = 1 if trial.shape[1] == 3 else 2
+    return ok & (s[:, which] >= min_relief * np.maximum(s[:, 0], 1e-300)) & (s[:, 0] > 0)
 
 
 def candidates(positions, quality, detected, *, size: int, radius: float, min_gap: float,
@@ -100,7 +97,8 @@ def choose(markers, quality, detected, *, per_view: int, max_markers: int) -> np
     (mean member quality) x (views it covers that see fewer than ``per_view`` chosen
     markers yet), skipping any that shares more than one point with a chosen one,
     until no marker adds coverage or ``max_markers`` are chosen. A view covers a marker
-    when at least MIN_SEEN of its points were detected in it (``detected`` (p, v)). Returns (m,) int indices into ``markers``."""
+    when at least MIN_SEEN of its points were detected in it (``detected`` (p, v)).
+    Returns (m,) int indices into ``markers``."""
     markers = np.asarray(markers, dtype=np.int64)
     if len(markers) == 0:
         return np.zeros(0, dtype=np.int64)
