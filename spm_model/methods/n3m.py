@@ -47,7 +47,7 @@ class N3MPose(PoseEstimator):
     FITTED = ("points_", "point_object_", "quality_", "descriptors_", "descriptor_point_",
               "markers_", "merge_radius_")
 
-    def __init__(self, *, sift_side=256, max_keypoints=300, max_train_frames=2000, merge_pixels=1.5,
+    def __init__(self, *, sift_side=256, max_keypoints=300, max_train_frames=1500, merge_pixels=1.5,
                  descriptors_per_point=6, ratio=0.8, marker_size=5, marker_radius=0.3, min_relief=0.1,
                  per_view=3, max_markers=150, reprojection_error=3.0, min_inliers=6,
                  ransac_fallback=True, seed=0):

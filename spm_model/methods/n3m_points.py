@@ -60,7 +60,9 @@ def lift(uv, depth, K, R, t) -> tuple[np.ndarray, np.ndarray]:
     lo = cv2.erode(depth, kernel)[row, col]
     d = depth[row, col].astype(np.float64)
     ok = (lo > 0) & (hi - lo <= DEPTH_STEP * np.maximum(d, 1e-9))
-    rays = np.column_stack([uv, np.ones(len(uv))]) @ np.linalg.inv(np.asarray(K, dtype=np.float64)).T
+    K = np.asarray(K, dtype=np.float64)
+    y = (uv[:, 1] - K[1, 2]) / K[1, 1]                       # K^-1 [u, v, 1] of an upper-triangular K
+    rays = np.column_stack([(uv[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0], y, np.ones(len(uv))])
     xyz = (rays * d[:, None] - np.asarray(t, dtype=np.float64)) @ np.asarray(R, dtype=np.float64)
     return xyz, ok
 
