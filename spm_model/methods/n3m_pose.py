@@ -43,6 +43,8 @@ def match(index, desc_xyz, desc_point, queries, *, ratio: float, same_radius: fl
     rival = np.where(far & valid, dist, np.inf).min(axis=1)
     ok = valid[:, 0] & (dist[:, 0] < ratio * rival)
     keypoint = np.flatnonzero(ok)
+    if len(keypoint) == 0:
+        return keypoint, np.zeros(0, np.int64)
     point = desc_point[first[keypoint]]
     order = np.lexsort((dist[keypoint, 0], point))          # by point, nearest first
     keypoint, point = keypoint[order], point[order]

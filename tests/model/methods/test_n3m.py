@@ -43,6 +43,8 @@ def test_fit_predict_recovers_views_off_the_training_grid(model_shards):
     geodesic = np.degrees(np.arccos(np.clip((np.einsum("nij,nij->n", Rp, Rt) - 1) / 2, -1, 1)))
     assert np.median(geodesic) < 1.5
     assert np.median(np.linalg.norm(tp - tt, axis=1)) < 0.006       # metres, at 128 px
+    blank = {"rgb": np.zeros((128, 128, 3), np.uint8), "mask": np.ones((128, 128), bool), "K": test[0]["K"]}
+    assert np.all(np.isnan(model.predict([blank])))                  # no keypoint: a NaN row
 
 
 def test_errors_say_what_is_wrong():

@@ -75,3 +75,14 @@ def test_match_keeps_distinct_matches_and_drops_ambiguous_ones():
     # rival as near as the original: dropped. 2 and 3 sit together: each kept.
     assert sorted(matched.tolist()) == [0, 2, 3]
     assert sorted(keypoint.tolist()) == [0, 2, 3]
+
+
+def test_match_with_nothing_distinct_or_no_keypoint_gives_no_match():
+    rng = np.random.default_rng(4)
+    desc = rng.uniform(0, 255, (2, 128)).astype(np.float32)
+    stored = np.concatenate([desc, desc + 2.0])                      # every point has a twin elsewhere
+    xyz = np.array([[0, 0, 0], [0.05, 0, 0], [0.1, 0, 0], [0.15, 0, 0]])
+    queries = desc + 1.0                                              # halfway: never distinct
+    for q in (queries, np.zeros((0, 128), np.float32)):
+        keypoint, matched = match(build_index(stored), xyz, np.arange(4), q, ratio=0.8, same_radius=0.002)
+        assert len(keypoint) == 0 and len(matched) == 0
