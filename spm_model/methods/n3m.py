@@ -225,9 +225,14 @@ def _spread(n: int, most: int) -> np.ndarray:
 
 
 def _check_keys(frame, keys, i: int, kind: str) -> None:
+    """ModelError unless ``frame`` has ``keys``, an (H, W, 3) rgb and an (H, W) mask."""
     missing = [k for k in keys if k not in frame]
     if missing:
         raise ModelError(f"N3MPose: {kind} frame {i} has no {', '.join(missing)}; expected keys {list(keys)}")
+    rgb, mask = np.shape(frame["rgb"]), np.shape(frame["mask"])
+    if len(rgb) != 3 or rgb[2] != 3 or mask != rgb[:2] or np.shape(frame["K"]) != (3, 3):
+        raise ModelError(f"N3MPose: {kind} frame {i} has rgb {rgb}, mask {mask}, K {np.shape(frame['K'])}; "
+                         "expected rgb (H, W, 3), mask (H, W) and K (3, 3)")
 
 
 def _check_poses(frames, poses) -> np.ndarray:

@@ -55,6 +55,8 @@ def test_errors_say_what_is_wrong():
         N3MPose().fit([frame], np.zeros((1, 5)))
     with pytest.raises(ModelError, match="no depth"):
         N3MPose().fit([frame], np.zeros((1, 6)))
+    with pytest.raises(ModelError, match=r"expected rgb \(H, W, 3\), mask \(H, W\)"):
+        N3MPose().fit([{**frame, "mask": np.ones((16, 32), bool), "depth": np.zeros((32, 32))}], np.zeros((1, 6)))
     with pytest.raises(ModelError, match="marker_size"):
         N3MPose(marker_size=3).fit([frame], np.zeros((1, 6)))
     depth_frame = {**frame, "depth": np.full((32, 32), 0.5, np.float32)}
