@@ -22,13 +22,15 @@ import numpy as np
 
 from spm_data.errors import ModelError
 from spm_model.methods.baselines import ChancePose, RawImagePose
+from spm_model.methods.n3m import N3MPose
 from spm_model.methods.smm import SMMPose
 from spm_model.methods.spm_pose import SPMNeighbours, SPMPose
 from spm_model.methods.template import TemplatePose
 from spm_model.spm.features import FeatureConfig
 
 METHOD_NAMES = {"spm": "SPM", "knn1": "KNN K=1", "knn3": "KNN K=3", "pca": "PCA-based", "ls": "LS-based",
-                "smm": "SMM (Mei et al. 2011)", "template": "HOG templates (reference)",
+                "n3m": "N3M (Hinterstoisser et al. 2007)", "smm": "SMM (Mei et al. 2011)",
+                "template": "HOG templates (reference)",
                 "chance": "chance (random training pose)"}
 
 
@@ -36,7 +38,8 @@ def builtin_methods(seed: int, features: FeatureConfig, model_params: dict | Non
     """Fresh, unfitted instances of every built-in method, in report order."""
     spm = SPMPose(seed=seed, features=features, params=model_params)
     return {"spm": spm, "knn1": SPMNeighbours(k=1, spm=spm), "knn3": SPMNeighbours(k=3, spm=spm),
-            "pca": RawImagePose(kind="pca"), "ls": RawImagePose(kind="ls"), "smm": SMMPose(seed=seed),
+            "pca": RawImagePose(kind="pca"), "ls": RawImagePose(kind="ls"), "n3m": N3MPose(seed=seed),
+            "smm": SMMPose(seed=seed),
             "template": TemplatePose(), "chance": ChancePose(seed=seed)}
 
 

@@ -114,7 +114,7 @@ def test_a_plugged_in_estimator_gets_frames_and_is_scored_like_the_rest(model_sh
     assert my_pose.MeanPose.seen == {"rgb": ((128, 128, 3), "uint8"), "mask": "bool", "K": (3, 3), "n": 96,
                                      "poses": (96, 6)}
     overall = evaluation["runs"][0]["overall"]
-    assert set(overall) == {"spm", "knn1", "knn3", "pca", "ls", "smm", "template", "chance", "MeanPose"}
+    assert set(overall) == {"spm", "knn1", "knn3", "pca", "ls", "n3m", "smm", "template", "chance", "MeanPose"}
     assert overall["MeanPose"]["frames"] == 144 and overall["MeanPose"]["estimated"] == 144
     runner = CliRunner()
     report = tmp_path / "report"

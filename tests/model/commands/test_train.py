@@ -27,7 +27,7 @@ def test_train_loco_writes_the_report_and_model(model_shards, tmp_path):
     assert payload["schema"] == "spm-results" and payload["schema_version"] == 3
     assert payload["context"]["frames"] == 144 and len(payload["evaluation"]["runs"]) == 2
     summary = payload["summary"]
-    assert set(summary["methods"]) == {"spm", "knn1", "knn3", "pca", "ls", "smm", "template"}
+    assert set(summary["methods"]) == {"spm", "knn1", "knn3", "pca", "ls", "n3m", "smm", "template"}
     assert set(summary["classes"]) == {"box", "car", "cup"}
     for entry in [*summary["methods"].values(), summary["chance"]]:
         assert 0 <= entry["success_tol5"] <= 100 and entry["success_sum3"] <= entry["success_sum5"] <= entry["success_tol5"]

@@ -14,7 +14,7 @@ from spm_model.spm.features import FeatureConfig
 def test_builtin_methods_in_report_order_knn_sharing_the_spm_model():
     features = FeatureConfig(ellipse="direct")
     methods = builtin_methods(3, features, {"projection_samples": 16})
-    assert list(methods) == ["spm", "knn1", "knn3", "pca", "ls", "smm", "template", "chance"] == list(METHOD_NAMES)
+    assert list(methods) == ["spm", "knn1", "knn3", "pca", "ls", "n3m", "smm", "template", "chance"] == list(METHOD_NAMES)
     spm = methods["spm"]
     assert spm.seed == 3 and spm.features == features and spm.params == {"projection_samples": 16}
     assert methods["knn1"].spm is spm and methods["knn3"].spm is spm and methods["knn3"].k == 3
