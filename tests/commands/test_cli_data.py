@@ -1,4 +1,4 @@
-"""cli.data (spm-data): its commands end to end, errors in one line with exit status 1, the console
+"""spm_data.commands.cli_data (spm-data): its commands end to end, errors in one line with exit status 1, the console
 scripts as processes (the coil_folder fixture: tests/conftest.py)."""
 
 import subprocess
