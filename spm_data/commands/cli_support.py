@@ -113,7 +113,8 @@ def executor_options(workers: str, recycle_after: int = 0, task_cpus: str = ""):
 
         for option in reversed([
             click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1),
-                         help=f"{workers} running at once (Ray: tasks at once on a local Ray instance)."),
+                         help=f"{workers} running at once (with --executor ray and no --address: the CPUs of the "
+                              "local Ray instance)."),
             click.option("--recycle-after", default=recycle_after, show_default=True, type=click.IntRange(min=0),
                          help="Replace each worker process after this many jobs (0: never); bounds leaks."),
             click.option("--executor", "executor_name", type=click.Choice(["local", "ray"]), default="local",

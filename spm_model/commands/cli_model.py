@@ -21,7 +21,7 @@ def _parse_roi(text):
 
 
 @click.command("train")
-@click.argument("shards", required=False, type=click.Path())
+@click.argument("shards", metavar="SHARDS", required=False, type=click.Path())
 @click.option("--out", "report_dir", default=None, type=click.Path(),
               help="Report folder: results.md/json, plots, model.npz, reference-model.npz [default: SHARDS/report].")
 @click.option("--protocol", type=click.Choice(["loco", "views", "instances"]), default="loco", show_default=True,
@@ -61,7 +61,7 @@ def train_cmd(shards, report_dir, protocol, runs, ellipse, gamma, estimators, al
 
 
 @click.command("evaluate")
-@click.argument("shards", required=False, type=click.Path())
+@click.argument("shards", metavar="SHARDS", required=False, type=click.Path())
 @click.option("--model", "model_path", required=True, type=click.Path(),
               help="model.npz (SPM) or reference-model.npz from spm train.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
