@@ -30,7 +30,7 @@ def test_cli_train_predict_evaluate_and_bad_input(model_shards, tmp_path):
     assert r.exit_code == 1 and "SIFT found 0 keypoints" in r.output and "Traceback" not in r.output
     r = runner.invoke(model_cli, ["predict", "--model", model, str(tmp_path / "box.png"), "--roi", "500,500,4,4"])
     assert r.exit_code == 1 and "outside" in r.output
-    r = runner.invoke(model_cli, ["evaluate", str(shards, "--model", model)])
+    r = runner.invoke(model_cli, ["evaluate", str(shards), "--model", model])
     assert r.exit_code == 0 and r.output.splitlines()[-1].startswith("all")
     (tmp_path / "empty").mkdir()
     for args, message in [(["train", str(tmp_path / "empty")], "no shards"),
