@@ -21,10 +21,10 @@ demo: install
 	$(BIN)/spm-data render --all --limit 96 --out $(DEMO)/render
 	$(BIN)/spm-data info $(DEMO)/render
 	$(BIN)/spm-data show $(DEMO)/render/cup-00000.h5 --out $(DEMO)/cup-sheet.png
-	$(BIN)/spm-data occlude --in $(DEMO)/render --out $(DEMO)/occluded --max 0.6 --copies 2
+	$(BIN)/spm-data occlude $(DEMO)/render --out $(DEMO)/occluded --max 0.6 --copies 2
 	$(BIN)/spm-data hist $(DEMO)/occluded --out $(DEMO)/occlusion-hist.png
 	$(BIN)/spm-data show $(DEMO)/occluded/cup-00000-occ0.h5 --out $(DEMO)/cup-occluded-sheet.png
-	$(BIN)/spm train --shards $(DEMO) --report $(DEMO)/report --workers 2 --runs 1
+	$(BIN)/spm train $(DEMO) --out $(DEMO)/report --workers 2 --runs 1
 	$(BIN)/python benchmarks/fig5.py --quick --out $(DEMO)-fig5
 	@echo "demo output: $(DEMO)/ (shards in render/ and occluded/, contact sheets, the occlusion histogram, report/ with results.md, accuracy.png, model.npz and reference-model.npz; and $(DEMO)-fig5/report: the paper's Fig. 5 off the grid)"
 

@@ -2,7 +2,7 @@
 targets of the issue "A pose benchmark with signal", on the default dataset.
 
     spm-data render --all --out full/render            # or --renderer pyrender
-    python benchmarks/reference_targets.py --shards full/render [--runs 3] [--workers 2]
+    python benchmarks/reference_targets.py full/render [--runs 3] [--workers 2]
 
 Features are extracted once (cached beside the shards, as `spm train` does);
 the template matcher and chance (a random training pose) then run on each
@@ -37,10 +37,14 @@ def figure(entry: dict, key: str):
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--shards", default="full/render")
-    parser.add_argument("--runs", type=int, default=3)
-    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("shards", nargs="?", default="full/render", help="folder of shards (default: full/render)")
+    parser.add_argument("--shards", dest="old_shards", help=argparse.SUPPRESS)
+    parser.add_argument("--runs", type=int, default=3, help="repeated runs (seeds) per protocol")
+    parser.add_argument("--workers", type=int, default=2, help="feature-extraction processes")
     args = parser.parse_args(argv)
+    if args.old_shards:  # the old spelling, kept for one release
+        print("warning: --shards is deprecated; give the folder as the first argument", file=sys.stderr)
+        args.shards = args.old_shards
     start = time.time()
     table = load_features(args.shards, FeatureConfig(), executor=LocalExecutor(workers=args.workers))
     print(f"{len(table)} frames from {args.shards} (features {time.time() - start:.0f} s)")

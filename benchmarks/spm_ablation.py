@@ -3,15 +3,15 @@
 Usage (from the repository root, in the venv; PYOPENGL_PLATFORM=egl for rendering):
 
     # once: render the subset (plus its 5-degree path neighbours) again at 512 px
-    python benchmarks/spm_ablation.py render [--shards /work/data/py/render]
+    python benchmarks/spm_ablation.py render [/work/data/py/render]
            [--hires /work/data/ablation/render512] [--instances 2] [--azimuth-step 2] [--elevation-step 2]
     # the benchmark: prints two markdown tables, writes them (and JSON) to --out
-    python benchmarks/spm_ablation.py run [--shards /work/data/py/render]
+    python benchmarks/spm_ablation.py run [/work/data/py/render]
            [--hires /work/data/ablation/render512] [--out /work/data/ablation/results]
            [--instances 2] [--azimuth-step 2] [--elevation-step 2] [--seed 0] [--no-hires] [--no-best]
            [--probe-only]
 
-Subset: every class in --shards, instances 0 .. --instances-1 of each, every
+Subset: every class in the shards folder, instances 0 .. --instances-1 of each, every
 --azimuth-step-th azimuth and every --elevation-step-th elevation of the camera
 grid. The training keypoint rule (RANSAC inliers against the frame's path
 neighbours, spm_model/spm/features.py) uses the neighbours from the full render,
@@ -501,7 +501,9 @@ def main(argv=None) -> None:
     sub = parser.add_subparsers(dest="command", required=True)
     for name in ("render", "run"):
         p = sub.add_parser(name)
-        p.add_argument("--shards", default="/work/data/py/render", help="128-px pyrender shards (default specs)")
+        p.add_argument("shards", nargs="?", default="/work/data/py/render",
+                       help="128-px pyrender shards of the default specs (default: /work/data/py/render)")
+        p.add_argument("--shards", dest="old_shards", help=argparse.SUPPRESS)
         p.add_argument("--hires", default="/work/data/ablation/render512", help="the 512-px subset's shards")
         p.add_argument("--instances", type=int, default=2, help="instances 0..N-1 of every class")
         p.add_argument("--azimuth-step", type=int, default=2, help="every k-th azimuth of the grid")
@@ -517,6 +519,9 @@ def main(argv=None) -> None:
             p.add_argument("--projection-samples", type=int, default=1000,
                            help="SPMEstimator's projection_samples (1000, its default; less only for smoke tests)")
     args = parser.parse_args(argv)
+    if args.old_shards:  # the old spelling, kept for one release
+        print("warning: --shards is deprecated; give the folder as the first argument", file=sys.stderr)
+        args.shards = args.old_shards
     (cmd_render if args.command == "render" else cmd_run)(args)
 
 

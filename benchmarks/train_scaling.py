@@ -1,7 +1,7 @@
 """SPM training at scale, feature-extraction speed, prediction speed at 640x480,
 the ellipse fits' cost, and the scalable solver's accuracy against the exact l1 solve.
 
-    python benchmarks/train_scaling.py [--shards DIR] [--sizes 5000,20000,100000,250000]
+    python benchmarks/train_scaling.py [DIR] [--sizes 5000,20000,100000,250000]
 
 Features come from real renders: DIR (default: a fresh pyrender set of the six
 built-in classes at 128x128, 1,296 frames, rendered into a temporary folder).
@@ -131,12 +131,17 @@ def predict_fps(model, shards: Path, repeats: int = 40) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--shards", type=Path, default=None)
-    parser.add_argument("--sizes", default="5000,20000,100000,250000")
-    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("shards", nargs="?", type=Path, default=None,
+                        help="folder of shards (default: a fresh pyrender set in a temporary folder)")
+    parser.add_argument("--shards", dest="old_shards", type=Path, help=argparse.SUPPRESS)
+    parser.add_argument("--sizes", default="5000,20000,100000,250000", help="training-set sizes, comma-separated")
+    parser.add_argument("--workers", type=int, default=2, help="feature-extraction processes")
     parser.add_argument("--accuracy-only", action="store_true", help="stop after the exact-solve comparison")
     parser.add_argument("--seeds", type=int, default=3, help="seeds per solver in the exact-solve comparison")
     args = parser.parse_args()
+    if args.old_shards:  # the old spelling, kept for one release
+        print("warning: --shards is deprecated; give the folder as the first argument", file=sys.stderr)
+        args.shards = args.old_shards
     with tempfile.TemporaryDirectory() as tmp:
         shards = args.shards or make_shards(Path(tmp) / "shards")
         pso_fps, direct_fps = extraction_fps(shards)

@@ -22,7 +22,7 @@ def _device(attrs: dict) -> str:
     return f", on {device}" if device else ""
 
 
-def describe_shard(path) -> str:
+def shard_info(path) -> str:
     attrs = read_attrs(path)
     lines = [f"shard {path}", f"  schema v{attrs['schema_version']}, {attrs['frames']} frames, "
              f"{attrs.get('width')}x{attrs.get('height')}, renderer {attrs.get('renderer')} "
@@ -42,7 +42,7 @@ def describe_shard(path) -> str:
     return "\n".join(lines)
 
 
-def describe_folder(folder) -> str:
+def folder_info(folder) -> str:
     folder = Path(folder)
     with warnings.catch_warnings(record=True) as caught:  # info describes a partial folder, noting its gaps
         warnings.simplefilter("always", SpmWarning)
@@ -64,10 +64,11 @@ def describe_folder(folder) -> str:
     return "\n".join(lines)
 
 
-def describe(path) -> str:
+def info_text(path) -> str:
+    """What `spm-data info` prints for ``path``: a shard's fields, or a folder's shards and classes."""
     path = Path(path)
     if path.is_dir():
-        return describe_folder(path)
+        return folder_info(path)
     if path.is_file():
-        return describe_shard(path)
+        return shard_info(path)
     raise ShardError(f"no such shard or folder: {path}")

@@ -39,7 +39,7 @@ def parse_renames(spec: str | None) -> dict[str, str]:
     out = {}
     for part in spec.split(","):
         if "=" not in part or not part.split("=", 1)[0].strip() or not part.split("=", 1)[1].strip():
-            raise SpmError(f"--classes: expected old=new[,old=new...], got {part!r}")
+            raise SpmError(f"--rename: expected OLD=NEW[,OLD=NEW...], got {part!r}")
         old, new = (x.strip() for x in part.split("=", 1))
         out[old] = new
     return out

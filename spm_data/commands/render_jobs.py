@@ -22,7 +22,7 @@ from spm_data.errors import RenderError, SpecError
 from spm_data.core.instances import instance_count, load_instance, mesh_attrs, mesh_record
 from spm_data.core.paths import camera_path
 from spm_data.core.poses import pose_to_label
-from spm_data.render import make_renderer
+from spm_data.render import RENDERERS, make_renderer
 from spm_data.commands.render_frames import FrameMaker
 from spm_data.core.distractors import pool_names
 from spm_data.jobs.executor import LocalExecutor
@@ -241,7 +241,7 @@ def render_dataset(specs: list[RenderSpec], out_dir, *, limit=None, progress=Non
     names = [j.name for j in jobs]
     if len(set(names)) != len(names):
         raise SpecError("two specs share a class name; each class needs its own name")
-    in_process = all(j.spec.render.renderer == "pyrender" for j in jobs)
+    in_process = all(RENDERERS[j.spec.render.renderer].in_process for j in jobs)
     executor = executor or LocalExecutor(workers=1, retries=1, recycle_after=RECYCLE_AFTER)
     summary = run_shard_jobs(render_shard, jobs, out_dir, executor=executor, in_process=in_process,
                              progress=progress, verb="rendered")

@@ -19,11 +19,9 @@ from spm_data.core.symmetries import declared_symmetries, parse_symmetry
 from spm_data.core.paths import SAMPLER_KEYS, AngleRange, CameraGrid, camera_path
 from spm_data.core.distractors import DistractorSpec, validate_distractors
 from spm_data.core.randomize import RandomizeSpec, validate_randomize
+from spm_data.render import RENDERERS
 
-RENDERERS = ("pyrender", "blender")
 BACKGROUNDS = ("black", "color", "images")
-BLENDER_ENGINES = ("cycles", "workbench", "eevee")
-BLENDER_DEVICES = ("cpu", "gpu", "auto")
 
 
 @dataclass(frozen=True)
@@ -59,21 +57,14 @@ class BackgroundSpec:
     folder: str = ""                # images, for kind = "images" (relative to the spec file)
 
 
-@dataclass(frozen=True)
-class BlenderSpec:
-    engine: str = "cycles"          # "cycles" | "workbench"
-    samples: int = 16
-    denoise: bool = False
-    film_transparent: bool = True
-    threads: int = 0                # 0: Blender's default (all cores)
-    device: str = "cpu"             # Cycles: "cpu" | "gpu" | "auto" (a GPU if Blender finds one, else the CPU)
-
-
-@dataclass(frozen=True)
-class RenderSettings:
-    renderer: str = "blender"
-    frames_per_shard: int = 256
-    blender: BlenderSpec = BlenderSpec()
+# [render]: the renderer's name, shard size, and one settings table per registered renderer that has
+# settings ([render.blender], ...), each the backend's own dataclass (spm_data/render/__init__.py).
+RenderSettings = dataclasses.make_dataclass(
+    "RenderSettings",
+    [("renderer", "str", field(default="blender")), ("frames_per_shard", "int", field(default=256)),
+     *[(name, b.settings, field(default=b.settings())) for name, b in RENDERERS.items() if b.settings]],
+    frozen=True)
+RenderSettings.__module__ = __name__  # pickled with the spec to worker processes
 
 
 @dataclass(frozen=True)
@@ -115,8 +106,10 @@ class RenderSpec:
         payload["mesh"].pop("symmetries")  # metadata for the BOP export: the pixels do not change
         if self.mesh.up == "z":  # the default: a spec without the key keeps its fingerprint
             payload["mesh"].pop("up")
-        if self.render.blender.device == "cpu":  # the default: a CPU spec's fingerprint stays as it was
-            payload["render"]["blender"].pop("device")
+        for name, backend in RENDERERS.items():  # settings added later: at their default, the old fingerprint
+            for key, default in getattr(backend.settings, "FINGERPRINT_SKIPS", {}).items():
+                if getattr(getattr(self.render, name), key) == default:
+                    payload["render"][name].pop(key)
         for key, default in OPTIONAL_TABLES.items():
             if getattr(self, key) == default:
                 payload.pop(key)
@@ -176,9 +169,11 @@ def _build(cls, table: dict, prefix: str):
     for key, value in table.items():
         if key not in known:
             raise SpecError(f"{prefix}{key}: unknown key (expected one of: {', '.join(sorted(known))})")
-        annotation = known[key].type if isinstance(known[key].type, str) else known[key].type.__name__
-        nested = {"BlenderSpec": BlenderSpec}.get(annotation)
-        values[key] = _build(nested, value, f"{prefix}{key}.") if nested else _convert(value, annotation, prefix + key)
+        kind = known[key].type
+        if dataclasses.is_dataclass(kind):  # a renderer's settings table, e.g. [render.blender]
+            values[key] = _build(kind, value, f"{prefix}{key}.")
+        else:
+            values[key] = _convert(value, kind if isinstance(kind, str) else kind.__name__, prefix + key)
     return cls(**values)
 
 
@@ -266,25 +261,11 @@ def _validate(spec: RenderSpec) -> RenderSpec:
     r = spec.render
     _check(r.renderer in RENDERERS, f"render.renderer: expected one of {', '.join(RENDERERS)}, got {r.renderer!r}")
     _check(r.frames_per_shard >= 1, f"render.frames_per_shard: expected an integer >= 1, got {r.frames_per_shard}")
-    b = r.blender
-    _check(b.engine in BLENDER_ENGINES, f"render.blender.engine: expected cycles or workbench, got {b.engine!r}")
-    _check(1 <= b.samples <= 65536, f"render.blender.samples: expected 1..65536, got {b.samples}")
-    _check(b.threads >= 0, f"render.blender.threads: expected >= 0, got {b.threads}")
-    _check(b.device in BLENDER_DEVICES, f"render.blender.device: expected one of {', '.join(BLENDER_DEVICES)}, "
-                                        f"got {b.device!r}")
     validate_randomize(spec.randomize, bg.folder)
     validate_distractors(spec.distractors, spec.base_dir)
-    lit = [k for k in ("lights", "light_strength", "light_color", "ambient", "base_color", "roughness", "metallic")
-           if getattr(spec.randomize, k)]
-    _check(not (lit and r.renderer == "blender" and b.engine == "workbench"),
-           f"randomize.{lit[0] if lit else ''}: Workbench lights with its own studio light and no materials; "
-           "use engine = \"cycles\" or the pyrender renderer")
-    workbench = r.renderer == "blender" and b.engine == "workbench"
-    _check(not (workbench and (spec.distractors.count or spec.outputs.instances)),
-           f"{'distractors.count' if spec.distractors.count else 'outputs.instances'}: Blender's Workbench has no "
-           "object index pass to tell the objects apart; use engine = \"cycles\" or the pyrender renderer")
-    _check(not (spec.outputs.normals and r.renderer == "blender" and b.engine == "workbench"),
-           "outputs.normals: Blender's Workbench has no normal pass; use engine = \"cycles\" or the pyrender renderer")
+    for backend in RENDERERS.values():  # each renderer checks its own settings, and what it cannot draw
+        if backend.check:
+            backend.check(spec)
     return spec
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spm_data.errors import ImageError, SpmError, one_line
+from spm_data.errors import ImageError, SpmError, one_line  # noqa: F401 (SpmError: re-exported)
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".bmp", ".tif", ".tiff")
 

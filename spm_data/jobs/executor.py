@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from multiprocessing.connection import wait
 
 from spm_data.errors import SpmError
-from spm_data.jobs.outcome import JobOutcome, deferred_interrupt, describe, is_blender_script_dir
+from spm_data.jobs.outcome import JobOutcome, deferred_interrupt, error_text, is_blender_script_dir
 
 
 @dataclass
@@ -43,7 +43,7 @@ def _worker_main(fn, conn, recycle_after):
             result = fn(job, lambda n, job_id=job_id: conn.send(("progress", job_id, n)))
             conn.send(("done", job_id, result))
         except BaseException as exc:  # noqa: BLE001 - reported to the parent, never swallowed
-            conn.send(("error", job_id, describe(exc)))
+            conn.send(("error", job_id, error_text(exc)))
         done += 1
         if recycle_after and done >= recycle_after:
             conn.send(("retire", None, None))
@@ -93,7 +93,7 @@ def _run_in_process(fn, jobs, on_progress, on_outcome, stop) -> list:
         try:
             outcomes.append(JobOutcome(job, result=fn(job, progress)))
         except SpmError as exc:
-            outcomes.append(JobOutcome(job, error=describe(exc)))
+            outcomes.append(JobOutcome(job, error=error_text(exc)))
         if on_outcome:
             on_outcome(outcomes[-1])
     return outcomes

@@ -42,7 +42,8 @@ def deferred_interrupt():
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
-def describe(exc: BaseException) -> str:
+def error_text(exc: BaseException) -> str:
+    """A job's exception as one line: our own message alone, any other exception with its type."""
     return str(exc) if isinstance(exc, SpmError) else f"{type(exc).__name__}: {exc}"
 
 

@@ -26,7 +26,7 @@ import os
 import sys
 
 from spm_data.errors import SpmError
-from spm_data.jobs.outcome import JobOutcome, deferred_interrupt, describe, is_blender_script_dir
+from spm_data.jobs.outcome import JobOutcome, deferred_interrupt, error_text, is_blender_script_dir
 
 INSTALL_HINT = "the Ray executor needs Ray: pip install 'spm[ray]' (or pip install ray)"
 
@@ -65,7 +65,7 @@ def _ray_task(fn, job):
     try:
         return {"result": fn(job, report), "frames": frames[0], "pid": os.getpid()}
     except Exception as exc:  # noqa: BLE001 - reported to the driver as the job's error
-        return {"error": describe(exc), "frames": frames[0], "pid": os.getpid()}
+        return {"error": error_text(exc), "frames": frames[0], "pid": os.getpid()}
 
 
 class RayExecutor:

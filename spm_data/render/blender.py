@@ -1,6 +1,6 @@
 """Blender (bpy, headless) renderer: Cycles on the CPU, or Workbench.
 
-See spm_data.render for the interface and the arrays ``render`` returns. The
+See spm_data.render.base for the interface and the arrays ``render`` returns. The
 scene (camera with the spec's intrinsics, lights that move with the camera,
 world, render settings) is built once per renderer and the mesh once per
 instance; a frame moves the camera (and sets the frame's draws and distractors)
@@ -26,7 +26,7 @@ import numpy as np
 from spm_data.errors import RenderError
 from spm_data.core.poses import K_to_corner_origin, cv_to_gl_camera_to_world
 from spm_data.core.raster import CLIP_FAR, CLIP_NEAR
-from spm_data.render import Renderer, light_rotations, rotate_normals
+from spm_data.render.base import Renderer, light_rotations, rotate_normals
 from spm_data.render.blender_exr import INSTALL_HINT, import_openexr, read_frame
 from spm_data.render.blender_scene import border_box, captured_output, cycles_device, mesh_data, remove_mesh_data, tail
 

@@ -1,6 +1,6 @@
 """pyrender (OpenGL, offscreen EGL) renderer: the fast backend.
 
-See spm_data.render for the interface and the arrays ``render`` returns.
+See spm_data.render.base for the interface and the arrays ``render`` returns.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import numpy as np
 from spm_data.errors import RenderError
 from spm_data.core.poses import K_to_corner_origin, cv_to_gl_camera_to_world
 from spm_data.core.raster import CLIP_FAR, CLIP_NEAR
-from spm_data.render import Renderer, decode_normals, light_rotations, mask_from_depth
+from spm_data.render.base import Renderer, decode_normals, light_rotations, mask_from_depth
 
 # EGL needs no display; it must be chosen before OpenGL is first imported.
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")

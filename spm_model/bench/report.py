@@ -145,17 +145,17 @@ def check_report_folder(out_dir) -> Path:
     problem = unwritable(out)
     if problem and problem[1] == "file":
         got = "is a file" if problem[0] == out else f"cannot be made: {problem[0]} is a file"
-        raise SpmError(f"report folder {out} {got}; give a folder with --report")
+        raise SpmError(f"report folder {out} {got}; give a folder with --out")
     if problem:
         raise SpmError(f"report folder {out} cannot be written: {problem[0]} is read-only; give a writable folder "
-                       "with --report")
+                       "with --out")
     return out
 
 
 def write_error(out_dir, exc: OSError) -> SpmError:
     """The one-line error for an OSError met while writing the report in ``out_dir``."""
     return SpmError(f"could not write the report in {out_dir}: {exc.strerror or exc}; free space there or give "
-                    "another folder with --report")
+                    "another folder with --out")
 
 
 def write_report(evaluation: dict, context: dict, out_dir) -> dict:

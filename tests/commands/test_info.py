@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from spm_data.commands.info import describe
+from spm_data.commands.info import info_text
 from spm_data.errors import ShardError
 from spm_data.io.shards import write_manifest, write_shard
 from tests.helpers import make_arrays
@@ -24,7 +24,7 @@ def folder(tmp_path):
 
 
 def test_a_shard_its_fields_classes_and_label_ranges(folder):
-    lines = describe(folder / "cup-00000.h5").splitlines()
+    lines = info_text(folder / "cup-00000.h5").splitlines()
     assert lines[:4] == [f"shard {folder / 'cup-00000.h5'}",
                          "  schema v2, 3 frames, 10x8, renderer pyrender (pyrender 0.1.45), seed 3",
                          "  rgb                  (3, 8, 10, 3)          uint8",
@@ -38,7 +38,7 @@ def test_a_shard_its_fields_classes_and_label_ranges(folder):
 
 
 def test_a_folder_its_manifest_and_shards(folder):
-    lines = describe(folder).splitlines()
+    lines = info_text(folder).splitlines()
     size = (folder / "cup-00000.h5").stat().st_size / 1e6
     assert lines == [f"folder {folder}: 1 shards", "  manifest: 3 frames in 1 shards",
                      "    box                      1 frames", "    cup                      2 frames",
@@ -47,7 +47,7 @@ def test_a_folder_its_manifest_and_shards(folder):
 
 def test_a_folder_without_manifest_is_described_with_its_gaps(folder):
     (folder / "manifest.json").unlink()
-    lines = describe(folder).splitlines()
+    lines = info_text(folder).splitlines()
     assert lines[0] == f"folder {folder}: 1 shards"
     assert lines[1].startswith(f"  note: {folder}: no manifest.json; reading the 1 complete shards on disk")
     assert lines[2] == "  no manifest.json (an interrupted or foreign folder?)" and lines[-1] == "  total: 3 frames"
@@ -55,12 +55,12 @@ def test_a_folder_without_manifest_is_described_with_its_gaps(folder):
 
 def test_nothing_there(tmp_path):
     with pytest.raises(ShardError, match="^no such shard or folder: "):
-        describe(tmp_path / "nothing")
+        info_text(tmp_path / "nothing")
 
 
 def test_a_shard_rendered_by_cycles_says_on_which_device(tmp_path):
     a = make_arrays(n=1, h=4, w=4)
     write_shard(tmp_path / "b.h5", a, {"renderer": "blender", "seed": 0, "renderer_version": "Blender 5.0.1",
                                        "renderer_settings": '{"device": "OPTIX", "samples": 16}'})
-    assert describe(tmp_path / "b.h5").splitlines()[1] == ("  schema v2, 1 frames, 4x4, renderer blender "
+    assert info_text(tmp_path / "b.h5").splitlines()[1] == ("  schema v2, 1 frames, 4x4, renderer blender "
                                                            "(Blender 5.0.1, on OPTIX), seed 0")

@@ -87,12 +87,12 @@ def test_cli_errors_are_one_line_and_write_nothing(rendered, tmp_path):
         (["--max", "1.5"], "must lie in [0, 1]"),
         (["--min", "0.7", "--max", "0.6"], "--min 0.7 is above --max 0.6"),
     ]:
-        r = run("occlude", "--in", rendered, "--out", out, *args)
+        r = run("occlude", rendered, "--out", out, *args)
         assert r.exit_code == 1 and r.output.startswith("error: ") and message in r.output
         assert r.output.strip().count("\n") == 0 and not out.exists()
     empty = tmp_path / "empty"
     empty.mkdir()
-    r = run("occlude", "--in", empty, "--out", out)
+    r = run("occlude", empty, "--out", out)
     assert r.exit_code == 1 and "no shards (*.h5) in" in r.output and not out.exists()
     bad = tmp_path / "nomask"
     bad.mkdir()
@@ -101,13 +101,13 @@ def test_cli_errors_are_one_line_and_write_nothing(rendered, tmp_path):
     arrays["mask"][:] = 0
     write_shard(bad / src.name, arrays, read_attrs(src))
     write_manifest(bad)
-    r = run("occlude", "--in", bad, "--out", out)
+    r = run("occlude", bad, "--out", out)
     assert r.exit_code == 1 and "every mask is empty" in r.output and not out.exists()
-    r = run("occlude", "--in", rendered, "--out", rendered)
+    r = run("occlude", rendered, "--out", rendered)
     assert r.exit_code == 1 and "is the input folder" in r.output
 
 
 def test_cli_occlude_runs(rendered, tmp_path):
-    r = run("occlude", "--in", rendered, "--out", tmp_path / "o", "--max", "0.6", "--seed", "2")
+    r = run("occlude", rendered, "--out", tmp_path / "o", "--max", "0.6", "--seed", "2")
     assert r.exit_code == 0, r.output
     assert "occluded 2 shards (78 frames)" in r.output and "0 frames could not reach" in r.output

@@ -9,7 +9,7 @@ from spm_data.core.paths import camera_path
 from spm_data.core.raster import project
 from spm_data.core.specs import parse_spec
 from spm_data.errors import SpecError, SpmError
-from spm_data.render import spec_intrinsics
+from spm_data.render.base import spec_intrinsics
 
 
 def cluttered(count=2, visible="[0.0, 1.0]", extra=""):

@@ -6,7 +6,7 @@ import pytest
 from spm_data.core.randomize import fixed_light_rotations, frame_draws, max_lights
 from spm_data.core.specs import parse_spec
 from spm_data.errors import SpecError
-from spm_data.render import spec_intrinsics
+from spm_data.render.base import spec_intrinsics
 
 RANDOM = """class = "cup"
 [randomize]

@@ -41,7 +41,8 @@ def test_a_mesh_reaching_behind_the_camera_is_refused():
 
 @pytest.mark.parametrize("cls", ["box", "motorcycle", "cup"])
 def test_silhouettes_match_pyrender_masks_to_a_pixel_or_two(cls):
-    from spm_data.render import make_renderer, spec_intrinsics
+    from spm_data.render import make_renderer
+    from spm_data.render.base import spec_intrinsics
 
     spec = parse_spec(f'class = "{cls}"\n[render]\nrenderer = "pyrender"')
     renderer = make_renderer(spec)

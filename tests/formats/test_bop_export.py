@@ -125,7 +125,7 @@ def test_pbr_splits_are_jpeg_other_splits_png(exported, tmp_path):
 
 def test_scene_gt_coco_decodes_to_our_visible_masks(small_specs_dir, tmp_path):
     render_dataset(load_run_specs(["cup"], specs_dir=small_specs_dir), tmp_path / "r", limit=6)
-    CliRunner().invoke(data_cli, ["occlude", "--in", str(tmp_path / "r"), "--out", str(tmp_path / "o"),
+    CliRunner().invoke(data_cli, ["occlude", str(tmp_path / "r"), "--out", str(tmp_path / "o"),
                                   "--max", "0.6", "--copies", "1", "--seed", "2"], catch_exceptions=False)
     export_bop(tmp_path / "o", tmp_path / "bop")
     checked = 0
@@ -150,7 +150,7 @@ def test_occluded_export_has_occluder_depth_so_bop_visibility_agrees(small_specs
     from spm_data.io.folders import open_folder
 
     render_dataset(load_run_specs(["cup"], specs_dir=small_specs_dir), tmp_path / "r", limit=6)
-    CliRunner().invoke(data_cli, ["occlude", "--in", str(tmp_path / "r"), "--out", str(tmp_path / "o"),
+    CliRunner().invoke(data_cli, ["occlude", str(tmp_path / "r"), "--out", str(tmp_path / "o"),
                                   "--min", "0.2", "--max", "0.6", "--copies", "1"], catch_exceptions=False)
     export_bop(tmp_path / "o", tmp_path / "bop")
     scene_of, seen = {}, {}

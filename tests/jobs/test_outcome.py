@@ -8,7 +8,7 @@ import threading
 import pytest
 
 from spm_data.errors import ShardError, SpmError
-from spm_data.jobs.outcome import JobOutcome, deferred_interrupt, describe, is_blender_script_dir, probe_job
+from spm_data.jobs.outcome import JobOutcome, deferred_interrupt, error_text, is_blender_script_dir, probe_job
 
 
 def test_an_outcome_is_one_attempt_without_error_by_default():
@@ -16,11 +16,11 @@ def test_an_outcome_is_one_attempt_without_error_by_default():
     assert (outcome.job, outcome.result, outcome.error, outcome.attempts) == (("a", 1), None, None, 1)
 
 
-def test_describe_gives_our_message_alone_and_names_other_exceptions():
-    assert describe(SpmError("cup-00001.h5: bad")) == "cup-00001.h5: bad"
-    assert describe(ShardError("shard not found: x.h5")) == "shard not found: x.h5"
-    assert describe(ValueError("math domain error")) == "ValueError: math domain error"
-    assert describe(KeyError("rgb")) == "KeyError: 'rgb'"
+def test_error_text_gives_our_message_alone_and_names_other_exceptions():
+    assert error_text(SpmError("cup-00001.h5: bad")) == "cup-00001.h5: bad"
+    assert error_text(ShardError("shard not found: x.h5")) == "shard not found: x.h5"
+    assert error_text(ValueError("math domain error")) == "ValueError: math domain error"
+    assert error_text(KeyError("rgb")) == "KeyError: 'rgb'"
 
 
 @pytest.mark.parametrize("path, expected", [

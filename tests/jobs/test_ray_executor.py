@@ -139,7 +139,7 @@ def test_cli_occlude_with_the_ray_executor(specs, tmp_path):
 
     render_dataset(specs, tmp_path / "in")
     runner = CliRunner()
-    args = ["occlude", "--in", str(tmp_path / "in"), "--max", "0.4", "--workers", "2"]
+    args = ["occlude", str(tmp_path / "in"), "--max", "0.4", "--workers", "2"]
     r = runner.invoke(data_cli, args + ["--out", str(tmp_path / "ray"), "--executor", "ray"])
     assert r.exit_code == 0, r.output
     assert "occluded 4 shards (80 frames)" in r.output and "0 failed" in r.output

@@ -6,7 +6,8 @@ import pytest
 from spm_data.core.shapes import procedural_mesh
 from spm_data.core.paths import AngleRange, CameraGrid, camera_path
 from spm_data.core.poses import project_points
-from spm_data.render import make_renderer, spec_intrinsics
+from spm_data.render import make_renderer
+from spm_data.render.base import spec_intrinsics
 from spm_data.core.specs import parse_spec
 from spm_data.commands.render_jobs import load_run_specs
 

@@ -1,22 +1,19 @@
-"""spm_data.render: the Renderer interface, make_renderer, and what both backends share
-(intrinsics from the spec, lights around the camera, masks from depth)."""
+"""spm_data.render: the registry of renderers, and make_renderer, which builds the registered
+backend a spec names; specs read the registry's names, settings tables and checks."""
+
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 
-from spm_data.core.poses import intrinsics_from_fov
-from spm_data.core.specs import parse_spec
+from spm_data.core.specs import RenderSettings, parse_spec
 from spm_data.errors import RenderError
-from spm_data.render import Renderer, light_rotations, make_renderer, mask_from_depth, spec_intrinsics
+from spm_data.render import RENDERERS, make_renderer, renderer_names
+from spm_data.render.base import Renderer, spec_intrinsics
+from spm_data.render.blender_settings import BlenderSettings
 
 SPEC = 'class = "cup"\n[image]\nwidth = 64\nheight = 48\nfov = 40\n[render]\nrenderer = "pyrender"\n'
-
-
-def test_spec_intrinsics_are_the_specs_field_of_view_at_pixel_centres():
-    spec = parse_spec(SPEC)
-    K = spec_intrinsics(spec)
-    np.testing.assert_array_equal(K, intrinsics_from_fov(40, 64, 48))
-    assert (K[0, 2], K[1, 2]) == (31.5, 23.5) and K.dtype == np.float64
 
 
 def test_make_renderer_builds_the_named_backend_and_refuses_others():
@@ -29,50 +26,43 @@ def test_make_renderer_builds_the_named_backend_and_refuses_others():
         np.testing.assert_array_equal(renderer.K, spec_intrinsics(spec))
 
 
-def test_a_renderer_must_implement_the_interface_and_closes_as_a_context_manager():
-    class Half(Renderer):
-        def version(self):
-            return "half 0"
-
-    with pytest.raises(TypeError, match="abstract"):
-        Half(parse_spec(SPEC))
-
-    class Null(Half):
-        closed = 0
-
-        def settings(self):
-            return {}
-
-        def set_mesh(self, mesh):
-            pass
-
-        def render(self, R, t):
-            return {}
-
-        def close(self):
-            Null.closed += 1
-
-    with Null(parse_spec(SPEC)) as r:
-        assert r.K.shape == (3, 3)
-    assert Null.closed == 1
+def test_the_registry_names_each_backend_with_its_settings():
+    assert renderer_names() == ("pyrender", "blender")
+    assert RENDERERS["blender"].settings is BlenderSettings and RENDERERS["pyrender"].settings is None
+    assert RENDERERS["pyrender"].in_process and not RENDERERS["blender"].in_process
+    # the spec's [render] table has one settings table per renderer that has settings
+    assert parse_spec(SPEC).render.blender == BlenderSettings()
+    assert not hasattr(RenderSettings(), "pyrender")
 
 
-def test_lights_are_a_head_light_and_a_40_degree_cone_around_it():
-    assert len(light_rotations(0)) == 0
-    (head,) = light_rotations(1)
-    np.testing.assert_array_equal(head, np.eye(3))
-    rots = light_rotations(4)
-    np.testing.assert_array_equal(rots[0], np.eye(3))
-    for R in rots:
-        np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
-        assert np.linalg.det(R) == pytest.approx(1.0)
-    directions = np.array([R @ [0, 0, 1.0] for R in rots[1:]])
-    np.testing.assert_allclose(np.degrees(np.arccos(directions[:, 2])), 40.0)          # 40 degrees off the axis
-    azimuths = np.degrees(np.arctan2(directions[:, 1], directions[:, 0])) % 360
-    np.testing.assert_allclose(np.sort(np.diff(np.sort(azimuths))), [120.0, 120.0])    # spread evenly around it
+VK = """
+import dataclasses
+from spm_data.errors import SpecError
+import spm_data.render as render
+
+@dataclasses.dataclass(frozen=True)
+class VkSettings:
+    queues: int = 1
+
+def check(spec):
+    if spec.render.vk.queues < 1:
+        raise SpecError(f"render.vk.queues: expected >= 1, got {spec.render.vk.queues}")
+
+render.RENDERERS["vk"] = render.Backend("no.such.module", "Vk", VkSettings, check)
+from spm_data.core.specs import parse_spec
+spec = parse_spec('class = "cup"\\n[render]\\nrenderer = "vk"\\n[render.vk]\\nqueues = 3\\n')
+print(spec.render.vk.queues, spec.render.blender.samples)
+for text in ('class = "cup"\\n[render.vk]\\nqueues = 0\\n', 'class = "cup"\\n[render]\\nrenderer = "gl"\\n'):
+    try:
+        parse_spec(text)
+    except SpecError as exc:
+        print(exc)
+"""
 
 
-def test_mask_from_depth():
-    depth = np.array([[0.0, 0.5], [1e-9, -0.0]], np.float32)
-    mask = mask_from_depth(depth)
-    assert mask.dtype == np.uint8 and mask.tolist() == [[0, 1], [1, 0]]
+def test_one_registration_makes_a_renderer_a_spec_knows():
+    """An entry added to RENDERERS before specs load is a renderer name, a [render.NAME] table and a check."""
+    r = subprocess.run([sys.executable, "-c", VK], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines() == ["3 16", "<spec>: render.vk.queues: expected >= 1, got 0",
+                                     "<spec>: render.renderer: expected one of pyrender, blender, vk, got 'gl'"]

@@ -65,7 +65,7 @@ def test_a_flipped_byte_in_any_field_is_refused_by_occlude_naming_it(clean, tmp_
     flip_stored_byte(src / "cup-00000.h5", field)
     with pytest.raises(ShardError, match=f"cup-00000.h5: field '{field}' fails its checksum"):
         read_shard(src / "cup-00000.h5", [field])
-    line = one_error(run(data_cli, "occlude", "--in", src, "--out", tmp_path / "occ"))
+    line = one_error(run(data_cli, "occlude", src, "--out", tmp_path / "occ"))
     assert f"cup-00000.h5: field '{field}' fails its checksum" in line
     assert not (tmp_path / "occ").exists()
 
@@ -81,14 +81,14 @@ def test_every_reader_refuses_a_flipped_byte(clean, tmp_path, field):
     r = run(data_cli, "validate", src)
     assert r.exit_code == 1 and expected in r.output
     if field in ("rgb", "K", "pose", "class_name"):  # what training reads
-        line = one_error(run(model_cli, "train", "--shards", src, "--report", tmp_path / "report", "--runs", "1"))
+        line = one_error(run(model_cli, "train", src, "--out", tmp_path / "report", "--runs", "1"))
         assert expected in line and not (tmp_path / "report").exists()
 
 
 def test_a_flipped_byte_in_an_attribute_is_refused(clean, tmp_path):
     src = copy(clean, tmp_path)
     flip_text(src / "cup-00001.h5", b"frames_per_shard")  # inside the spec text attribute
-    line = one_error(run(data_cli, "occlude", "--in", src, "--out", tmp_path / "occ"))
+    line = one_error(run(data_cli, "occlude", src, "--out", tmp_path / "occ"))
     assert "cup-00001.h5: attribute 'spec' fails its checksum" in line
     assert not (tmp_path / "occ").exists()
 
@@ -98,7 +98,7 @@ def test_a_derived_shard_never_launders_corruption(clean, tmp_path):
     occluded copy can't hide a bad byte of its source behind a new checksum."""
     src = copy(clean, tmp_path)
     flip_stored_byte(src / "cup-00000.h5", "depth")
-    line = one_error(run(data_cli, "occlude", "--in", src, "--out", tmp_path / "occ"))
+    line = one_error(run(data_cli, "occlude", src, "--out", tmp_path / "occ"))
     assert "cup-00000.h5: field 'depth' fails its checksum" in line
     assert not (tmp_path / "occ").exists()
 
@@ -106,10 +106,10 @@ def test_a_derived_shard_never_launders_corruption(clean, tmp_path):
 def test_a_missing_shard_is_an_error_and_allow_partial_skips_it(clean, tmp_path):
     src = copy(clean, tmp_path)
     (src / "box-00000.h5").unlink()
-    line = one_error(run(data_cli, "occlude", "--in", src, "--out", tmp_path / "occ"))
+    line = one_error(run(data_cli, "occlude", src, "--out", tmp_path / "occ"))
     assert "box-00000.h5 is listed in manifest.json but missing" in line and not (tmp_path / "occ").exists()
     assert "box-00000.h5 is listed" in one_error(run(data_cli, "merge", src, "--out", tmp_path / "m"))
-    r = run(data_cli, "occlude", "--in", src, "--out", tmp_path / "occ", "--allow-partial")
+    r = run(data_cli, "occlude", src, "--out", tmp_path / "occ", "--allow-partial")
     assert r.exit_code == 0, r.output
     assert "warning: " in r.output and "box-00000.h5 is listed in manifest.json but missing; skipped" in r.output
     assert read_manifest(tmp_path / "occ")["frames"] == 24
@@ -119,7 +119,7 @@ def test_a_stray_shard_is_reported_and_ignored_never_adopted(clean, tmp_path):
     src = copy(clean, tmp_path)
     stray = read_shard(src / "cup-00000.h5")
     write_shard(src / "stray.h5", stray, {"renderer": "x", "seed": 0})
-    r = run(data_cli, "occlude", "--in", src, "--out", tmp_path / "occ")
+    r = run(data_cli, "occlude", src, "--out", tmp_path / "occ")
     assert r.exit_code == 0, r.output
     assert "warning: " in r.output and "ignoring 1 shard(s) manifest.json does not list (stray.h5)" in r.output
     assert read_manifest(tmp_path / "occ")["frames"] == 32
@@ -153,13 +153,13 @@ def test_a_folder_being_written_is_refused_with_who_writes_it(tmp_path):
         wait_for(lambda: out.is_dir() and list_shards(out) and lock_owner(out), "a shard and the lock", proc=proc)
         proc.send_signal(signal.SIGSTOP)  # hold the run still while we read
         try:
-            line = one_error(run(data_cli, "occlude", "--in", out, "--out", tmp_path / "occ"))
+            line = one_error(run(data_cli, "occlude", out, "--out", tmp_path / "occ"))
             assert f"is still being written by pid {proc.pid} on host" in line
             assert "--allow-partial" in line and not (tmp_path / "occ").exists()
-            line = one_error(run(model_cli, "train", "--shards", out, "--report", tmp_path / "r"))
+            line = one_error(run(model_cli, "train", out, "--out", tmp_path / "r"))
             assert f"is still being written by pid {proc.pid}" in line
             done = len(list_shards(out))
-            r = run(data_cli, "occlude", "--in", out, "--out", tmp_path / "occ", "--allow-partial")
+            r = run(data_cli, "occlude", out, "--out", tmp_path / "occ", "--allow-partial")
             assert r.exit_code == 0, r.output
             assert f"warning: {out}/ is still being written by pid {proc.pid}" in r.output
             assert f"occluded {done} shards" in r.output

@@ -1,17 +1,24 @@
 """The layers of docs/architecture.md, kept by parsing the code: imports go downward only,
-no import cycles, no module over MAX_LINES, and no Blender or OpenGL outside the two backends."""
+no import cycles, no module over MAX_LINES, and no Blender or OpenGL outside the registered
+renderer backends (spm_data.render.RENDERERS)."""
 
 import ast
 import subprocess
 import sys
 from pathlib import Path
 
+from spm_data.render import RENDERERS
+
 ROOT = Path(__file__).resolve().parents[2]
-PACKAGES = ("spm_data", "spm_model", "cli")
+PACKAGES = ("spm_data", "spm_model", "cli.py")
 # Lowest first; a module may import its own layer and those below it, never above.
-LAYERS = ("spm_data.errors", "spm_data.io", "spm_data.core", "spm_data.render", "spm_data.jobs",
+LAYERS = ("spm_data.errors", "spm_data.io", "renderer registry", "spm_data.core", "spm_data.render", "spm_data.jobs",
           "spm_data.formats", "spm_data.commands", "spm_model.base", "spm_model.spm", "spm_model.methods",
           "spm_model.bench", "spm_model.commands", "cli")
+# The registry (spm_data/render/__init__.py) and the backends' settings modules sit below core,
+# which reads them for the specs; the Renderer base and the backends sit above it.
+REGISTRY = {"spm_data.render"} | {b.settings.__module__ for b in RENDERERS.values() if b.settings}
+BACKENDS = {b.module for b in RENDERERS.values()}
 MAX_LINES = 350
 
 
@@ -19,7 +26,7 @@ def module_files() -> dict:
     """Dotted module name -> file, for every module of the library."""
     found = {}
     for package in PACKAGES:
-        for path in sorted((ROOT / package).rglob("*.py")):
+        for path in [ROOT / package] if package.endswith(".py") else sorted((ROOT / package).rglob("*.py")):
             parts = path.relative_to(ROOT).with_suffix("").parts
             found[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
     return found
@@ -43,6 +50,8 @@ def imports_of(path: Path, known) -> set:
 
 
 def layer(module: str) -> int:
+    if module in REGISTRY:
+        return LAYERS.index("renderer registry")
     if module == "spm_data":   # the package itself: its version and docstring
         return 0
     if module == "spm_model":  # likewise, at the bottom of its own layers
@@ -96,12 +105,15 @@ def test_the_checks_find_what_they_look_for():
     assert upward_imports(planted) == ["spm_data.io.a (layer spm_data.io) imports spm_data.commands.b "
                                        "(layer spm_data.commands)"]
     assert import_cycles(planted) == ["spm_data.commands.b -> spm_data.io.a -> spm_data.commands.b"]
-    assert len(modules()) > 60 and "spm_data.io.shards.reader" in modules()
+    assert len(modules()) > 60 and "spm_data.io.shards.reader" in modules() and "cli" in modules()
+    assert BACKENDS == {"spm_data.render.pyrender_backend", "spm_data.render.blender"}
+    assert REGISTRY == {"spm_data.render", "spm_data.render.blender_settings"}
+    assert layer("spm_data.render") < layer("spm_data.core.specs") < layer("spm_data.render.base")
 
 
 FORBIDDEN = ("bpy", "OpenGL", "pyrender", "pyglet")
-# Every module except the two renderer backends, which import their libraries when a renderer is built.
-CORE = [m for m in modules() if m not in ("spm_data.render.pyrender_backend", "spm_data.render.blender")]
+# Every module except the renderer backends, which import their libraries when a renderer is built.
+CORE = [m for m in modules() if m not in BACKENDS]
 
 
 def test_core_imports_no_renderer_libraries():

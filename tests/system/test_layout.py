@@ -6,7 +6,10 @@ its mirrored path, and every test file outside tests/system/ names a module that
     spm_data/<layer>/__init__.py      -> tests/<layer>/test_<layer>.py    (a package's own logic)
     spm_data/__init__.py              -> tests/test_spm_data.py           (once it has logic of its own)
     spm_model/<layer>/<module>.py     -> tests/model/<layer>/test_<module>.py
-    cli/<module>.py                   -> tests/cli/test_<module>.py
+    cli.py                            -> tests/test_cli.py                (a top-level module, like errors.py)
+
+The commands themselves are modules of their layer and mirror like any other
+(spm_data/commands/cli_data.py -> tests/commands/test_cli_data.py).
 
 Tests that exercise many modules at once (hostile reads, interruptions, layers, ...) live in
 tests/system/ under names that say what they check."""
@@ -16,7 +19,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 TESTS = ROOT / "tests"
-PACKAGES = {"spm_data": (), "spm_model": ("model",), "cli": ("cli",)}  # package -> its folder under tests/
+PACKAGES = {"spm_data": (), "spm_model": ("model",), "cli.py": ()}  # package (or module) -> its folder under tests/
 
 # Modules with logic that have no test file of their own, each with the reason. Keep it
 # short: a module without any def or class (re-exports, constants) needs no entry.
@@ -31,6 +34,8 @@ def has_logic(path: Path) -> bool:
 
 def mirror(module: Path) -> Path:
     """The test file of a library module (a path relative to the repository root)."""
+    if len(module.parts) == 1:  # a top-level module: cli.py
+        return Path("tests", f"test_{module.stem}.py")
     package, *folders, name = module.with_suffix("").parts
     folders = [*PACKAGES[package], *folders]
     if name == "__init__":
@@ -39,7 +44,8 @@ def mirror(module: Path) -> Path:
 
 
 def library_modules() -> list[Path]:
-    return sorted(p.relative_to(ROOT) for package in PACKAGES for p in (ROOT / package).rglob("*.py"))
+    return sorted(p.relative_to(ROOT) for package in PACKAGES
+                  for p in ([ROOT / package] if package.endswith(".py") else (ROOT / package).rglob("*.py")))
 
 
 def test_every_module_with_logic_has_its_test_file():
@@ -70,7 +76,8 @@ def test_the_mirror_maps_as_documented():
     assert mirror(Path("spm_data/io/shards/reader.py")) == Path("tests/io/shards/test_reader.py")
     assert mirror(Path("spm_data/render/__init__.py")) == Path("tests/render/test_render.py")
     assert mirror(Path("spm_model/commands/train.py")) == Path("tests/model/commands/test_train.py")
-    assert mirror(Path("cli/common.py")) == Path("tests/cli/test_common.py")
+    assert mirror(Path("cli.py")) == Path("tests/test_cli.py") and Path("cli.py") in library_modules()
+    assert mirror(Path("spm_data/commands/cli_support.py")) == Path("tests/commands/test_cli_support.py")
     assert mirror(Path("spm_data/__init__.py")) == Path("tests/test_spm_data.py")
     assert mirror(Path("spm_model/__init__.py")) == Path("tests/model/test_model.py")
     assert has_logic(ROOT / "spm_data/errors.py") and not has_logic(ROOT / "spm_data/io/shards/__init__.py")

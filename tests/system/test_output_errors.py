@@ -291,8 +291,8 @@ def test_train_report_onto_a_file(shards, tmp_path):
     report = tmp_path / "report"
     report.write_text("mine")
     before = tree(tmp_path)
-    assert_error(run(model_cli, "train", "--shards", shards, "--report", report),
-                 f"report folder {report} is a file; give a folder with --report")
+    assert_error(run(model_cli, "train", shards, "--out", report),
+                 f"report folder {report} is a file; give a folder with --out")
     assert tree(tmp_path) == before   # before any work: not even the feature cache was started
 
 
@@ -300,8 +300,8 @@ def test_train_report_under_a_file(shards, tmp_path):
     (tmp_path / "notes").write_text("mine")
     before = tree(tmp_path)
     report = tmp_path / "notes" / "report"
-    assert_error(run(model_cli, "train", "--shards", shards, "--report", report),
-                 f"report folder {report} cannot be made: {tmp_path}/notes is a file; give a folder with --report")
+    assert_error(run(model_cli, "train", shards, "--out", report),
+                 f"report folder {report} cannot be made: {tmp_path}/notes is a file; give a folder with --out")
     assert tree(tmp_path) == before
 
 
@@ -310,18 +310,18 @@ def test_train_report_in_a_read_only_folder(shards, tmp_path):
     locked.mkdir()
     before = tree(tmp_path)
     with read_only(locked):
-        result = run(model_cli, "train", "--shards", shards, "--report", locked / "report")
+        result = run(model_cli, "train", shards, "--out", locked / "report")
     assert_error(result, f"report folder {locked}/report cannot be written: {locked} is read-only; give a writable "
-                         "folder with --report")
+                         "folder with --out")
     assert tree(tmp_path) == before
 
 
 def test_train_default_report_beside_read_only_shards(shards, tmp_path):
     before = tree(tmp_path)
     with read_only(shards):
-        result = run(model_cli, "train", "--shards", shards)
+        result = run(model_cli, "train", shards)
     assert_error(result, f"report folder {shards}/report cannot be written: {shards} is read-only; give a writable "
-                         "folder with --report")
+                         "folder with --out")
     assert tree(tmp_path) == before
 
 
@@ -345,7 +345,7 @@ def test_feature_cache_on_a_full_disk_leaves_nothing(shards, tmp_path):
     cache = shards / ".spm-features"
     with unraisable() as ignored:
         with disk_full(cache):
-            result = run(model_cli, "train", "--shards", shards, "--report", tmp_path / "report", "--ellipse",
+            result = run(model_cli, "train", shards, "--out", tmp_path / "report", "--ellipse",
                          "direct")
         code, stdout, stderr = result.exit_code, result.stdout, result.stderr
         del result
@@ -363,7 +363,7 @@ def test_no_writable_feature_cache_is_one_line(shards, tmp_path, monkeypatch):
     monkeypatch.setenv("SPM_CACHE_DIR", str(user))
     before = tree(tmp_path)
     with read_only(shards, user):
-        result = run(model_cli, "train", "--shards", shards, "--report", tmp_path / "report")
+        result = run(model_cli, "train", shards, "--out", tmp_path / "report")
     assert_error(result, f"cannot cache features: neither {shards}/.spm-features (Permission denied) nor "
                          f"{user}/{cache_hash(shards)} (Permission denied) is writable; set SPM_CACHE_DIR to a "
                          "writable folder")
@@ -382,10 +382,10 @@ def read_only_run(model_shards, tmp_path_factory):
         mp.delenv("SPM_CACHE_DIR", raising=False)
         mp.setenv("XDG_CACHE_HOME", str(root / "xdg"))
         with read_only(folder):
-            trained = run(model_cli, "train", "--shards", folder, "--report", root / "report", "--runs", "1",
+            trained = run(model_cli, "train", folder, "--out", root / "report", "--runs", "1",
                           "--protocol", "views", "--ellipse", "direct")
             mp.setattr(feature_cache, "frames_features", lambda *a, **k: pytest.fail("features extracted again"))
-            evaluated = run(model_cli, "evaluate", "--model", root / "report" / "model.npz", "--shards", folder)
+            evaluated = run(model_cli, "evaluate", folder, "--model", root / "report" / "model.npz")
     return {"root": root, "shards": folder, "trained": trained, "evaluated": evaluated,
             "shards_before": shards_before, "shards_after": tree(folder)}
 
@@ -414,14 +414,14 @@ def test_report_on_a_full_disk_leaves_nothing(read_only_run):
         mp.setattr(feature_cache, "frames_features", lambda *a, **k: pytest.fail("features extracted again"))
         with unraisable() as ignored:
             with read_only(r["shards"]), disk_full(r["root"] / "new"):
-                result = run(model_cli, "train", "--shards", r["shards"], "--report", report, "--runs", "1",
+                result = run(model_cli, "train", r["shards"], "--out", report, "--runs", "1",
                              "--protocol", "views", "--ellipse", "direct")
             code, stderr = result.exit_code, result.stderr
             del result
     assert code == 1, stderr
     warning = stderr.splitlines()[0]
     assert stderr == (f"{warning}\nerror: could not write the report in {report}: No space left on device; free "
-                      "space there or give another folder with --report\n")
+                      "space there or give another folder with --out\n")
     assert warning.startswith("warning: cannot write the feature cache")
     assert tree(r["root"]) == before
     assert not ignored, ignored  # no "Exception ignored in ZipFile.__del__" after the error line

@@ -126,7 +126,7 @@ def test_killed_occlude_resumes_to_the_same_bytes(tmp_path):
     spec = tmp_path / "cup.toml"
     spec.write_text(SPEC.format(renderer="pyrender", per=16))
     render_dataset(load_run_specs(spec_files=[spec]), tmp_path / "r")
-    base = CLI + ["occlude", "--in", str(tmp_path / "r"), "--copies", "4", "--seed", "9"]
+    base = CLI + ["occlude", str(tmp_path / "r"), "--copies", "4", "--seed", "9"]
     assert subprocess.run(base + ["--out", str(tmp_path / "ref")], capture_output=True).returncode == 0
     shards = len(list_shards(tmp_path / "ref"))
     # Killed while writing the first shard, then at a random later point.

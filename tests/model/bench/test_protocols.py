@@ -118,7 +118,7 @@ def test_a_plugged_in_estimator_gets_frames_and_is_scored_like_the_rest(model_sh
     assert overall["MeanPose"]["frames"] == 144 and overall["MeanPose"]["estimated"] == 144
     runner = CliRunner()
     report = tmp_path / "report"
-    r = runner.invoke(model_cli, ["train", "--shards", str(model_shards), "--report", str(report), "--runs", "1",
+    r = runner.invoke(model_cli, ["train", str(model_shards), "--out", str(report), "--runs", "1",
                                   "--ellipse", "direct", "--estimator", "my_pose:MeanPose"])
     assert r.exit_code == 0, r.output
     payload = json.loads((report / "results.json").read_text())
@@ -128,7 +128,7 @@ def test_a_plugged_in_estimator_gets_frames_and_is_scored_like_the_rest(model_sh
                           ("my_pose", "--estimator expects MODULE:CLASS"),
                           ("no_such_module:X", "cannot import no_such_module"),
                           ("my_pose:Nope", "Nope is not a class in my_pose")):
-        r = runner.invoke(model_cli, ["train", "--shards", str(model_shards), "--report", str(tmp_path / "r2"),
+        r = runner.invoke(model_cli, ["train", str(model_shards), "--out", str(tmp_path / "r2"),
                                       "--runs", "1", "--ellipse", "direct", "--estimator", spec])
         assert r.exit_code == 1 and message in r.output and "Traceback" not in r.output, (spec, r.output)
         assert sum(line.startswith("error:") for line in r.output.splitlines()) == 1

@@ -94,11 +94,11 @@ def test_write_report_writes_four_files_whole(tmp_path):
 def test_report_folder_problems_are_one_line(tmp_path):
     (tmp_path / "notes").write_text("mine")
     assert check_report_folder(tmp_path / "new" / "report") == tmp_path / "new" / "report"
-    with pytest.raises(SpmError, match=r"^report folder .*notes is a file; give a folder with --report$"):
+    with pytest.raises(SpmError, match=r"^report folder .*notes is a file; give a folder with --out$"):
         check_report_folder(tmp_path / "notes")
     with pytest.raises(SpmError, match=r"^report folder .*notes/r cannot be made: .*notes is a file; give a folder"):
         check_report_folder(tmp_path / "notes" / "r")
     assert str(write_error(tmp_path, OSError(28, "No space left on device"))) == (
         f"could not write the report in {tmp_path}: No space left on device; free space there or give another "
-        "folder with --report")
+        "folder with --out")
     assert not (tmp_path / "new").exists()

@@ -64,5 +64,5 @@ def test_a_class_with_too_few_frames_is_named(model_shards, tmp_path):
     cup.unlink()
     write_shard(cup, arrays, {"renderer": "pyrender", "seed": 1})
     write_manifest(shards)
-    r = CliRunner().invoke(model_cli, ["train", "--shards", str(shards), "--ellipse", "direct", "--runs", "1"])
+    r = CliRunner().invoke(model_cli, ["train", str(shards), "--ellipse", "direct", "--runs", "1"])
     assert r.exit_code == 1 and "class 'cup' has" in r.output and "need at least 10" in r.output, r.output

@@ -1,5 +1,6 @@
-"""cli.common: what both command groups share: one-line errors (exit 1) and warnings, the
-summary and exit status of a run, and the executor options."""
+"""spm_data.commands.cli_support: what the commands of both programs share: one-line errors (exit 1)
+and warnings, the summary and exit status of a run, the executor options, old spellings with a
+one-line notice, and groups that list whole command summaries."""
 
 import warnings
 
@@ -7,7 +8,7 @@ import click
 import pytest
 from click.testing import CliRunner
 
-from cli.common import executor_options, handle_errors, run_with_progress
+from spm_data.commands.cli_support import Group, executor_options, handle_errors, old_spelling, run_with_progress
 from spm_data.errors import ShardError, SpmWarning
 
 
@@ -42,10 +43,10 @@ def test_other_exceptions_are_bugs_and_propagate():
 
 
 def test_other_warnings_go_to_pythons_own_display(monkeypatch):
-    import cli.common
+    import spm_data.commands.cli_support as support
 
     shown = []
-    monkeypatch.setattr(cli.common, "_python_showwarning", lambda message, category, *rest: shown.append(
+    monkeypatch.setattr(support, "_python_showwarning", lambda message, category, *rest: shown.append(
         (str(message), category)))
 
     @click.command()
@@ -94,12 +95,13 @@ def test_executor_options_become_one_executor():
     seen = []
 
     @click.command()
-    @click.option("--workers", default=1, type=int)
-    @click.option("--recycle-after", default=0, type=int)
-    @executor_options
+    @executor_options("Things", recycle_after=5, task_cpus="Blender wants more.")
     def run(executor):
         seen.append(executor)
 
+    assert CliRunner().invoke(run, []).exit_code == 0
+    local = seen.pop()
+    assert (local.name, local.workers, local.recycle_after) == ("local", 1, 5)
     assert CliRunner().invoke(run, ["--workers", "3", "--recycle-after", "2"]).exit_code == 0
     local = seen.pop()
     assert (local.name, local.workers, local.recycle_after) == ("local", 3, 2)
@@ -108,3 +110,49 @@ def test_executor_options_become_one_executor():
     assert (type(ray).__name__, ray.address, ray.task_cpus, ray.workers) == ("RayExecutor", "auto", 2.0, 1)
     r = CliRunner().invoke(run, ["--executor", "slurm"])
     assert r.exit_code == 2 and "'slurm' is not one of 'local', 'ray'" in r.output
+    text = " ".join(CliRunner().invoke(run, ["--help"]).output.split())
+    assert "--workers INTEGER RANGE Things running at once" in text and "Blender wants more." in text
+    assert "[default: 5;" in text
+
+
+@click.command()
+@click.argument("folder", required=False)
+@click.option("--out", default=None)
+@old_spelling("--in", "folder", "give the folder as the first argument", required="FOLDER")
+@old_spelling("--report", "out", "use --out")
+@handle_errors
+def renamed(folder, out):
+    click.echo(f"{folder} -> {out}")
+
+
+@pytest.mark.parametrize("args, stdout, stderr", [
+    (["a", "--out", "b"], "a -> b\n", ""),
+    (["--in", "a", "--report", "b"], "a -> b\n", "warning: --in is deprecated; give the folder as the first argument\n"
+                                                 "warning: --report is deprecated; use --out\n"),
+    (["a"], "a -> None\n", ""),
+])
+def test_old_spellings_work_with_a_one_line_notice(args, stdout, stderr):
+    r = CliRunner().invoke(renamed, args)
+    assert (r.exit_code, r.stdout, r.stderr) == (0, stdout, stderr)
+
+
+def test_old_spellings_are_hidden_and_do_not_replace_a_missing_or_doubled_argument():
+    r = CliRunner().invoke(renamed, ["--out", "b"])
+    assert r.exit_code == 2 and "Missing argument 'FOLDER'." in r.stderr
+    r = CliRunner().invoke(renamed, ["a", "--in", "c"])
+    assert r.exit_code == 2 and "--in and its new spelling were both given" in r.stderr
+    assert "--in" not in CliRunner().invoke(renamed, ["--help"]).output
+
+
+def test_a_group_lists_whole_summaries():
+    group = Group("g")
+
+    @group.command("long-name")
+    def long_name():
+        """A summary far longer than the forty-five characters click keeps, ending with a word: sentinel.
+
+        Details that stay out of the listing."""
+
+    listing = " ".join(CliRunner().invoke(group, ["--help"]).output.split("Commands:")[1].split())
+    assert listing == ("long-name A summary far longer than the forty-five characters click keeps, ending with a "
+                       "word: sentinel.")

@@ -1,4 +1,5 @@
-"""Contact sheets: frames of a shard with the pose axes drawn from K, R, t, so a person can check labels."""
+"""Figures a person checks a dataset by: contact sheets of a shard's frames with the pose axes drawn
+from K, R, t (`spm-data show`), and histograms of occluded fractions (`spm-data hist`)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""cli.data (spm-data): its commands end to end, errors in one line with exit status 1, the console
+"""spm_data.commands.cli_data (spm-data): its commands end to end, errors in one line with exit status 1, the console
 scripts as processes (the coil_folder fixture: tests/conftest.py)."""
 
 import subprocess
@@ -58,19 +58,3 @@ def test_console_scripts_run_as_processes(small_specs_dir, tmp_path):
     assert read_manifest(tmp_path / "o")["frames"] == 4
     r = subprocess.run([sys.executable, "-c", "import cli; cli.model_cli()", "--help"], capture_output=True, text=True)
     assert r.returncode == 0 and "Sparse Pose Manifolds" in r.stdout
-
-
-def test_cli_import_reports_skips_and_resumes(coil_folder, tmp_path):
-    args = ["import", "coil100", str(coil_folder), "--out", str(tmp_path / "o")]
-    r = CliRunner().invoke(data_cli, args)
-    assert r.exit_code == 0, r.output
-    assert "imported 1 shards (142 frames)" in r.output
-    assert "skipped 3 images:" in r.output and "missing view" in r.output and "foreign file" in r.output
-    assert "truncated" in r.output
-    r = CliRunner().invoke(data_cli, args)
-    assert "1 already complete" in r.output
-    r = CliRunner().invoke(data_cli, ["export", "bop", str(tmp_path / "o"), "--out", str(tmp_path / "b")])
-    assert r.exit_code == 0 and "exported 142 frames of 2 objects in 2 scenes" in r.output
-    assert "no mesh for 2 objects" in r.output
-    r = CliRunner().invoke(data_cli, ["export", "bop", str(tmp_path / "o"), "--out", str(tmp_path / "b")])
-    assert r.exit_code == 1 and "not empty" in r.output

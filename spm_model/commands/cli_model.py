@@ -1,4 +1,5 @@
-"""``spm``: train, evaluate and apply pose estimators on shard folders."""
+"""The ``spm`` commands (cli.py puts them in the group): train, evaluate and apply pose estimators
+on shard folders. The input (shards, images) is the first argument, every output is ``--out``."""
 
 from __future__ import annotations
 
@@ -6,14 +7,8 @@ import sys
 
 import click
 
-from cli.common import ALLOW_PARTIAL, Progress, executor_options, handle_errors
+from spm_data.commands.cli_support import ALLOW_PARTIAL, Progress, executor_options, handle_errors, old_spelling
 from spm_data.errors import SpmError
-
-
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(package_name="spm")
-def model_cli():
-    """spm: train and evaluate the Sparse Pose Manifolds estimator on spm-data shards."""
 
 
 def _parse_roi(text):
@@ -39,9 +34,10 @@ def _method_names(text):
     return names
 
 
-@model_cli.command("train")
-@click.option("--shards", required=True, type=click.Path(), help="Folder of shards (searched recursively).")
-@click.option("--report", "report_dir", default=None, type=click.Path(), help="Report folder [default: SHARDS/report].")
+@click.command("train")
+@click.argument("shards", metavar="SHARDS", required=False, type=click.Path())
+@click.option("--out", "report_dir", default=None, type=click.Path(),
+              help="Report folder: results.md/json, plots, model.npz, reference-model.npz [default: SHARDS/report].")
 @click.option("--protocol", type=click.Choice(["loco", "views", "instances", "offgrid"]), default=None,
               help="loco (default): leave one class out; views: new views of seen objects; instances: leave one "
                    "instance out of every class (category level); offgrid: train on SHARDS, test on --test (Fig. 5).")
@@ -51,20 +47,22 @@ def _method_names(text):
               help="Whether occluded frames train too (the paper's training with noise) [default: yes, but no "
                    "under offgrid].")
 @click.option("--methods", "methods", default=None, metavar="NAME,...",
-              help="Built-in methods to run (default all): spm, knn1, knn3, pca, ls, template, n3m, smm, chance.")
+              help="Built-in methods to run (default all): spm, knn1, knn3, pca, ls, n3m, smm, template, chance.")
 @click.option("--runs", default=3, show_default=True, type=click.IntRange(min=1), help="Repeated runs (seeds) for sigma.")
-@click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1), help="Feature-extraction processes.")
 @click.option("--ellipse", type=click.Choice(["pso", "direct"]), default="pso", show_default=True,
               help="Ellipse fit: Eq. 1 by particle swarm (the paper's) or the direct fit.")
 @click.option("--gamma", default=8, show_default=True, type=click.IntRange(min=5), help="EM clusters per frame.")
 @click.option("--estimator", "estimators", multiple=True, metavar="MODULE:CLASS",
               help="Also evaluate your estimator (fit(frames, poses), predict(frames)); repeatable. docs/estimators.md")
 @ALLOW_PARTIAL
-@executor_options
+@executor_options("Feature-extraction processes")
+@old_spelling("--shards", "shards", "give the folder as the first argument", required="SHARDS", type=click.Path())
+@old_spelling("--report", "report_dir", "use --out", type=click.Path())
 @handle_errors
 def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs, ellipse, gamma, estimators,
               allow_partial, executor):
-    """Extract features (cached), evaluate SPM and the baselines, write the report and the model."""
+    """Extract features of the shards in SHARDS (searched recursively, cached), evaluate SPM and the
+    other methods under --protocol (offgrid: test on --test), and write the report and the models to --out."""
     from spm_model.spm.features import FeatureConfig
     from spm_model.commands.train import train
 
@@ -85,16 +83,18 @@ def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs,
                f"{result['reference_model']} (reference)")
 
 
-@model_cli.command("evaluate")
-@click.option("--model", "model_path", required=True, type=click.Path(), help="model.npz (SPM) or reference-model.npz from spm train.")
-@click.option("--shards", required=True, type=click.Path(), help="Folder of shards to score it on.")
-@click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1), help="Feature-extraction processes.")
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@click.command("evaluate")
+@click.argument("shards", metavar="SHARDS", required=False, type=click.Path())
+@click.option("--model", "model_path", required=True, type=click.Path(),
+              help="model.npz (SPM) or reference-model.npz from spm train.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
 @ALLOW_PARTIAL
-@executor_options
+@executor_options("Feature-extraction processes")
+@old_spelling("--shards", "shards", "give the folder as the first argument", required="SHARDS", type=click.Path())
 @handle_errors
 def evaluate_cmd(model_path, shards, as_json, allow_partial, executor):
-    """Score a trained model (SPM or reference) on other shards: ±5°, sum < 5° and < 3°, errors."""
+    """Score a trained model (--model: SPM or reference) on the shards in SHARDS: ±5°, sum < 5° and
+    < 3°, median errors per class."""
     import json
 
     from spm_model.commands.evaluate import evaluate_model
@@ -115,16 +115,16 @@ def evaluate_cmd(model_path, shards, as_json, allow_partial, executor):
                    f"{fmt(s['success_sum3']):>9}{fmt(s['geodesic_median_deg']):>9}{fmt(s['translation_median_mm']):>10}")
 
 
-@model_cli.command("predict")
+@click.command("predict")
+@click.argument("images", metavar="IMAGE...", nargs=-1, required=True, type=click.Path())
 @click.option("--model", "model_path", required=True, type=click.Path(),
               help="model.npz (SPM) or reference-model.npz from spm train.")
-@click.argument("images", nargs=-1, required=True, type=click.Path())
 @click.option("--roi", default=None, help="Region of interest x,y,width,height (pixels) holding the object.")
 @click.option("--mask", "mask_path", default=None, type=click.Path(), help="Object mask image (non-zero = object).")
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON: every image, failed ones with their error.")
 @handle_errors
 def predict_cmd(model_path, images, roi, mask_path, as_json):
-    """Print the 6-DoF pose estimate of each image (rx ry rz degrees, t metres).
+    """Print the 6-DoF pose estimate of each IMAGE by the model --model (rx ry rz degrees, t metres).
 
     stdout: one line per image that got a pose (--json: every image, failed ones as
     {"image", "error"}); stderr: one "error: IMAGE: reason" line per image that failed.

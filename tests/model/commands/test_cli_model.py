@@ -1,4 +1,4 @@
-"""cli.model (spm): train, predict and evaluate end to end, and bad input as one-line errors."""
+"""spm_model.commands.cli_model (spm): train, predict and evaluate end to end, and bad input as one-line errors."""
 
 import json
 import shutil
@@ -15,7 +15,7 @@ def test_cli_train_predict_evaluate_and_bad_input(model_shards, tmp_path):
     runner = CliRunner()
     shards = tmp_path / "s"
     shutil.copytree(model_shards, shards)
-    r = runner.invoke(model_cli, ["train", "--shards", str(shards), "--runs", "1", "--ellipse", "direct",
+    r = runner.invoke(model_cli, ["train", str(shards), "--runs", "1", "--ellipse", "direct",
                                   "--protocol", "views"])
     assert r.exit_code == 0, r.output
     assert "Best method, views protocol" in r.output and (shards / "report" / "model.npz").is_file()
@@ -30,11 +30,11 @@ def test_cli_train_predict_evaluate_and_bad_input(model_shards, tmp_path):
     assert r.exit_code == 1 and "SIFT found 0 keypoints" in r.output and "Traceback" not in r.output
     r = runner.invoke(model_cli, ["predict", "--model", model, str(tmp_path / "box.png"), "--roi", "500,500,4,4"])
     assert r.exit_code == 1 and "outside" in r.output
-    r = runner.invoke(model_cli, ["evaluate", "--model", model, "--shards", str(shards)])
+    r = runner.invoke(model_cli, ["evaluate", str(shards), "--model", model])
     assert r.exit_code == 0 and r.output.splitlines()[-1].startswith("all")
     (tmp_path / "empty").mkdir()
-    for args, message in [(["train", "--shards", str(tmp_path / "empty")], "no shards"),
-                          (["train", "--shards", str(tmp_path / "nope")], "no such folder"),
+    for args, message in [(["train", str(tmp_path / "empty")], "no shards"),
+                          (["train", str(tmp_path / "nope")], "no such folder"),
                           (["predict", "--model", str(tmp_path / "none.npz"), str(tmp_path / "box.png")],
                            "model file not found")]:
         r = runner.invoke(model_cli, args)
@@ -49,7 +49,7 @@ def test_cli_offgrid_writes_the_fig5_tables_and_refuses_bad_method_names(model_s
     shutil.copytree(model_shards, shards)
     occlude_dataset(shards, tmp_path / "test" / "occluded", low=0.0, high=0.95, copies=1, seed=3)
     report = tmp_path / "report"
-    r = runner.invoke(model_cli, ["train", "--shards", str(shards), "--test", str(tmp_path / "test"), "--report",
+    r = runner.invoke(model_cli, ["train", str(shards), "--test", str(tmp_path / "test"), "--out",
                                   str(report), "--runs", "1", "--ellipse", "direct", "--methods", "template,chance"])
     assert r.exit_code == 0, r.output
     assert "Fig. 5 (sum < 5° %, bins" in r.output
@@ -63,7 +63,7 @@ def test_cli_offgrid_writes_the_fig5_tables_and_refuses_bad_method_names(model_s
     assert rows[0]["success_tol5"] == 100.0 and rows[0]["frames"] > 0
     text = (report / "results.md").read_text()
     assert "## Fig. 5 as the paper ran it" in text and "### seen instances, rectangles (spm-data occlude)" in text
-    r = runner.invoke(model_cli, ["train", "--shards", str(shards), "--methods", "template,nope"])
+    r = runner.invoke(model_cli, ["train", str(shards), "--methods", "template,nope"])
     assert r.exit_code == 1 and "--methods: unknown nope" in r.output and "Traceback" not in r.output
-    r = runner.invoke(model_cli, ["train", "--shards", str(shards), "--protocol", "views", "--test", str(shards)])
+    r = runner.invoke(model_cli, ["train", str(shards), "--protocol", "views", "--test", str(shards)])
     assert r.exit_code == 1 and "--test goes with --protocol offgrid" in r.output

@@ -1,0 +1,156 @@
+"""What the commands of both programs (cli.py) share: one-line errors and warnings, progress
+bars, the executor options (the only place --workers and friends become an executor), old
+option spellings kept for one release, and command groups that print whole summaries."""
+
+from __future__ import annotations
+
+import functools
+import sys
+import warnings
+
+import click
+
+from spm_data.errors import SpmError, SpmWarning
+
+CONTEXT = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """The library's warnings (SpmWarning) as one ``warning:`` line on stderr."""
+    if issubclass(category, SpmWarning):
+        click.echo(f"warning: {message}", err=True)
+    else:
+        _python_showwarning(message, category, filename, lineno, file, line)
+
+
+_python_showwarning = warnings.showwarning
+
+ALLOW_PARTIAL = click.option(
+    "--allow-partial", is_flag=True,
+    help="Read a folder a live run is still writing, or whose manifest is missing or disagrees with its "
+         "files: only the complete shards, each gap a warning (docs/reliability.md).")
+
+
+def handle_errors(fn):
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        warnings.showwarning = _show_warning
+        try:
+            return fn(*args, **kwargs)
+        except SpmError as exc:
+            click.echo(f"error: {exc}", err=True)
+            sys.exit(1)
+
+    return wrapper
+
+
+class Group(click.Group):
+    """A command group whose --help lists each command's whole first paragraph (click would cut it
+    to fit one line); the commands and subgroups added to it get the same context settings."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("context_settings", CONTEXT)
+        super().__init__(*args, **kwargs)
+
+    def add_command(self, cmd, name=None):
+        if cmd.short_help is None and cmd.help:
+            cmd.short_help = " ".join(cmd.help.split("\n\n")[0].split())
+        super().add_command(cmd, name)
+
+
+class Progress:
+    """A tqdm bar the library can feed frame deltas (negative when a crashed shard is redone)."""
+
+    def __init__(self, unit="frame"):
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=0, unit=unit, dynamic_ncols=True, disable=None)
+
+    @property
+    def total(self):
+        return self.bar.total
+
+    @total.setter
+    def total(self, value):
+        self.bar.total = value
+        self.bar.refresh()
+
+    def __call__(self, n):
+        self.bar.update(n)
+
+    def close(self):
+        self.bar.close()
+
+
+def run_with_progress(call, report=lambda summary: summary.report()):
+    """Run ``call(progress_bar)``, print its summary, exit 130 if interrupted, 1 if shards failed."""
+    bar = Progress()
+    try:
+        summary = call(bar)
+    finally:
+        bar.close()
+    click.echo(report(summary))
+    if summary.interrupted:
+        sys.exit(130)
+    if summary.failed:
+        sys.exit(1)
+
+
+def executor_options(workers: str, recycle_after: int = 0, task_cpus: str = ""):
+    """--workers, --recycle-after, --executor, --address and --task-cpus -> one ``executor``
+    argument: the only place these options become an executor (library calls take just it).
+
+    ``workers`` says what a worker does on this command, ``recycle_after`` is the command's
+    default, ``task_cpus`` is added to --task-cpus' help (e.g. what Blender needs)."""
+    def decorator(fn):
+        @functools.wraps(fn)
+        def wrapper(*args, workers, recycle_after, executor_name, address, task_cpus, **kwargs):
+            from spm_data.jobs import make_executor
+
+            kwargs["executor"] = make_executor(executor_name, workers=workers, address=address,
+                                               task_cpus=task_cpus, recycle_after=recycle_after)
+            return fn(*args, **kwargs)
+
+        for option in reversed([
+            click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1),
+                         help=f"{workers} running at once (with --executor ray and no --address: the CPUs of the "
+                              "local Ray instance)."),
+            click.option("--recycle-after", default=recycle_after, show_default=True, type=click.IntRange(min=0),
+                         help="Replace each worker process after this many jobs (0: never); bounds leaks."),
+            click.option("--executor", "executor_name", type=click.Choice(["local", "ray"]), default="local",
+                         show_default=True, help="Where the jobs run: local processes, or Ray tasks (docs/scaling.md)."),
+            click.option("--address", default=None, help="Ray cluster address (auto or HOST:PORT); default: a local "
+                                                         "Ray instance with --workers CPUs."),
+            click.option("--task-cpus", default=1.0, show_default=True, type=click.FloatRange(min=0.01),
+                         help=f"CPUs each Ray task reserves.{' ' + task_cpus if task_cpus else ''}"),
+        ]):
+            wrapper = option(wrapper)
+        return wrapper
+
+    return decorator
+
+
+def old_spelling(flag: str, dest: str, advice: str, *, required: str = "", **option):
+    """Keep ``flag``, an option renamed or made positional, for one release: hidden from --help,
+    it fills ``dest`` (the new parameter's name) and prints ``warning: FLAG is deprecated; ADVICE``.
+
+    A positional argument the old option stands in for is declared ``required=False``; give its
+    metavar as ``required`` and this wrapper reports it missing when neither spelling is given."""
+    hidden = "old_" + flag.lstrip("-").replace("-", "_")
+
+    def decorator(fn):
+        @functools.wraps(fn)
+        def wrapper(*args, **kwargs):
+            old = kwargs.pop(hidden)
+            if old is not None:
+                click.echo(f"warning: {flag} is deprecated; {advice}", err=True)
+                if kwargs.get(dest) not in (None, ()):
+                    raise click.UsageError(f"{flag} and its new spelling were both given; keep the new one")
+                kwargs[dest] = (old,) if isinstance(kwargs.get(dest), tuple) else old
+            if required and kwargs.get(dest) in (None, ()):
+                raise click.UsageError(f"Missing argument '{required}'.")
+            return fn(*args, **kwargs)
+
+        return click.option(flag, hidden, hidden=True, default=None, **option)(wrapper)
+
+    return decorator

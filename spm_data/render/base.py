@@ -1,0 +1,120 @@
+"""The abstract :class:`Renderer` every backend implements, and what the backends share
+(intrinsics from the spec, lights around the camera, normals and masks). Nothing here loads
+bpy or OpenGL; the backends are registered in spm_data/render/__init__.py."""
+
+from __future__ import annotations
+
+import abc
+
+import numpy as np
+
+from spm_data.core.poses import intrinsics_from_fov
+from spm_data.core.randomize import fixed_light_rotations, max_lights
+
+OUTPUTS = ("rgb", "alpha", "depth", "mask")
+
+
+def spec_intrinsics(spec) -> np.ndarray:
+    """(3, 3) float64 K of a RenderSpec (OpenCV pixel centres)."""
+    return intrinsics_from_fov(spec.image.fov, spec.image.width, spec.image.height)
+
+
+class Renderer(abc.ABC):
+    """One spec's renderer: built once per worker, a scene per mesh, a camera move per frame.
+
+    ``set_mesh(mesh)`` builds the scene for a ``spm_data.core.meshes.TexturedMesh``
+    once; ``render(R, t)`` then only moves the camera. ``R`` (3, 3) and ``t`` (3,)
+    float64 map object to camera in the OpenCV convention of spm_data.core.poses;
+    the intrinsics are ``self.K`` (3, 3) float64, from the spec (spec_intrinsics).
+    ``render`` returns a dict of (H = spec.image.height, W = spec.image.width):
+
+    * ``rgb``   (H, W, 3) uint8, sRGB, premultiplied over black (the background
+      is composited later, by spm_data.core.backgrounds)
+    * ``alpha`` (H, W) float32 in [0, 1], the object's coverage of each pixel
+    * ``depth`` (H, W) float32, metres along the camera's z axis (OpenCV frame),
+      0.0 where no surface was hit; sampled at the pixel centres K describes
+    * ``mask``  (H, W) uint8, 1 where the object is, else 0
+
+    Backends raise RenderError (one line) for what they cannot do. ``close()``
+    frees what the backend holds; a renderer is also a context manager.
+    """
+
+    name: str = ""
+
+    def __init__(self, spec):
+        self.spec = spec
+        self.width, self.height = spec.image.width, spec.image.height
+        self.K = spec_intrinsics(spec)
+        self.outputs = spec.outputs
+        self.max_lights = max_lights(spec)
+
+    def lighting_settings(self) -> dict:
+        """The spec's lighting as every frame has it: ``ambient``, ``lights`` (count) and
+        ``strength``, each the fixed value, or its ``[low, high]`` range where ``[randomize]``
+        draws it per frame; with ``[randomize]``, ``randomized``: the keys drawn per frame."""
+        li, rz = self.spec.lighting, self.spec.randomize
+        out = {"ambient": li.ambient, "lights": li.lights, "strength": li.strength}
+        if not rz.enabled:
+            return out
+        for key, drawn in (("ambient", rz.ambient), ("lights", rz.lights), ("strength", rz.light_strength)):
+            if drawn:
+                out[key] = [int(v) for v in drawn] if key == "lights" else list(drawn)
+        default = type(rz)()
+        out["randomized"] = sorted(k for k in vars(default) if getattr(rz, k) != getattr(default, k))
+        return out
+
+    @abc.abstractmethod
+    def version(self) -> str:
+        """The backend and its version, e.g. ``pyrender 0.1.45`` (recorded in every shard)."""
+
+    @abc.abstractmethod
+    def settings(self) -> dict:
+        """JSON-able settings that change pixels (recorded in every shard)."""
+
+    @abc.abstractmethod
+    def set_mesh(self, mesh) -> None:
+        """Build the scene around ``mesh`` (a TexturedMesh), replacing the previous one."""
+
+    @abc.abstractmethod
+    def render(self, R, t, draws=None, distractors=()) -> dict:
+        """One frame from the camera at ``R``, ``t``: the arrays listed in the class docstring."""
+
+    def close(self) -> None:
+        """Free what the backend holds (nothing by default)."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
+def light_rotations(count: int) -> np.ndarray:
+    """(count, 3, 3) rotations, in the camera's GL frame, of the spec's ``count`` lights
+    that move with the camera (spm_data.core.randomize.fixed_light_rotations)."""
+    return fixed_light_rotations(count)
+
+
+def decode_normals(coded: np.ndarray, instances: np.ndarray, rotations: np.ndarray) -> np.ndarray:
+    """Normals drawn as colours -> (H, W, 3) float32 unit normals, camera frame (OpenCV).
+
+    coded: (H, W, 3) uint8, each object's own-frame normal n as (n + 1) / 2 * 255;
+    instances (H, W) uint8 ids; rotations (I, 3, 3) float64, each id's frame ->
+    camera (row 0 unused). Pixels with id 0 come out 0."""
+    return rotate_normals(coded.astype(np.float32) * (2.0 / 255.0) - 1.0, instances, rotations)
+
+
+def rotate_normals(normals: np.ndarray, instances: np.ndarray, rotations: np.ndarray) -> np.ndarray:
+    """(H, W, 3) normals, each in the frame of its pixel's instance id (instances (H, W)
+    uint8) -> (H, W, 3) float32 unit normals in the camera frame, by ``rotations``
+    (I, 3, 3) (row 0 unused); pixels with id 0 come out 0."""
+    n = np.einsum("hwij,hwj->hwi", rotations[instances].astype(np.float32), normals.astype(np.float32))
+    length = np.linalg.norm(n, axis=-1, keepdims=True)
+    n = n / np.maximum(length, 1e-12)
+    return np.where((instances[..., None] > 0) & (length > 0), n, 0.0).astype(np.float32)
+
+
+def mask_from_depth(depth: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 mask of pixels with a surface (depth > 0)."""
+    return (depth > 0).astype(np.uint8)
