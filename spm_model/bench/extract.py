@@ -8,7 +8,7 @@ import numpy as np
 
 from spm_data.errors import FeatureError
 from spm_model.base.images import raw_vector
-from spm_model.methods.descriptors import describe, hog_descriptor
+from spm_model.methods.descriptors import hog_descriptor, template_descriptor
 from spm_model.spm.features import FeatureConfig, manifold_from_keypoints, working_image
 from spm_model.spm.keypoints import homography_inliers, sift_keypoints
 
@@ -50,7 +50,7 @@ def frames_features(rgb: np.ndarray, mask: np.ndarray, instance_id: np.ndarray, 
     out["raw"] = np.zeros((n, config.raw_size ** 2), np.uint8)
     out["train_neighbours"] = np.array([len(nb) for nb in neighbours], dtype=np.int8)
     if K is not None:
-        out["template"] = np.stack([describe(rgb[i], mask[i] > 0, K[i], hog) for i in range(n)])
+        out["template"] = np.stack([template_descriptor(rgb[i], mask[i] > 0, K[i], hog) for i in range(n)])
     for i in range(n):
         loc, desc = sift[i]
         keep = np.zeros(len(loc), dtype=bool) if neighbours[i] else np.ones(len(loc), dtype=bool)

@@ -31,7 +31,7 @@ def box_of(mask: np.ndarray) -> tuple[float, float, float] | None:
     return (cols[0] + cols[-1]) / 2.0, (rows[0] + rows[-1]) / 2.0, float(max(rows[-1] - rows[0], cols[-1] - cols[0]) + 1)
 
 
-def describe(rgb: np.ndarray, mask: np.ndarray, K: np.ndarray, hog=None) -> np.ndarray:
+def template_descriptor(rgb: np.ndarray, mask: np.ndarray, K: np.ndarray, hog=None) -> np.ndarray:
     """(H, W, 3) uint8, (H, W) bool, (3, 3) -> (HOG_SIZE + 7,) float32: the HOG
     descriptor then GEOMETRY; NaN when the mask is empty."""
     import cv2

@@ -31,15 +31,15 @@ from __future__ import annotations
 import numpy as np
 
 from spm_data.core.poses import label_to_pose, pose_to_label
-from spm_model.methods.descriptors import GEOMETRY, HOG_SIZE, describe, hog_descriptor
+from spm_model.methods.descriptors import GEOMETRY, HOG_SIZE, hog_descriptor, template_descriptor
 from spm_model.base.estimator import PoseEstimator, check_fitted
 from spm_model.base.frames import column
 from spm_model.base.model_files import check_xy, load_model_file, need, need_finite, save_model_file
 
-def describe_frames(frames) -> np.ndarray:
+def frame_descriptors(frames) -> np.ndarray:
     """(n, HOG_SIZE + 7) descriptors of a frame sequence (cached column ``template`` when present)."""
     hog = hog_descriptor()
-    return column(frames, "template", lambda f: describe(f["rgb"], f["mask"], f["K"], hog))
+    return column(frames, "template", lambda f: template_descriptor(f["rgb"], f["mask"], f["K"], hog))
 
 
 def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -102,7 +102,7 @@ class TemplatePose(PoseEstimator):
 
     def fit(self, frames, poses) -> "TemplatePose":
 
-        desc = describe_frames(frames)
+        desc = frame_descriptors(frames)
         poses = np.asarray(poses, dtype=np.float64)
         ok = np.isfinite(desc).all(axis=1)
         check_xy(desc[ok, :HOG_SIZE], poses[ok] if len(poses) == len(desc) else poses)
@@ -171,7 +171,7 @@ class TemplatePose(PoseEstimator):
             f = self.focal_per_height_ * h
             K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1.0]])
         mask = np.ones((h, w), bool) if mask is None else np.asarray(mask) > 0
-        return {"pose": self.predict_descriptors(describe(rgb, mask, K)[None], K[None])[0]}
+        return {"pose": self.predict_descriptors(template_descriptor(rgb, mask, K)[None], K[None])[0]}
 
     def save(self, path):
 
@@ -208,7 +208,7 @@ class TemplatePose(PoseEstimator):
 
     def predict(self, frames) -> np.ndarray:
         check_fitted(self, self.FITTED)
-        desc = describe_frames(frames)
+        desc = frame_descriptors(frames)
         K = column(frames, "K", lambda f: np.asarray(f["K"], np.float64))
         return self.predict_descriptors(desc, K)
 

@@ -86,14 +86,15 @@ class SPMEstimator(Estimator):
     # -- one-file persistence (no pickle: arrays plus a JSON header) --
     def save(self, path) -> Path:
         """The model file: parameters and the feature configuration in the header; the arrays
-        W (projection), centres, dual_coef and mean (regressor), and gamma_ in the header."""
+        W (projection), centres, dual_coef and mean (regressor); the RBF kernel coefficient
+        ``kernel_coef_`` is the header's ``gamma_`` (the file format keeps its key)."""
         check_fitted(self, self.FITTED)
         params = {k: v for k, v in self.get_params().items() if k != "features"}
         reg = self.regressor_
         return save_model_file(path, "spm", params,
                                {"W": self.projection_.W, "centres": reg.X_fit_, "dual_coef": reg.dual_coef_,
                                 "mean": reg.mean_},
-                               {"features": asdict(self.features), "gamma_": reg.gamma_})
+                               {"features": asdict(self.features), "gamma_": reg.kernel_coef_})
 
     @classmethod
     def load(cls, path) -> "SPMEstimator":
@@ -106,7 +107,7 @@ class SPMEstimator(Estimator):
         params = {**header["params"], "features": FeatureConfig(**header["features"])}
         projection = SparseProjection(W=arrays["W"])
         regressor = RBFPoseRegressor.from_state(
-            gamma_=header["gamma_"], X_fit_=arrays["centres"], dual_coef_=arrays["dual_coef"],
+            kernel_coef_=header["gamma_"], X_fit_=arrays["centres"], dual_coef_=arrays["dual_coef"],
             mean_=arrays["mean"], **cls(**params)._regressor_params())
         return cls.from_state(projection_=projection, regressor_=regressor, **params)
 
@@ -121,5 +122,5 @@ class SPMEstimator(Estimator):
         need(reg.dual_coef_.shape == (len(reg.X_fit_), 9), f"dual_coef is {reg.dual_coef_.shape}, "
               f"expected ({len(reg.X_fit_)}, 9)")
         need(np.shape(reg.mean_) == (9,), f"mean is {np.shape(reg.mean_)}, expected (9,)")
-        need(isinstance(reg.gamma_, (int, float)) and reg.gamma_ > 0, f"gamma_ is {reg.gamma_!r}")
+        need(isinstance(reg.kernel_coef_, (int, float)) and reg.kernel_coef_ > 0, f"gamma_ is {reg.kernel_coef_!r}")
         need_finite(W, reg.X_fit_, reg.dual_coef_, reg.mean_)

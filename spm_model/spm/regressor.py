@@ -33,17 +33,17 @@ def _labels(z: np.ndarray) -> np.ndarray:
 
 
 class RBFPoseRegressor(Estimator):
-    """Kernel ridge regressor with an RBF kernel ``exp(-gamma_ ||x - x'||^2)``;
-    ``gamma=None`` uses the median heuristic, ``gamma_ = 1 / (width_scale * median
+    """Kernel ridge regressor with an RBF kernel ``exp(-kernel_coef_ ||x - x'||^2)``;
+    ``kernel_coef=None`` uses the median heuristic, ``kernel_coef_ = 1 / (width_scale * median
     squared distance)``: ``width_scale`` > 1 widens the kernel (it is ignored when
-    ``gamma`` is given). ``landmarks``: the Nystrom centres (see the module docstring).
-    Learned: ``gamma_``, ``X_fit_`` (the centres), ``dual_coef_`` (m, 9), ``mean_`` (9,)."""
+    ``kernel_coef`` is given). ``landmarks``: the Nystrom centres (see the module docstring).
+    Learned: ``kernel_coef_``, ``X_fit_`` (the centres), ``dual_coef_`` (m, 9), ``mean_`` (9,)."""
 
-    FITTED = ("gamma_", "X_fit_", "dual_coef_", "mean_")
+    FITTED = ("kernel_coef_", "X_fit_", "dual_coef_", "mean_")
 
-    def __init__(self, *, gamma: float | None = None, alpha: float = 1e-3, noise: float = 0.0,
+    def __init__(self, *, kernel_coef: float | None = None, alpha: float = 1e-3, noise: float = 0.0,
                  noise_copies: int = 0, landmarks: int = 2000, seed: int = 0, width_scale: float = 1.0):
-        self.gamma = gamma
+        self.kernel_coef = kernel_coef
         self.width_scale = width_scale
         self.alpha = alpha
         self.noise = noise
@@ -54,7 +54,7 @@ class RBFPoseRegressor(Estimator):
 
     def _kernel(self, A, B):
         d2 = (A ** 2).sum(1)[:, None] + (B ** 2).sum(1)[None, :] - 2 * A @ B.T
-        return np.exp(-self.gamma_ * np.maximum(d2, 0.0))
+        return np.exp(-self.kernel_coef_ * np.maximum(d2, 0.0))
 
     def fit(self, X, y) -> "RBFPoseRegressor":
         X = np.asarray(X, dtype=np.float64)
@@ -71,14 +71,14 @@ class RBFPoseRegressor(Estimator):
             rng = np.random.default_rng(self.seed)
             noisy = [X + rng.normal(0, self.noise, X.shape) for _ in range(self.noise_copies)]
             X, Z = np.vstack([X, *noisy]), np.vstack([Z] * (self.noise_copies + 1))
-        if self.gamma is None:
+        if self.kernel_coef is None:
             rng = np.random.default_rng(self.seed)
             sample = X[rng.choice(len(X), size=min(len(X), 500), replace=False)]
             d2 = ((sample[:, None] - sample[None]) ** 2).sum(axis=2)
             median = np.median(d2[d2 > 0]) if (d2 > 0).any() else 1.0
-            self.gamma_ = 1.0 / (self.width_scale * median)
+            self.kernel_coef_ = 1.0 / (self.width_scale * median)
         else:
-            self.gamma_ = float(self.gamma)
+            self.kernel_coef_ = float(self.kernel_coef)
         self.mean_ = Z.mean(axis=0)
         if len(X) <= self.landmarks:
             K = self._kernel(X, X)

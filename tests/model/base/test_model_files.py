@@ -28,7 +28,7 @@ def test_spm_model_file_round_trips_through_from_state(tmp_path):
     assert np.array_equal(arrays["W"], model.projection_.W)
     assert np.array_equal(arrays["centres"], model.regressor_.X_fit_)
     assert np.array_equal(arrays["dual_coef"], model.regressor_.dual_coef_)
-    assert np.array_equal(arrays["mean"], model.regressor_.mean_) and header["gamma_"] == model.regressor_.gamma_
+    assert np.array_equal(arrays["mean"], model.regressor_.mean_) and header["gamma_"] == model.regressor_.kernel_coef_
     assert header["params"] == {k: v for k, v in model.get_params().items() if k != "features"}
     loaded = SPMEstimator.load(path)
     assert loaded.get_params() == model.get_params() and loaded.regressor_.landmarks == 10

@@ -1,7 +1,6 @@
 """spm_model.commands.predict: the region of interest must lie inside the image; what is
 printed for results and failures."""
 
-import numpy as np
 import pytest
 
 from spm_data.errors import ModelError

@@ -4,7 +4,7 @@ background zeroed), then the box's centre and size and K."""
 import cv2
 import numpy as np
 
-from spm_model.methods.descriptors import GEOMETRY, HOG_SIZE, box_of, describe, hog_descriptor
+from spm_model.methods.descriptors import GEOMETRY, HOG_SIZE, box_of, hog_descriptor, template_descriptor
 
 K = np.array([[100.0, 0, 47.5], [0, 110.0, 39.5], [0, 0, 1]])
 
@@ -28,9 +28,9 @@ def test_box_of_a_mask():
     assert box_of(np.zeros((4, 4), bool)) is None
 
 
-def test_describe_is_hog_then_the_boxes_geometry_and_k():
+def test_template_descriptor_is_hog_then_the_boxes_geometry_and_k():
     rgb, mask = scene()
-    d = describe(rgb, mask, K)
+    d = template_descriptor(rgb, mask, K)
     assert d.shape == (HOG_SIZE + len(GEOMETRY),) == (3535,) and d.dtype == np.float32
     assert hog_descriptor().getDescriptorSize() == HOG_SIZE
     assert np.isfinite(d).all() and d[:HOG_SIZE].max() > 0
@@ -39,16 +39,16 @@ def test_describe_is_hog_then_the_boxes_geometry_and_k():
 
 def test_the_background_is_ignored_and_a_shift_moves_only_the_geometry():
     rgb, mask = scene()
-    d = describe(rgb, mask, K)
+    d = template_descriptor(rgb, mask, K)
     other = rgb.copy()
     other[~mask] = 255 - other[~mask]           # another background, the same object
-    np.testing.assert_array_equal(describe(other, mask, K), d)
+    np.testing.assert_array_equal(template_descriptor(other, mask, K), d)
     moved_rgb, moved_mask = scene(x0=40, y0=30)
-    moved = describe(moved_rgb, moved_mask, K)
+    moved = template_descriptor(moved_rgb, moved_mask, K)
     np.testing.assert_allclose(moved[:HOG_SIZE], d[:HOG_SIZE], atol=1e-5)
     np.testing.assert_array_equal(moved[HOG_SIZE:HOG_SIZE + 3], d[HOG_SIZE:HOG_SIZE + 3] + np.float32([10, 10, 0]))
 
 
 def test_an_empty_mask_is_nan():
     rgb, _ = scene()
-    assert np.isnan(describe(rgb, np.zeros((80, 96), bool), K)).all()
+    assert np.isnan(template_descriptor(rgb, np.zeros((80, 96), bool), K)).all()

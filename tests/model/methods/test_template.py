@@ -4,7 +4,7 @@ import pytest
 from spm_data.core.poses import label_to_pose
 from spm_data.io.shards import list_shards, read_shard
 from spm_model.spm.estimator import ModelError
-from spm_model.methods.descriptors import box_of, describe
+from spm_model.methods.descriptors import box_of, template_descriptor
 from spm_model.methods.template import TemplatePose
 
 
@@ -59,7 +59,7 @@ def test_a_shifted_object_keeps_its_rotation_and_moves_its_translation(frames):
 def test_descriptor_of_an_empty_mask_is_nan_and_gives_no_estimate(frames):
     f, poses = frames
     empty = {"rgb": f[0]["rgb"], "mask": np.zeros_like(f[0]["mask"]), "K": f[0]["K"]}
-    assert box_of(empty["mask"]) is None and np.isnan(describe(**empty)).all()
+    assert box_of(empty["mask"]) is None and np.isnan(template_descriptor(**empty)).all()
     model = TemplatePose(components=8).fit(f[:20], poses[:20])
     assert np.isnan(model.predict([empty])).all()
     out = model.predict_image(f[3]["rgb"], f[3]["mask"])

@@ -42,8 +42,8 @@ def test_training_with_noise_smooths_and_stays_accurate():
 
 
 def test_estimator_contract_and_messages():
-    m = RBFPoseRegressor(gamma=2.0, alpha=0.5)
-    assert (m.gamma, m.alpha, m.noise) == (2.0, 0.5, 0.0) and not hasattr(m, "dual_coef_")
+    m = RBFPoseRegressor(kernel_coef=2.0, alpha=0.5)
+    assert (m.kernel_coef, m.alpha, m.noise) == (2.0, 0.5, 0.0) and not hasattr(m, "dual_coef_")
     with pytest.raises(ModelError, match=r"^this RBFPoseRegressor is not fitted yet; call fit\(X, y\) first$"):
         m.predict(np.zeros((1, 2)))
     with pytest.raises(ValueError, match=r"y \(n, 6\)"):
@@ -56,15 +56,15 @@ def test_estimator_contract_and_messages():
         RBFPoseRegressor(1.0)  # keyword-only
 
 
-def test_width_scale_divides_the_median_heuristic_gamma():
+def test_width_scale_divides_the_median_heuristic_kernel_coef():
     X = circle(60, 3)
     y = smooth_labels(X)
     base = RBFPoseRegressor().fit(X, y)
     d2 = ((X[:, None] - X[None]) ** 2).sum(axis=2)
-    assert base.gamma_ == 1.0 / np.median(d2[d2 > 0])                 # the default: today's heuristic
+    assert base.kernel_coef_ == 1.0 / np.median(d2[d2 > 0])                 # the default: today's heuristic
     wide = RBFPoseRegressor(width_scale=10.0).fit(X, y)
-    assert wide.gamma_ == pytest.approx(base.gamma_ / 10.0, rel=1e-12)
-    assert RBFPoseRegressor(gamma=2.0, width_scale=10.0).fit(X, y).gamma_ == 2.0  # an explicit gamma wins
+    assert wide.kernel_coef_ == pytest.approx(base.kernel_coef_ / 10.0, rel=1e-12)
+    assert RBFPoseRegressor(kernel_coef=2.0, width_scale=10.0).fit(X, y).kernel_coef_ == 2.0  # an explicit coefficient wins
     with pytest.raises(ValueError, match="width_scale"):
         RBFPoseRegressor(width_scale=0.0).fit(X, y)
 
