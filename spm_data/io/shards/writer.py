@@ -1,6 +1,7 @@
 """The one shard writer: streamed, checksummed, atomic.
 
-A shard is written to a hidden ``.NAME.partial`` file in the same folder and
+A shard is written to a hidden ``.NAME.partial`` file in the same folder,
+sealed (the SHA-256 of its bytes into its 512-byte header, seal.py) and
 ``os.replace``-d to ``NAME`` once complete, so a shard that exists is whole.
 Image chunks are compressed by our code on two threads and stored raw with
 their Fletcher-32; derived shards copy unchanged fields chunk for chunk, verified.
@@ -23,6 +24,7 @@ from spm_data.io.shards.checksums import CHECKSUMS_ATTR, file_checksums, with_fl
 from spm_data.io.shards.reader import open_h5, read_shard, verify_stored_chunks
 from spm_data.io.shards.schema import (FIELDS, IMAGE_FIELDS, OPTIONAL_FIELDS, SCHEMA_VERSION, check_arrays,
                                        expected_shape)
+from spm_data.io.shards.seal import USERBLOCK, seal
 
 GZIP_LEVEL = 1
 COMPRESS_NICE = 19  # niceness of the compression threads (_nice_thread)
@@ -99,7 +101,7 @@ class ShardWriter:
         import h5py
 
         try:
-            self._file = h5py.File(self.tmp, "w", track_order=True)
+            self._file = h5py.File(self.tmp, "w", track_order=True, userblock_size=USERBLOCK)
             for field in self.images:
                 dtype = {**FIELDS, **OPTIONAL_FIELDS}[field][0]
                 frame_shape = expected_shape(field, 1, self.height, self.width)[1:]
@@ -190,6 +192,7 @@ class ShardWriter:
             self._file.attrs.update({"schema_version": SCHEMA_VERSION, "frames": n, "height": h, "width": w})
             self._file.attrs[CHECKSUMS_ATTR] = json.dumps(file_checksums(self._file), sort_keys=True)
             self._file.close()
+            seal(self.tmp)  # the SHA-256 of every byte after the header, into the header
             with open(self.tmp, "rb") as fh:
                 os.fsync(fh.fileno())
             os.replace(self.tmp, self.path)
