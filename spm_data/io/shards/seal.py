@@ -81,6 +81,17 @@ def stored_digest(block: bytes) -> str:
     return digest.decode("ascii")
 
 
+def check(block: bytes, digest_of_content) -> str:
+    """The digest of a file whose first USERBLOCK bytes are ``block`` and whose content
+    hashes to ``digest_of_content()`` (called only for a well-formed header), when the two
+    agree; SealError otherwise."""
+    digest = stored_digest(block)
+    if digest_of_content() != digest:
+        raise SealError("its bytes differ from the SHA-256 it was written with (a changed or flipped byte)",
+                        mismatch=True)
+    return digest
+
+
 def _stat_key(st: os.stat_result) -> tuple:
     return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
 
@@ -96,10 +107,7 @@ def verified_digest(path) -> str:
         return known[1]
     with open(path, "rb") as fh:
         block = fh.read(USERBLOCK)
-    digest = stored_digest(block)
-    if content_digest(path) != digest:
-        raise SealError("its bytes differ from the SHA-256 it was written with (a changed or flipped byte)",
-                        mismatch=True)
+    digest = check(block, lambda: content_digest(path))
     if time.time() - st.st_ctime > RACY_SECONDS and _stat_key(os.stat(path)) == _stat_key(st):
         _verified[key] = (_stat_key(st), digest)
     return digest
