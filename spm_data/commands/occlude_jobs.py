@@ -72,11 +72,24 @@ def check_inputs(in_dir, out_dir, allow_partial=False) -> dict:
     return shards
 
 
-def plan_occlusion(shards: dict, out_dir, low, high, copies=1, rects=1, seed=0) -> list[OccludeJob]:
-    """One job per (shard, copy); shards: {path: verified attributes} (check_inputs)."""
+MAX_RECTS = 64  # rectangles per frame: more only slows placement (each takes a share of the target)
+MAX_SEED = 2**63 - 1
+
+
+def check_options(low, high, copies, rects, seed) -> None:
+    """SpmError for options out of range, before any shard is read."""
     check_range(low, high)
     if copies < 1 or rects < 1:
         raise SpmError(f"--copies and --rects must be >= 1, got {copies} and {rects}")
+    if rects > MAX_RECTS:
+        raise SpmError(f"--rects {rects}: at most {MAX_RECTS} rectangles per frame")
+    if not 0 <= seed <= MAX_SEED:
+        raise SpmError(f"--seed {seed}: expected an integer in [0, {MAX_SEED}]")
+
+
+def plan_occlusion(shards: dict, out_dir, low, high, copies=1, rects=1, seed=0) -> list[OccludeJob]:
+    """One job per (shard, copy); shards: {path: verified attributes} (check_inputs)."""
+    check_options(low, high, copies, rects, seed)
     jobs = []
     for path, attrs in shards.items():
         stamp = f"{path.name}:{attrs.get('plan_key', '')}:{path.stat().st_size}"
@@ -124,6 +137,7 @@ def occlude_dataset(in_dir, out_dir, *, low=0.0, high=0.6, copies=1, rects=1, se
                     progress=None, executor=None, allow_partial=False) -> RunSummary:
     """Occlude every shard of ``in_dir`` into ``out_dir`` (resuming), then write its manifest.
     Everything is checked before anything is written; ``allow_partial``: see folders.open_folder."""
+    check_options(low, high, copies, rects, seed)
     shards = check_inputs(in_dir, out_dir, allow_partial)
     jobs = plan_occlusion(shards, out_dir, low, high, copies, rects, seed)
     return run_shard_jobs(occlude_shard, jobs, out_dir, executor=executor, progress=progress, verb="occluded")
