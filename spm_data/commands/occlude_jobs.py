@@ -17,6 +17,7 @@ import numpy as np
 
 from spm_data.errors import ShardError, SpmError
 from spm_data.io.folders import open_folder
+from spm_data.io.outputs import check_out_name
 from spm_data.core.occlusion import apply_occlusion, check_range, occlude_mask
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
 from spm_data.io.shards import ShardReader, manifest_entry, verify_shard, write_shard
@@ -47,7 +48,7 @@ def occlusion_report(summary: RunSummary) -> str:
 def check_inputs(in_dir, out_dir, allow_partial=False) -> dict:
     """Every input shard (as the folder's manifest lists them), checked before anything is
     written: {path: its verified attributes}."""
-    in_dir, out_dir = Path(in_dir), Path(out_dir)
+    in_dir, out_dir = Path(in_dir), check_out_name(out_dir)
     if not in_dir.is_dir():
         raise ShardError(f"input folder not found: {in_dir}")
     if out_dir.exists() and out_dir.resolve() == in_dir.resolve():
