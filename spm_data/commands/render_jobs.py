@@ -96,6 +96,10 @@ def effective_spec(spec: RenderSpec, renderer: str | None = None, seed: int | No
             raise SpecError(f"{spec.class_name} with --renderer {renderer}: {exc}") from None
     if seed is not None:
         spec = spec.replace(seed=int(seed))
+        try:
+            validate_spec(spec)
+        except SpecError as exc:
+            raise SpecError(f"{spec.class_name} with --seed {seed}: {exc}") from None
     return spec
 
 
