@@ -17,14 +17,13 @@ import tempfile
 import time
 from pathlib import Path
 
-import h5py
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from spm_data.errors import ShardError  # noqa: E402
 from spm_data.io.shards import read_shard, write_shard  # noqa: E402
-from tests.helpers import make_arrays  # noqa: E402
+from tests.helpers import make_arrays, payload_positions  # noqa: E402
 
 
 def same(a: dict, b: dict) -> bool:
@@ -35,12 +34,7 @@ def main(stride: int) -> None:
     tmp = Path(tempfile.mkdtemp())
     clean = write_shard(tmp / "s.h5", make_arrays(n=4, h=8, w=10), {"renderer": "x", "seed": 0, "spec": "class"})
     truth, data = read_shard(clean), clean.read_bytes()
-    inside = set()
-    with h5py.File(clean, "r") as f:
-        for ds in f.values():
-            for i in range(ds.id.get_num_chunks()):
-                info = ds.id.get_chunk_info(i)
-                inside.update(range(info.byte_offset, info.byte_offset + info.size))
+    inside = payload_positions(clean)
     metadata = [p for p in range(len(data)) if p not in inside][::stride]
     counts = collections.Counter()
     path = tmp / "flipped.h5"

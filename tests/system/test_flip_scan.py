@@ -12,7 +12,6 @@ import re
 import shutil
 from pathlib import Path
 
-import h5py
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -23,20 +22,9 @@ from spm_data.io.loaders import ShardDataset
 from spm_data.io.shards import (ShardReader, read_attrs, read_shard, shard_layout, verify_shard, write_manifest,
                                 write_shard)
 from spm_data.io.shards.seal import USERBLOCK, SealError, check
-from tests.helpers import make_arrays
+from tests.helpers import make_arrays, payload_positions
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def payload_positions(path) -> set:
-    """Byte positions holding a chunk's stored data (the rest is metadata)."""
-    inside = set()
-    with h5py.File(path, "r") as f:
-        for ds in f.values():
-            for i in range(ds.id.get_num_chunks()):
-                info = ds.id.get_chunk_info(i)
-                inside.update(range(info.byte_offset, info.byte_offset + info.size))
-    return inside
 
 
 @pytest.fixture(scope="module")
