@@ -39,7 +39,7 @@ def shard_digest(path) -> str:
     except SealError as exc:
         raise _unverified(path, exc) from None
     except OSError as exc:
-        raise ShardError(f"{path}: cannot read the shard ({exc.strerror or exc})") from None
+        raise _open_error(path, exc, f"cannot read the shard ({exc.strerror or exc})") from None
 
 
 def _h5_file(path):
@@ -48,10 +48,15 @@ def _h5_file(path):
     try:
         return h5py.File(path, "r")
     except OSError as exc:
-        if exc.errno in (errno.EMFILE, errno.ENFILE) or "Too many open files" in str(exc):
-            raise ShardError(f"{path}: cannot open, too many open files in this process (the limit is "
-                             f"ulimit -n, {_open_file_limit()}); close readers or raise the limit") from None
-        raise ShardError(f"{path}: not a readable HDF5 shard ({exc})") from None
+        raise _open_error(path, exc, f"not a readable HDF5 shard ({exc})") from None
+
+
+def _open_error(path, exc: OSError, otherwise: str) -> ShardError:
+    """Running out of file descriptors said as such; else ``otherwise``."""
+    if exc.errno in (errno.EMFILE, errno.ENFILE) or "Too many open files" in str(exc):
+        return ShardError(f"{path}: cannot open, too many open files in this process (the limit is "
+                          f"ulimit -n, {_open_file_limit()}); close readers or raise the limit")
+    return ShardError(f"{path}: {otherwise}")
 
 
 def _open_file_limit() -> str:
