@@ -125,6 +125,17 @@ def flip_stored_byte(path, field, chunk=0):
         fh.write(bytes([byte ^ 0x10]))
 
 
+def payload_positions(path) -> set:
+    """Byte positions of a shard that hold a chunk's stored data (everything else is metadata)."""
+    inside = set()
+    with h5py.File(path, "r") as f:
+        for ds in f.values():
+            for i in range(ds.id.get_num_chunks()):
+                info = ds.id.get_chunk_info(i)
+                inside.update(range(info.byte_offset, info.byte_offset + info.size))
+    return inside
+
+
 # --------------------------------------------------------------------------- COIL-100 images
 
 OBJECTS = (7, 12)  # the objects of the coil_folder fixture (tests/conftest.py)

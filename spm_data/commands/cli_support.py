@@ -34,7 +34,10 @@ ALLOW_PARTIAL = click.option(
 def handle_errors(fn):
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
+        from spm_data.jobs.outcome import sigterm_as_interrupt
+
         warnings.showwarning = _show_warning
+        sigterm_as_interrupt()  # SIGTERM stops a run as Ctrl-C does: no lock or partial file left
         try:
             return fn(*args, **kwargs)
         except SpmError as exc:

@@ -12,10 +12,10 @@ import numpy as np
 
 from spm_data.errors import SpmError
 from spm_data.io.folders import open_folder
+from spm_data.io.outputs import check_out_name
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
-from spm_data.io.files import file_sha256
 from spm_data.io.shards import (FIELDS, OPTIONAL_FIELDS, SIZED_FIELDS, manifest_entry, read_attrs, read_shard,
-                                shard_layout, verify_shard, write_shard)
+                                shard_digest, shard_layout, verify_shard, write_shard)
 
 
 @dataclass(frozen=True)
@@ -49,13 +49,19 @@ def plan_merge(inputs, out_dir, *, sources=None, renames=None, frames_per_shard=
                allow_partial=False) -> list[MergeJob]:
     if not inputs:
         raise SpmError("give at least one folder to merge")
-    out_dir = Path(out_dir)
+    out_dir = check_out_name(out_dir)
     shards = []
     for folder in inputs:
         folder = Path(folder)
         if out_dir.exists() and folder.resolve() == out_dir.resolve():
             raise SpmError(f"--out {out_dir} is one of the inputs; merge into a new folder")
         shards += open_folder(folder, allow_partial=allow_partial).shards
+    seen: dict = {}
+    for path in shards:
+        first = seen.setdefault(path.resolve(), path)
+        if first is not path:
+            raise SpmError(f"{path.name} is in the inputs twice ({first.parent} and {path.parent}); give each "
+                           "folder once")
     info = {p: _shard_info(p) for p in shards}  # attrs, sources, fields and checksum, read once each
     renames = renames or {}
     groups: dict[tuple, list] = {}   # (H, W) -> [(shard, frames)]
@@ -94,7 +100,7 @@ def _shard_info(path) -> dict:
     fields = set(shard_layout(path))
     return {"schema_version": int(attrs["schema_version"]), "frames": int(attrs["frames"]),
             "height": int(attrs["height"]), "width": int(attrs["width"]), "fields": fields,
-            "source": read_shard(path, ["source"])["source"].astype(str), "sha256": file_sha256(path),
+            "source": read_shard(path, ["source"])["source"].astype(str), "sha256": shard_digest(path),
             # the pool's names, and the seed that made its procedural meshes
             "distractor_meshes": (attrs.get("distractor_meshes", ""), int(attrs.get("seed", 0)))}
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from spm_data.errors import ShardError, SpmError
 from spm_data.io.folders import open_folder
+from spm_data.io.outputs import check_out_name
 from spm_data.core.occlusion import apply_occlusion, check_range, occlude_mask
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
 from spm_data.io.shards import ShardReader, manifest_entry, verify_shard, write_shard
@@ -47,7 +48,7 @@ def occlusion_report(summary: RunSummary) -> str:
 def check_inputs(in_dir, out_dir, allow_partial=False) -> dict:
     """Every input shard (as the folder's manifest lists them), checked before anything is
     written: {path: its verified attributes}."""
-    in_dir, out_dir = Path(in_dir), Path(out_dir)
+    in_dir, out_dir = Path(in_dir), check_out_name(out_dir)
     if not in_dir.is_dir():
         raise ShardError(f"input folder not found: {in_dir}")
     if out_dir.exists() and out_dir.resolve() == in_dir.resolve():
@@ -72,11 +73,24 @@ def check_inputs(in_dir, out_dir, allow_partial=False) -> dict:
     return shards
 
 
-def plan_occlusion(shards: dict, out_dir, low, high, copies=1, rects=1, seed=0) -> list[OccludeJob]:
-    """One job per (shard, copy); shards: {path: verified attributes} (check_inputs)."""
+MAX_RECTS = 64  # rectangles per frame: more only slows placement (each takes a share of the target)
+MAX_SEED = 2**63 - 1
+
+
+def check_options(low, high, copies, rects, seed) -> None:
+    """SpmError for options out of range, before any shard is read."""
     check_range(low, high)
     if copies < 1 or rects < 1:
         raise SpmError(f"--copies and --rects must be >= 1, got {copies} and {rects}")
+    if rects > MAX_RECTS:
+        raise SpmError(f"--rects {rects}: at most {MAX_RECTS} rectangles per frame")
+    if not 0 <= seed <= MAX_SEED:
+        raise SpmError(f"--seed {seed}: expected an integer in [0, {MAX_SEED}]")
+
+
+def plan_occlusion(shards: dict, out_dir, low, high, copies=1, rects=1, seed=0) -> list[OccludeJob]:
+    """One job per (shard, copy); shards: {path: verified attributes} (check_inputs)."""
+    check_options(low, high, copies, rects, seed)
     jobs = []
     for path, attrs in shards.items():
         stamp = f"{path.name}:{attrs.get('plan_key', '')}:{path.stat().st_size}"
@@ -124,6 +138,7 @@ def occlude_dataset(in_dir, out_dir, *, low=0.0, high=0.6, copies=1, rects=1, se
                     progress=None, executor=None, allow_partial=False) -> RunSummary:
     """Occlude every shard of ``in_dir`` into ``out_dir`` (resuming), then write its manifest.
     Everything is checked before anything is written; ``allow_partial``: see folders.open_folder."""
+    check_options(low, high, copies, rects, seed)
     shards = check_inputs(in_dir, out_dir, allow_partial)
     jobs = plan_occlusion(shards, out_dir, low, high, copies, rects, seed)
     return run_shard_jobs(occlude_shard, jobs, out_dir, executor=executor, progress=progress, verb="occluded")

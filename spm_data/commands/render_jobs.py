@@ -27,6 +27,7 @@ from spm_data.commands.render_frames import FrameMaker
 from spm_data.core.distractors import pool_names
 from spm_data.jobs.executor import LocalExecutor
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
+from spm_data.io.outputs import check_out_name
 from spm_data.io.shards import SCHEMA_VERSION, ShardWriter, manifest_entry
 from spm_data.core.specs import RenderSpec, all_spec_paths, find_spec, load_spec, validate_spec
 
@@ -95,6 +96,10 @@ def effective_spec(spec: RenderSpec, renderer: str | None = None, seed: int | No
             raise SpecError(f"{spec.class_name} with --renderer {renderer}: {exc}") from None
     if seed is not None:
         spec = spec.replace(seed=int(seed))
+        try:
+            validate_spec(spec)
+        except SpecError as exc:
+            raise SpecError(f"{spec.class_name} with --seed {seed}: {exc}") from None
     return spec
 
 
@@ -237,6 +242,7 @@ def render_dataset(specs: list[RenderSpec], out_dir, *, limit=None, progress=Non
     renders in worker processes. progress: a callable taking frame deltas and a
     ``total`` attribute (e.g. a tqdm bar), or None.
     """
+    check_out_name(out_dir)
     jobs = [job for spec in specs for job in plan_shards(spec, out_dir, limit)]
     names = [j.name for j in jobs]
     if len(set(names)) != len(names):

@@ -212,15 +212,27 @@ def _check(ok: bool, message: str) -> None:
         raise SpecError(message)
 
 
+MAX_CLASS_BYTES = 200  # CLASS-00000.h5 inside .NAME.partial stays under the usual 255-byte file-name limit
+MAX_SEED = 2**63 - 1
+
+
+def _file_name_ok(name: str) -> bool:
+    """Whether ``name`` can start a visible file name on any common file system."""
+    return (name.strip() != "" and not name.startswith((".", " ")) and len(name.encode("utf-8")) <= MAX_CLASS_BYTES
+            and not any(c in name for c in "/\\") and all(ord(c) >= 32 and ord(c) != 127 for c in name))
+
+
 def validate_spec(spec: RenderSpec) -> RenderSpec:
     """``spec`` once more through every check (after a command-line override); SpecError."""
     return _validate(spec)
 
 
 def _validate(spec: RenderSpec) -> RenderSpec:
-    _check(spec.class_name.strip() != "" and "/" not in spec.class_name,
-           f"class: expected a non-empty name without '/', got {spec.class_name!r}")
-    _check(spec.seed >= 0, f"seed: expected an integer >= 0, got {spec.seed}")
+    _check(_file_name_ok(spec.class_name),
+           f"class: {spec.class_name!r} cannot name a shard file (CLASS-00000.h5): expected a non-empty name that "
+           f"does not start with '.' or a space, without '/', '\\' or control characters, at most "
+           f"{MAX_CLASS_BYTES} bytes")
+    _check(0 <= spec.seed <= MAX_SEED, f"seed: expected an integer in [0, {MAX_SEED}], got {spec.seed}")
     m = spec.mesh
     _check(m.source in ("procedural", "files"), f"mesh.source: expected 'procedural' or 'files', got {m.source!r}")
     if m.source == "procedural":

@@ -34,7 +34,7 @@ from spm_data.formats.bop_models import save_bop_model, save_models_info
 from spm_data.formats.coco import FILE_NAME as COCO_FILE
 from spm_data.formats.coco import save_scene_gt_coco, scene_coco
 from spm_data.io.folders import open_folder
-from spm_data.io.outputs import check_creatable, space_fix, top_created
+from spm_data.io.outputs import check_creatable, check_out_name, space_fix, top_created
 from spm_data.io.shards import read_attrs, read_shard
 
 SPLIT_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")  # one folder inside the dataset, never a path
@@ -188,7 +188,7 @@ def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=F
     a mesh-file spec's paths start from, when not the spec folder its shards recorded
     (spm_data.core.instances.shard_mesh). ids_from: a previous export (or its objects.json)
     whose obj_ids to keep (the module's docstring)."""
-    out_dir = Path(out_dir)
+    out_dir = check_out_name(out_dir)
     if not SPLIT_NAME.fullmatch(str(split)):
         raise SpmError(f"--split {split!r}: expected one folder name of letters, digits, '_' or '-' "
                        "(BOP's are train, train_pbr, val, test)")

@@ -48,7 +48,7 @@ def open_folder(folder, *, allow_partial: bool = False) -> ShardFolder:
         raise ShardError(f"no such folder or shard: {folder}")
     owner = lock_owner(folder)
     if owner is not None:
-        message = (f"{folder}/ is still being written by {owner.describe()}; wait for that run to finish, "
+        message = (f"{folder}/ is still being written by {owner}; wait for that run to finish, "
                    "or pass --allow-partial to read the shards complete so far")
         if not allow_partial:
             raise ShardError(message)

@@ -9,7 +9,9 @@ cannot be read (missing, truncated, foreign, a decompression bomb) is an
 from __future__ import annotations
 
 import io
+import os
 import re
+import stat
 import tarfile
 import zipfile
 from contextlib import contextmanager
@@ -20,6 +22,41 @@ import numpy as np
 from spm_data.errors import ImageError, SpmError, one_line  # noqa: F401 (SpmError: re-exported)
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".bmp", ".tif", ".tiff")
+# An image file larger than this is refused before it is read (decoded sizes are bounded by
+# Pillow's decompression-bomb limit, PIL.Image.MAX_IMAGE_PIXELS, checked from the header).
+MAX_IMAGE_BYTES = 256 * 2**20
+
+
+def _kind(mode: int) -> str:
+    return ("a FIFO" if stat.S_ISFIFO(mode) else "a character device" if stat.S_ISCHR(mode) else
+            "a block device" if stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode) else "not a plain file")
+
+
+def read_image_file(path, limit: int = MAX_IMAGE_BYTES) -> bytes:
+    """The bytes of an image file; ImageError with the reason alone for a missing file, a
+    folder, anything that is not a regular file (a FIFO, a device such as /dev/zero: refused
+    without reading or waiting), and a file over ``limit`` bytes (refused before reading)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)  # a FIFO opens at once, not when a writer comes
+    except FileNotFoundError:
+        raise ImageError("no such file") from None
+    except OSError as exc:
+        raise ImageError(f"cannot read ({exc.strerror or exc})") from None
+    st = os.fstat(fd)
+    mode, size = st.st_mode, st.st_size
+    if not stat.S_ISREG(mode):
+        os.close(fd)
+        raise ImageError("is a folder, not an image file" if stat.S_ISDIR(mode) else
+                         f"is {_kind(mode)}, not a regular file; give an image file")
+    with os.fdopen(fd, "rb") as fh:
+        try:
+            data = fh.read(limit + 1) if size <= limit else b""
+        except OSError as exc:
+            raise ImageError(f"cannot read ({exc.strerror or exc})") from None
+    if size > limit or len(data) > limit:
+        raise ImageError(f"{max(size, len(data)):,} bytes is over the image file limit of {limit:,} bytes "
+                         "(spm_data.io.images.MAX_IMAGE_BYTES); downscale or recompress the image")
+    return data
 
 
 def read_bytes(ref: str) -> bytes:
@@ -67,6 +104,10 @@ def parse_pnm(data: bytes) -> np.ndarray:
         raise ImageError("PNM header has a non-number size") from None
     if w <= 0 or h <= 0 or not 0 < maxval < 65536:
         raise ImageError(f"PNM header out of range ({w}x{h}, maxval {maxval})")
+    from PIL import Image
+
+    if Image.MAX_IMAGE_PIXELS and w * h > Image.MAX_IMAGE_PIXELS:  # the limit Pillow applies to other formats
+        raise ImageError(_bomb_reason(f"({w * h} pixels)"))
     channels = 3 if magic == b"P6" else 1
     dtype = np.dtype(">u2") if maxval > 255 else np.dtype(np.uint8)
     need = w * h * channels * dtype.itemsize

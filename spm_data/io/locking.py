@@ -50,7 +50,8 @@ class LockOwner:
     started: str = ""
     token: str = ""
 
-    def describe(self) -> str:
+    def __str__(self) -> str:
+        """"pid 123 on host h, since T" (or that the lock file is unreadable), for messages."""
         if self.pid <= 0:
             return "an unknown run (its lock file is unreadable)"
         return f"pid {self.pid} on host {self.host}" + (f", since {self.started}" if self.started else "")
@@ -228,7 +229,7 @@ class OutputLock:
     def _refusal(self, owner: LockOwner) -> str:
         out = self.path.parent
         if owner.host == _host():
-            return (f"another run is writing to {out}/ ({owner.describe()}); "
+            return (f"another run is writing to {out}/ ({owner}); "
                     "wait for it to finish or stop it")
         since = f" (since {owner.started})" if owner.started else ""
         return (f"{out}/ is locked by pid {owner.pid} on host {owner.host}{since}; spm cannot tell from "

@@ -12,13 +12,40 @@ from pathlib import Path
 from spm_data.errors import SpmError
 
 
+NAME_MAX = 255  # bytes in one file name on common file systems (ext4, xfs, btrfs, APFS, NTFS in UTF-16 units)
+
+
+def check_out_name(path, option: str = "--out") -> Path:
+    """SpmError unless every name in ``path`` fits the file system (with room for the
+    hidden ``.NAME.partial`` a write goes through): checked before any work."""
+    path = Path(path)
+    try:
+        limit = os.pathconf(nearest_existing(path.absolute()), "PC_NAME_MAX")
+    except (OSError, ValueError):
+        limit = NAME_MAX
+    for part in path.parts:
+        size = len(os.fsencode(part))
+        if size + len(".partial") + 1 > limit:
+            raise SpmError(f"{option}: the name {part[:24]}... is {size} bytes, over the "
+                           f"{limit - len('.partial') - 1} a file name can have here; give a shorter name")
+    return path
+
+
 def nearest_existing(path) -> Path:
     """``path`` itself if it exists, else its closest existing ancestor (the folder a
     new output would be created in; what must be a writable folder)."""
     base = Path(path)
-    while not os.path.lexists(base) and base != base.parent:
+    while not _lexists(base) and base != base.parent:
         base = base.parent
     return base
+
+
+def _lexists(path) -> bool:
+    try:
+        os.lstat(path)
+    except (OSError, ValueError):  # missing, or a name too long to exist
+        return False
+    return True
 
 
 def unwritable(path) -> tuple[Path, str] | None:

@@ -20,6 +20,7 @@ from spm_data.errors import ShardError
 from spm_data.jobs.executor import LocalExecutor
 from spm_data.io.locking import GUARD_NAME, OutputLock
 from spm_data.io.files import partial_path
+from spm_data.io.outputs import check_out_name
 from spm_data.io.shards import MANIFEST, MISSING, remove_partials, verify_shard, write_manifest
 
 
@@ -51,7 +52,7 @@ class RunSummary:
 
 
 def prepare_out_dir(out_dir) -> Path:
-    out = Path(out_dir)
+    out = check_out_name(out_dir)
     if out.exists() and not out.is_dir():
         raise ShardError(f"output path {out} is a file; give a folder")
     try:

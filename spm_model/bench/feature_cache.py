@@ -5,13 +5,18 @@ key>.npz`` (written to a temporary name and ``os.replace``-d, so a cache file
 that exists is whole); where that folder cannot be created or written (read-only
 shards), in the per-user cache ``$SPM_CACHE_DIR`` (else ``$XDG_CACHE_HOME/spm/features``,
 default ``~/.cache/spm/features``) under a hash of the shard folder's absolute
-path, with one warning. A cache file records the shard's size and modification
-time; a shard rewritten since is extracted again. Extraction runs shard by
-shard on an executor (spm_data.jobs.make_executor), with per-frame progress.
+path, with one warning. A cache file records the SHA-256 of the shard's content
+it was made from, verified against the shard's bytes (spm_data.io.shards.shard_digest)
+on every run: a shard changed since (rewritten, or a flipped byte with its mtime put back)
+is extracted again, or refused when corrupt. A cache folder is created only to write a
+file into it, and a run that fails removes the empty folders it made. Extraction runs
+shard by shard on an executor (spm_data.jobs.make_executor), with per-frame progress.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import hashlib
 import os
 import socket
@@ -26,7 +31,8 @@ from spm_data.jobs.executor import LocalExecutor
 from spm_data.io.folders import open_tree
 from spm_data.io.locking import pid_alive
 from spm_data.io.files import PARTIAL_PREFIX, write_npz_atomic
-from spm_data.io.shards import read_attrs, read_shard, shard_layout
+from spm_data.io.outputs import nearest_existing, unwritable
+from spm_data.io.shards import read_attrs, read_shard, shard_digest, shard_layout
 from spm_model.base.frames import visible_field
 from spm_model.bench.extract import frames_features
 from spm_model.spm.features import FeatureConfig
@@ -56,54 +62,49 @@ def user_cache_folder(shard_folder) -> Path:
     return user_cache_root() / hashlib.sha256(str(Path(shard_folder).resolve()).encode()).hexdigest()[:16]
 
 
-def _unwritable(folder: Path, parents: bool = False) -> str | None:
-    """None when ``folder`` is (now) a folder this process can write in, else why not. Creates it if missing."""
-    try:
-        folder.mkdir(parents=parents, exist_ok=True)
-    except FileExistsError:
-        return "a file is in the way"
-    except OSError as exc:
-        return exc.strerror or str(exc)
-    return None if os.access(folder, os.W_OK | os.X_OK) else "not writable"
+def _unwritable(folder: Path) -> str | None:
+    """None when ``folder`` is, or can be made as, a folder this process can write in, else
+    why not. Creates nothing (a cache folder is made only to write into it)."""
+    problem = unwritable(folder)
+    if problem is None:
+        return None
+    return "a file is in the way" if problem[1] == "file" else os.strerror(errno.EACCES)
 
 
-def _whole(path: Path, shard: Path) -> bool:
-    """Whether ``path`` is a cache file made from ``shard`` as it is now."""
+def _whole(path: Path, digest: str) -> bool:
+    """Whether ``path`` is a cache file made from a shard whose content has SHA-256 ``digest``."""
     try:
         with np.load(path) as z:
-            return bool(np.array_equal(z["identity"], _identity(shard)))
+            return str(z["identity"]) == digest
     except (OSError, KeyError, ValueError, EOFError):
         return False
 
 
-def cache_path(shard: Path, config: FeatureConfig) -> Path:
+def cache_path(shard: Path, config: FeatureConfig, digest: str | None = None) -> Path:
     """Where ``shard``'s features are (or will be) cached: ``<shard folder>/.spm-features``, or,
     when that cannot be created or written, the per-user cache (user_cache_folder); a whole
     cache file already beside a read-only shard is used where it is. SpmError when neither
-    place can be written."""
+    place can be written. digest: the shard's verified SHA-256 (shard_digest), when known."""
     shard = Path(shard)
     name = f"{shard.stem}-{config.key()}.npz"
     beside = shard.parent / CACHE_DIR
     why = _unwritable(beside)
-    if why is None or _whole(beside / name, shard):
+    if why is None or _whole(beside / name, digest or shard_digest(shard)):
         return beside / name
     user = user_cache_folder(shard.parent)
-    why_user = _unwritable(user, parents=True)
+    why_user = _unwritable(user)
     if why_user is None:
         return user / name
     raise SpmError(f"cannot cache features: neither {beside} ({why}) nor {user} ({why_user}) is writable; "
                    "set SPM_CACHE_DIR to a writable folder")
 
 
-def _identity(shard: Path) -> np.ndarray:
-    st = shard.stat()
-    return np.array([st.st_size, st.st_mtime_ns], dtype=np.int64)
-
-
 def cached(shard: Path, config: FeatureConfig) -> Path | None:
-    """The shard's cache file when present and made from the shard as it is now."""
-    path = cache_path(shard, config)
-    return path if _whole(path, shard) else None
+    """The shard's cache file when present and made from the shard as it is now (its bytes
+    verified: a ShardError naming it when they fail)."""
+    digest = shard_digest(shard)
+    path = cache_path(shard, config, digest)
+    return path if _whole(path, digest) else None
 
 
 def walks_in_steps(attrs: dict) -> bool:
@@ -119,9 +120,9 @@ def walks_in_steps(attrs: dict) -> bool:
 def extract_shard(job, report=lambda n: None) -> str:
     """Compute and cache one shard's features; job = (shard path, FeatureConfig)."""
     shard, config = Path(job[0]), job[1]
-    attrs = read_attrs(shard)  # a missing or foreign file: a ShardError naming it
+    identity = shard_digest(shard)  # every byte checked: a missing, foreign or corrupt file is a ShardError
+    attrs = read_attrs(shard)
     n = int(attrs["frames"])
-    identity = _identity(shard)
     labels = read_shard(shard, LABEL_FIELDS)
     if np.any(labels["class_name"].astype(str) == ""):
         raise ShardError(f"{shard}: frames without a class_name; set one when importing")
@@ -136,11 +137,12 @@ def extract_shard(job, report=lambda n: None) -> str:
                                      path_steps=walks_in_steps(attrs)))
         parts[-1]["width"] = np.full(block.stop - block.start, images["rgb"].shape[2], dtype=np.int64)
     features = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
-    out = cache_path(shard, config)
+    out = cache_path(shard, config, identity)
     # Host and pid in the temporary name: remove_stale_partials can tell a dead writer's leftovers.
     tmp = out.parent / f"{PARTIAL_PREFIX}{out.name}.{socket.gethostname()}.{os.getpid()}.partial"
     try:
-        write_npz_atomic(out, tmp, identity=identity, **features,
+        out.parent.mkdir(parents=True, exist_ok=True)
+        write_npz_atomic(out, tmp, identity=np.array(identity), **features,
                          **{k: (v.astype(str) if v.dtype == object else v) for k, v in labels.items()})
     except OSError as exc:
         fix = "" if out.parent.name == CACHE_DIR else " or set SPM_CACHE_DIR to another folder"
@@ -208,7 +210,7 @@ def remove_stale_partials(shards: list[Path]) -> list[Path]:
         why = _unwritable(folders[0])
         if why is not None:
             folders.append(user_cache_folder(shard_folder))
-            if _unwritable(folders[1], parents=True) is None:
+            if _unwritable(folders[1]) is None:
                 moved.append((folders[0], why, folders[1]))
         for folder in folders:
             for path in folder.glob(PARTIAL_PREFIX + "*.partial") if folder.is_dir() else []:
@@ -232,6 +234,24 @@ def remove_stale_partials(shards: list[Path]) -> list[Path]:
     return removed
 
 
+@contextlib.contextmanager
+def _removing_empty_caches(shards):
+    """Run the block; if it fails, remove the cache folders it created that are still empty."""
+    candidates = {f for s in shards for f in (Path(s).parent / CACHE_DIR, user_cache_folder(Path(s).parent))}
+    new = {f: nearest_existing(f) for f in candidates if not f.exists()}
+    try:
+        yield
+    except BaseException:
+        for folder, base in new.items():
+            while folder != base:
+                try:
+                    folder.rmdir()  # only when empty: another run's files are kept
+                except OSError:
+                    break
+                folder = folder.parent
+        raise
+
+
 def load_features(folder, config: FeatureConfig = FeatureConfig(), *, progress=None, executor=None,
                   allow_partial: bool = False) -> FeatureTable:
     """Extract (or reuse) the features of every shard under ``folder``, one job per
@@ -240,17 +260,18 @@ def load_features(folder, config: FeatureConfig = FeatureConfig(), *, progress=N
     allow_partial: read folders still being written (spm_data.io.folders.open_folder)."""
     shards = find_shards(folder, allow_partial)
     remove_stale_partials(shards)
-    paths = {s: cached(s, config) for s in shards}   # where each shard's features are, once decided
-    todo = [(str(s), config) for s, p in paths.items() if p is None]
-    if progress is not None:
-        progress.total = sum(int(read_attrs(path)["frames"]) for path, _ in todo)
-    executor = executor or LocalExecutor(workers=1, retries=1)
-    outcomes = executor.run(extract_shard, todo, on_progress=progress)
-    failed = [o for o in outcomes if o.error]
-    if failed:
-        first, error = Path(failed[0].job[0]), str(failed[0].error)
-        where = "" if error.startswith(str(first)) else f"{first.name}: "  # shard errors name their shard
-        raise SpmError(f"feature extraction failed for {len(failed)} shard(s); first: {where}{error}")
+    with _removing_empty_caches(shards):
+        paths = {s: cached(s, config) for s in shards}   # where each shard's features are, once decided
+        todo = [(str(s), config) for s, p in paths.items() if p is None]
+        if progress is not None:
+            progress.total = sum(int(read_attrs(path)["frames"]) for path, _ in todo)
+        executor = executor or LocalExecutor(workers=1, retries=1)
+        outcomes = executor.run(extract_shard, todo, on_progress=progress)
+        failed = [o for o in outcomes if o.error]
+        if failed:
+            first, error = Path(failed[0].job[0]), str(failed[0].error)
+            where = "" if error.startswith(str(first)) else f"{first.name}: "  # shard errors name their shard
+            raise SpmError(f"feature extraction failed for {len(failed)} shard(s); first: {where}{error}")
     paths.update({Path(o.job[0]): Path(o.result) for o in outcomes})
     tables = []
     for shard in shards:

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 
 from spm_data.errors import FeatureError, ImageError, ModelError, one_line
-from spm_data.io.images import decode_bytes
+from spm_data.io.images import decode_bytes, read_image_file
 from spm_model.commands.evaluate import load_model
 
 LABEL_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
@@ -35,27 +34,15 @@ def roi_mask(roi, width: int, height: int) -> np.ndarray:
 
 
 def read_image(path) -> np.ndarray:
-    """(H, W, 3) uint8 RGB of an image file for ``spm predict``; ImageError with the reason alone."""
-    try:
-        data = Path(path).read_bytes()
-    except FileNotFoundError:
-        raise ImageError("no such file") from None
-    except IsADirectoryError:
-        raise ImageError("is a folder, not an image file") from None
-    except OSError as exc:
-        raise ImageError(f"cannot read ({exc.strerror or exc})") from None
-    return decode_bytes(data)
+    """(H, W, 3) uint8 RGB of an image file for ``spm predict``; ImageError with the reason alone.
+    Not a regular file (a FIFO, /dev/zero) or over MAX_IMAGE_BYTES: refused before reading."""
+    return decode_bytes(read_image_file(path))
 
 
 def read_mask(path) -> np.ndarray:
     """(H, W) bool object mask of ``--mask`` (non-zero = object); ModelError naming it."""
     try:
-        with open(path, "rb") as fh:
-            m = decode_bytes(fh.read(), mode="raw")
-    except FileNotFoundError:
-        raise ModelError(f"--mask {path}: no such file") from None
-    except OSError as exc:
-        raise ModelError(f"--mask {path}: cannot read ({exc.strerror or exc})") from None
+        m = decode_bytes(read_image_file(path), mode="raw")
     except ImageError as exc:
         raise ModelError(f"--mask {path}: {exc}") from None
     if m.ndim == 3:  # colour: any non-zero colour channel (alpha ignored)

@@ -26,7 +26,7 @@ def folder(tmp_path):
 def test_a_shard_its_fields_classes_and_label_ranges(folder):
     lines = info_text(folder / "cup-00000.h5").splitlines()
     assert lines[:4] == [f"shard {folder / 'cup-00000.h5'}",
-                         "  schema v2, 3 frames, 10x8, renderer pyrender (pyrender 0.1.45), seed 3",
+                         "  schema v3, 3 frames, 10x8, renderer pyrender (pyrender 0.1.45), seed 3",
                          "  rgb                  (3, 8, 10, 3)          uint8",
                          "  depth                (3, 8, 10)             float32"]
     assert "  class_name           (3,)                   str" in lines
@@ -62,5 +62,5 @@ def test_a_shard_rendered_by_cycles_says_on_which_device(tmp_path):
     a = make_arrays(n=1, h=4, w=4)
     write_shard(tmp_path / "b.h5", a, {"renderer": "blender", "seed": 0, "renderer_version": "Blender 5.0.1",
                                        "renderer_settings": '{"device": "OPTIX", "samples": 16}'})
-    assert info_text(tmp_path / "b.h5").splitlines()[1] == ("  schema v2, 1 frames, 4x4, renderer blender "
+    assert info_text(tmp_path / "b.h5").splitlines()[1] == ("  schema v3, 1 frames, 4x4, renderer blender "
                                                            "(Blender 5.0.1, on OPTIX), seed 0")

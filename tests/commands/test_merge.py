@@ -48,5 +48,5 @@ def test_merge_filters_sources_and_refuses_mixed_schemas(small_specs_dir, coil_f
         f.attrs["schema_version"] = 0
     r = CliRunner().invoke(data_cli, ["merge", str(tmp_path / "syn"), str(tmp_path / "coil"), "--out",
                                       str(tmp_path / "bad")])
-    assert r.exit_code == 1 and "schema version 0 has no checksums, so it cannot be verified" in r.output
+    assert r.exit_code == 1 and "schema version 0 is older than this spm (3) and cannot be verified" in r.output
     assert not (tmp_path / "bad").exists()

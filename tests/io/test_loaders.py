@@ -216,12 +216,13 @@ def test_a_dataset_used_before_fork_reopens_in_the_children(folder):
 
 @pytest.mark.parametrize("field", ["rgb", "K", "class_name"])
 def test_a_corrupt_chunk_is_a_shard_error_naming_the_field(folder, field):
+    """A shard is trusted only whole: a flipped byte in one frame's chunk refuses the shard
+    (every byte is checked when it is opened), naming the field that changed."""
     flip_stored_byte(folder / "cup-00002.h5", field)
-    ds = ShardDataset(folder)  # attributes and layout are intact: opening works
     with pytest.raises(ShardError, match=rf"cup-00002.h5: field '{field}' fails its checksum"):
-        ds[3]  # frame 0 of cup-00002
-    if field == "rgb":  # one image frame per chunk: the other frames still read
-        np.testing.assert_array_equal(ds[4]["rgb"], read_shard(folder / "cup-00002.h5", ["rgb"], frames=[1])["rgb"][0])
+        ShardDataset(folder)
+    ds = ShardDataset(folder / "cup-00000.h5")  # the other shards still read
+    assert len(ds) and ds[0]["rgb"].shape[-1] == 3
 
 
 def test_manifest_rules_apply(folder):

@@ -142,7 +142,7 @@ def test_a_live_owner_on_this_host_is_refused_and_named(tmp_path):
                                 f"since {SINCE}); wait for it to finish or stop it")
         assert (tmp_path / LOCK_NAME).read_bytes() == data and leftovers(tmp_path) == []
         assert lock_owner(tmp_path) == LockOwner(other.pid, HOST, SINCE, "planted")
-        assert lock_owner(tmp_path).describe() == f"pid {other.pid} on host {HOST}, since {SINCE}"
+        assert str(lock_owner(tmp_path)) == f"pid {other.pid} on host {HOST}, since {SINCE}"
 
 
 def test_pid_only_locks_of_older_versions(tmp_path):

@@ -1,4 +1,4 @@
-"""Ctrl-C during `spm-data render`: finished shards kept, nothing partial, a resume hint, then a clean resume."""
+"""Ctrl-C or SIGTERM during `spm-data render`: finished shards kept, nothing partial, a resume hint, then a clean resume."""
 
 import signal
 import subprocess
@@ -14,8 +14,9 @@ pytestmark = pytest.mark.slow  # renders interrupted in subprocesses
 SPEC = 'class = "cup"\n[image]\nwidth = 64\nheight = 64\n[render]\nrenderer = "pyrender"\nframes_per_shard = 128\n'
 
 
-@pytest.mark.parametrize("workers", [1, 2])
-def test_sigint_keeps_complete_shards_and_resume_finishes(tmp_path, workers):
+@pytest.mark.parametrize("workers, sig", [(1, signal.SIGINT), (2, signal.SIGINT), (2, signal.SIGTERM)])
+def test_sigint_keeps_complete_shards_and_resume_finishes(tmp_path, workers, sig):
+    """SIGTERM (what `kill` and service managers send) is handled as Ctrl-C is."""
     spec = tmp_path / "cup.toml"
     spec.write_text(SPEC)  # 4 instances x 936 views: 30 shards of 128 frames
     out = tmp_path / "out"
@@ -27,7 +28,7 @@ def test_sigint_keeps_complete_shards_and_resume_finishes(tmp_path, workers):
         # Interrupt once the first shard is complete: at least 1 is kept, and the other 29
         # are far more work than the moment the signal takes to arrive, so 0 < n < 30.
         wait_for(lambda: out.is_dir() and list_shards(out), "the first complete shard", proc=proc)
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(sig)
         output, _ = proc.communicate(timeout=120)
     assert proc.returncode == 130, output
     assert "Traceback" not in output

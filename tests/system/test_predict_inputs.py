@@ -264,3 +264,25 @@ def test_damaged_model_files_are_one_line(models, tmp_path):
         refused(predict(path, image), message)
         refused(predict(path, image, "--json"), message)
     assert sorted(p.name for p in tmp_path.iterdir()) == before    # predict wrote nothing
+
+
+def test_what_is_not_a_regular_file_or_too_big_is_refused_before_reading(models, tmp_path, monkeypatch):
+    """/dev/zero (read 24 GB once) and a FIFO named like an image (hung once) are refused
+    without reading or waiting; a file over MAX_IMAGE_BYTES before it is read."""
+    from spm_data.io import images
+
+    good = save(tmp_path / "good.png", textured(11))
+    fifo = tmp_path / "x.png"
+    os.mkfifo(fifo)
+    big = save(tmp_path / "big.png", textured(12))
+    monkeypatch.setattr(images, "MAX_IMAGE_BYTES", big.stat().st_size - 1)
+    monkeypatch.setattr(images.read_image_file, "__defaults__", (big.stat().st_size - 1,))
+    r = predict(models["spm"], "/dev/zero", fifo, big, good)
+    assert r.exit_code == 1 and r.stdout.startswith(f"{good}: rx ") and r.stdout.count("\n") == 1
+    assert r.stderr == (f"error: /dev/zero: is a character device, not a regular file; give an image file\n"
+                        f"error: {fifo}: is a FIFO, not a regular file; give an image file\n"
+                        f"error: {big}: {big.stat().st_size:,} bytes is over the image file limit of "
+                        f"{big.stat().st_size - 1:,} bytes (spm_data.io.images.MAX_IMAGE_BYTES); downscale or "
+                        "recompress the image\n")
+    refused(predict(models["spm"], good, "--mask", fifo),
+            f"--mask {fifo}: is a FIFO, not a regular file; give an image file")

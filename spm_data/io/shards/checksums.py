@@ -79,11 +79,12 @@ def dataset_layout(ds) -> list:
 
 
 def file_checksums(f, layouts=None) -> dict:
-    """{"attrs": {name: crc}, "layout": {dataset: crc}} of an open h5py file (layouts:
-    _layouts(f), when the caller has them)."""
+    """{"attrs": {name: crc}, "layout": {dataset: crc}, "self": crc of those two} of an open
+    h5py file (layouts: _layouts(f), when the caller has them); "self" tells a damaged
+    checksums attribute from a damaged item."""
     attrs = {k: item_crc(v) for k, v in f.attrs.items() if k != CHECKSUMS_ATTR}
     layout = {name: item_crc(value) for name, value in (_layouts(f) if layouts is None else layouts).items()}
-    return {"attrs": attrs, "layout": layout}
+    return {"attrs": attrs, "layout": layout, "self": item_crc([attrs, layout])}
 
 
 def _layouts(f) -> dict:
@@ -98,8 +99,11 @@ def checksum_mismatch(f) -> str | None:
     stored = f.attrs.get(CHECKSUMS_ATTR)
     try:
         stored = json.loads(stored)
-        stored["attrs"], stored["layout"]
-    except (TypeError, ValueError, KeyError):
+        if not (isinstance(stored["attrs"], dict) and isinstance(stored["layout"], dict)):
+            return "no readable checksums attribute"
+        if stored["self"] != item_crc([stored["attrs"], stored["layout"]]):
+            return "attribute 'checksums' fails its own checksum"
+    except (TypeError, ValueError, KeyError, UnicodeDecodeError):
         return "no readable checksums attribute"
     layouts = _layouts(f)  # once: the checksums and the Fletcher-32 check below
     now = file_checksums(f, layouts)

@@ -10,7 +10,7 @@ import numpy as np
 from spm_data.errors import ShardError
 from spm_data.io.files import PARTIAL_PREFIX, PARTIAL_SUFFIX, file_sha256, write_json_atomic
 from spm_data.io.shards.reader import ShardReader
-from spm_data.io.shards.schema import MANIFEST, SCHEMA_VERSION, SHARD_SUFFIX
+from spm_data.io.shards.schema import MANIFEST, MISSING, SCHEMA_VERSION, SHARD_SUFFIX
 
 def no_shards(where, hint: str = "make some with `spm-data render` or `spm-data import`") -> ShardError:
     """The one error for a place with no shards in it (raise it)."""
@@ -90,7 +90,34 @@ def read_manifest(folder) -> dict:
         raise ShardError(f"{path}: unreadable manifest ({getattr(exc, 'strerror', None) or exc})") from None
     if not isinstance(payload, dict) or not isinstance(payload.get("shards"), list):
         raise ShardError(f"{path}: manifest has no 'shards' list")
+    problem = _manifest_problem(payload)
+    if problem:
+        raise ShardError(f"{path}: {problem}; the manifest is damaged: run the command that wrote the folder "
+                         "again, or delete it and pass --allow-partial")
     return payload
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _manifest_problem(payload: dict) -> str | None:
+    """What makes a parsed manifest unusable (types a reader relies on), or None."""
+    for i, entry in enumerate(payload["shards"]):
+        if not isinstance(entry, dict) or not isinstance(entry.get("file"), str):
+            return f"shards[{i}] is {json.dumps(entry)[:60]}, not an entry with a 'file' name"
+        for key in ("frames", "bytes"):
+            if key in entry and not _is_int(entry[key]):
+                return f"shards[{i}] ({entry['file']}): '{key}' is {json.dumps(entry[key])[:40]}, not a count"
+        if "classes" in entry and not (isinstance(entry["classes"], dict)
+                                       and all(_is_int(v) for v in entry["classes"].values())):
+            return f"shards[{i}] ({entry['file']}): 'classes' is not a table of frame counts"
+    missing = payload.get(MISSING, [])
+    if not isinstance(missing, list) or not all(isinstance(m, str) for m in missing):
+        return f"'{MISSING}' is {json.dumps(missing)[:60]}, not a list of shard names"
+    if "frames" in payload and not _is_int(payload["frames"]):
+        return f"'frames' is {json.dumps(payload['frames'])[:40]}, not a count"
+    return None
 
 
 def remove_partials(folder) -> list[Path]:

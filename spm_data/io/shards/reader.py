@@ -1,9 +1,10 @@
 """The one shard reader: every read verified.
 
-``read_attrs`` checks the attributes and each field's layout against their CRC-32s;
-HDF5 then checks the Fletcher-32 of every chunk a read touches; ``verify_shard``
-checks every stored chunk without decompressing. A mismatch is a one-line
-ShardError naming the shard and the field or attribute.
+Opening a shard checks every byte of it against the SHA-256 in its header
+(seal.py) before HDF5 reads anything; ``read_attrs`` then checks the attributes
+and each field's layout against their CRC-32s, and HDF5 the Fletcher-32 of every
+chunk a read touches. A shard that fails is a one-line ShardError naming it and,
+where the finer checks find it, the field or attribute that changed.
 """
 
 from __future__ import annotations
@@ -17,26 +18,68 @@ import numpy as np
 from spm_data.errors import ShardError
 from spm_data.io.shards.checksums import CHECKSUMS_ATTR, FLETCHER32, checksum_mismatch, dataset_layout, stored_chunk_ok
 from spm_data.io.shards.schema import SCHEMA_VERSION
+from spm_data.io.shards.seal import SealError, verified_digest
+
 
 def open_h5(path):
-    import h5py
+    """An h5py file of a shard whose every byte matched its SHA-256 (seal.py)."""
+    path = Path(path)
+    shard_digest(path)
+    return _h5_file(path)
 
+
+def shard_digest(path) -> str:
+    """The verified SHA-256 of a shard's content (seal.py): every byte is checked, once
+    per process while the file is unchanged. A ShardError naming the shard otherwise."""
     path = Path(path)
     if not path.is_file():
-        raise ShardError(f"shard not found: {path}")
+        raise ShardError(f"shard not found: {path}" + (" (a folder)" if path.is_dir() else ""))
+    try:
+        return verified_digest(path)
+    except SealError as exc:
+        raise _unverified(path, exc) from None
+    except OSError as exc:
+        raise _open_error(path, exc, f"cannot read the shard ({exc.strerror or exc})") from None
+
+
+def _h5_file(path):
+    import h5py
+
     try:
         return h5py.File(path, "r")
     except OSError as exc:
-        if exc.errno in (errno.EMFILE, errno.ENFILE) or "Too many open files" in str(exc):
-            raise ShardError(f"{path}: cannot open, too many open files in this process (the limit is "
-                             f"ulimit -n, {_open_file_limit()}); close readers or raise the limit") from None
-        raise ShardError(f"{path}: not a readable HDF5 shard ({exc})") from None
+        raise _open_error(path, exc, f"not a readable HDF5 shard ({exc})") from None
+
+
+def _open_error(path, exc: OSError, otherwise: str) -> ShardError:
+    """Running out of file descriptors said as such; else ``otherwise``."""
+    if exc.errno in (errno.EMFILE, errno.ENFILE) or "Too many open files" in str(exc):
+        return ShardError(f"{path}: cannot open, too many open files in this process (the limit is "
+                          f"ulimit -n, {_open_file_limit()}); close readers or raise the limit")
+    return ShardError(f"{path}: {otherwise}")
 
 
 def _open_file_limit() -> str:
     import resource
 
     return str(resource.getrlimit(resource.RLIMIT_NOFILE)[0])
+
+
+def _unverified(path, exc: SealError) -> ShardError:
+    """The error for a shard that fails its whole-file check: the changed field or attribute
+    when the finer checks find it, else the whole-file finding."""
+    if exc.mismatch:
+        try:
+            with _h5_file(path) as f:
+                _verified_attrs(path, f)
+                for field in list(f.keys()):
+                    verify_stored_chunks(path, f, field)
+        except ShardError as found:
+            return found
+        except Exception:  # noqa: BLE001 - damaged metadata makes h5py raise anything; the file is corrupt anyway
+            pass
+        return ShardError(f"{path}: {exc}; the shard is corrupt")
+    return ShardError(f"{path}: {exc}")
 
 
 # What h5py raises for a damaged file besides OSError (a bad object header is a KeyError).
@@ -66,8 +109,8 @@ def _verified_attrs(path, f) -> dict:
         raise ShardError(f"{path}: schema version {version} is newer than this spm "
                          f"({SCHEMA_VERSION}); upgrade spm to read it")
     if int(version) < SCHEMA_VERSION:
-        raise ShardError(f"{path}: schema version {version} has no checksums, so it cannot be verified; "
-                         "make it again with this spm (render, import or occlude into a new --out)")
+        raise ShardError(f"{path}: schema version {version} is older than this spm ({SCHEMA_VERSION}) and cannot "
+                         "be verified; make it again with this spm (render, import or occlude into a new --out)")
     if mismatch:
         raise ShardError(f"{path}: {mismatch}; the shard is corrupt")
     attrs.pop(CHECKSUMS_ATTR, None)
@@ -77,8 +120,9 @@ def _verified_attrs(path, f) -> dict:
 def read_shard(path, fields=None, frames=slice(None)) -> dict:
     """Read ``fields`` (default: all present) of a shard, for ``frames`` (a slice
     or sorted index array). String fields come back as (n,) object arrays of str.
-    Verified: the attributes and layout first (read_attrs), then HDF5 checks the
-    Fletcher-32 of every chunk it reads; a mismatch is a ShardError naming the field."""
+    Verified: every byte of the file (open_h5), the attributes and layout
+    (read_attrs), then HDF5 checks the Fletcher-32 of every chunk it reads; a
+    mismatch is a ShardError naming the shard (and the field, where found)."""
     with ShardReader(path) as reader:
         return reader.read(fields, frames)
 
@@ -97,9 +141,10 @@ def h5_is_string(ds) -> bool:
 
 class ShardReader:
     """One shard held open for many small reads (a training loop reading a frame
-    at a time; spm_data.io.loaders). Opening verifies the attributes and layout once
-    (read_attrs); each ``read`` is then checked by HDF5's Fletcher-32 on every
-    chunk it touches, with read_shard's errors (read_shard is this, opened once).
+    at a time; spm_data.io.loaders). Opening verifies every byte of the file and
+    the attributes and layout once (open_h5, read_attrs); each ``read`` is then
+    checked by HDF5's Fletcher-32 on every chunk it touches, with read_shard's
+    errors (read_shard is this, opened once).
     An h5py handle is not safe across fork: open one per process.
 
     with ShardReader(path) as r:
@@ -148,9 +193,12 @@ class ShardReader:
             return ds[frames]
         except ShardError:
             raise
-        except (*H5_ERRORS, UnicodeDecodeError) as exc:
+        except (OSError, UnicodeDecodeError):  # a chunk failing its Fletcher-32, or not decoding
             raise ShardError(f"{self.path}: field {name!r} fails its checksum or cannot be decoded; "
                              "the shard is corrupt") from None
+        except H5_ERRORS as exc:  # the bytes were verified: a request h5py cannot serve, not corruption
+            raise ShardError(f"{self.path}: cannot read field {name!r} for frames {_describe(frames)} "
+                             f"({type(exc).__name__}: {exc})") from None
 
     def close(self) -> None:
         self._file.close()
@@ -182,10 +230,13 @@ def verify_stored_chunks(path, f, field: str) -> None:
 
 
 def verify_shard(path) -> dict:
-    """Check a whole shard (attributes, layout, every chunk) without decoding it;
-    returns its attributes (read_attrs)."""
-    with open_h5(path) as f:
-        attrs = _verified_attrs(path, f)
-        for field in list(f.keys()):
-            verify_stored_chunks(path, f, field)
-    return attrs
+    """Check a whole shard (every byte against its SHA-256, then its attributes and
+    layout) without decoding it; returns its attributes (read_attrs)."""
+    return read_attrs(path)
+
+
+def _describe(frames) -> str:
+    if isinstance(frames, slice):
+        return f"{frames.start or 0}:{'' if frames.stop is None else frames.stop}"
+    values = np.ravel(frames)
+    return str(values.tolist()) if values.size <= 6 else f"[{values[0]}, {values[1]}, ... {values[-1]}] ({values.size})"

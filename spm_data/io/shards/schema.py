@@ -6,7 +6,7 @@ import numpy as np
 
 from spm_data.errors import ShardError
 
-SCHEMA_VERSION = 2  # 2: every dataset checksummed (Fletcher-32), strings fixed-length
+SCHEMA_VERSION = 3  # 2: every dataset checksummed (Fletcher-32), strings fixed-length; 3: whole-file SHA-256 (seal.py)
 
 
 SHARD_SUFFIX = ".h5"

@@ -1,6 +1,7 @@
 """The one shard writer: streamed, checksummed, atomic.
 
-A shard is written to a hidden ``.NAME.partial`` file in the same folder and
+A shard is written to a hidden ``.NAME.partial`` file in the same folder,
+sealed (the SHA-256 of its bytes into its 512-byte header, seal.py) and
 ``os.replace``-d to ``NAME`` once complete, so a shard that exists is whole.
 Image chunks are compressed by our code on two threads and stored raw with
 their Fletcher-32; derived shards copy unchanged fields chunk for chunk, verified.
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import threading
 import zlib
 from concurrent.futures import ThreadPoolExecutor
@@ -17,12 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from spm_data.errors import ShardError
+from spm_data.errors import ShardError, one_line
 from spm_data.io.files import partial_path
 from spm_data.io.shards.checksums import CHECKSUMS_ATTR, file_checksums, with_fletcher32
 from spm_data.io.shards.reader import open_h5, read_shard, verify_stored_chunks
 from spm_data.io.shards.schema import (FIELDS, IMAGE_FIELDS, OPTIONAL_FIELDS, SCHEMA_VERSION, check_arrays,
                                        expected_shape)
+from spm_data.io.shards.seal import USERBLOCK, seal
 
 GZIP_LEVEL = 1
 COMPRESS_NICE = 19  # niceness of the compression threads (_nice_thread)
@@ -99,7 +102,7 @@ class ShardWriter:
         import h5py
 
         try:
-            self._file = h5py.File(self.tmp, "w", track_order=True)
+            self._file = h5py.File(self.tmp, "w", track_order=True, userblock_size=USERBLOCK)
             for field in self.images:
                 dtype = {**FIELDS, **OPTIONAL_FIELDS}[field][0]
                 frame_shape = expected_shape(field, 1, self.height, self.width)[1:]
@@ -108,7 +111,7 @@ class ShardWriter:
                                           **_chunked(self.frames, frame_shape, 1))
         except BaseException as exc:  # no __exit__ after a failed __enter__: clean up here
             self._abort()
-            if isinstance(exc, OSError):
+            if isinstance(exc, (OSError, RuntimeError)):
                 raise self._os_error(exc) from None
             raise
         self._pool = ThreadPoolExecutor(max_workers=2)  # write_images: its caller waits, so normal priority
@@ -146,7 +149,7 @@ class ShardWriter:
                 dsid.write_direct_chunk((index,) + tail, chunk)
             for field, frames in block.items():
                 self._written[field] += len(frames)
-        except OSError as exc:
+        except (OSError, RuntimeError) as exc:  # HDF5's object copy fails with a RuntimeError
             raise self._os_error(exc) from None
 
     def _chunks(self, where: list, frames: list):
@@ -190,17 +193,18 @@ class ShardWriter:
             self._file.attrs.update({"schema_version": SCHEMA_VERSION, "frames": n, "height": h, "width": w})
             self._file.attrs[CHECKSUMS_ATTR] = json.dumps(file_checksums(self._file), sort_keys=True)
             self._file.close()
+            seal(self.tmp)  # the SHA-256 of every byte after the header, into the header
             with open(self.tmp, "rb") as fh:
                 os.fsync(fh.fileno())
             os.replace(self.tmp, self.path)
-        except OSError as exc:
+        except (OSError, RuntimeError) as exc:  # HDF5's object copy fails with a RuntimeError
             raise self._os_error(exc) from None
         self._done = True
         return self.path
 
-    def _os_error(self, exc: OSError) -> ShardError:
+    def _os_error(self, exc: Exception) -> ShardError:
         """The one-line error for a failed write (read-only, disk full); __exit__ removes the file."""
-        return ShardError(f"could not write shard {self.path}: {exc.strerror or exc}")
+        return ShardError(f"could not write shard {self.path}: {write_failure(exc)}")
 
     def _abort(self):
         for pool in (self._pool, self._ahead_pool):
@@ -225,6 +229,17 @@ class ShardWriter:
 
 def _encode_run(frames: list) -> list[bytes]:
     return [encode_chunk(frame) for frame in frames]
+
+
+def write_failure(exc: Exception) -> str:
+    """Why a write failed, in a few words: the system's text for the errno HDF5 reports
+    inside its message ("... errno = 28 ..." is "No space left on device"), else the
+    message on one line."""
+    found = re.search(r"errno = (\d+)", str(exc))
+    code = int(found.group(1)) if found else getattr(exc, "errno", None)
+    if code:
+        return os.strerror(code)
+    return one_line(getattr(exc, "strerror", None) or exc)
 
 
 def _nice_thread() -> None:

@@ -1,6 +1,8 @@
 """spm_data.io.shards.checksums: Fletcher-32 exactly as HDF5 computes it, and the CRC-32s
 of attributes and layouts that name what changed."""
 
+import json
+
 import h5py
 import numpy as np
 import pytest
@@ -77,3 +79,13 @@ def test_checksum_mismatch_names_the_changed_item(tmp_path):
         del f.attrs[CHECKSUMS_ATTR]
     with h5py.File(path, "r") as f:
         assert checksum_mismatch(f) == "no readable checksums attribute"
+
+
+def test_a_changed_checksums_attribute_is_named_not_the_item_it_covers(tmp_path):
+    path = write_shard(tmp_path / "a.h5", make_arrays(), {"seed": 1, "renderer": "x"})
+    with h5py.File(path, "a") as f:
+        sums = json.loads(f.attrs[CHECKSUMS_ATTR])
+        sums["attrs"]["seed"] += 1
+        f.attrs[CHECKSUMS_ATTR] = json.dumps(sums)
+    with h5py.File(path, "r") as f:
+        assert checksum_mismatch(f) == "attribute 'checksums' fails its own checksum"

@@ -92,3 +92,13 @@ def test_our_chunks_read_back_through_hdf5s_own_filters(tmp_path):
         for name in ("rgb", "depth", "mask"):
             np.testing.assert_array_equal(f[name][:], arrays[name])
             assert f[name].compression == "gzip" and f[name].shuffle == (f[name].dtype.itemsize > 1)
+
+
+def test_a_failed_write_is_said_in_a_few_words_not_hdf5_text():
+    from spm_data.io.shards.writer import write_failure
+
+    hdf5 = ("Unable to synchronously copy object (unable to write to file: time = Mon Nov 23 10:00:00 2026, "
+            "filename = 'x.h5', file descriptor = 5, errno = 28, error message = 'No space left on device')")
+    assert write_failure(RuntimeError(hdf5)) == "No space left on device"
+    assert write_failure(OSError(28, "No space left on device")) == "No space left on device"
+    assert write_failure(RuntimeError("something\nelse")) == "something else"

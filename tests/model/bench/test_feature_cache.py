@@ -85,3 +85,30 @@ def test_only_grid_walks_give_path_neighbours(tmp_path):
     assert feature_cache.walks_in_steps({"spec": 'class = "cup"\n'}) is True            # the grid walk
     assert feature_cache.walks_in_steps({"source": "coil100"}) is True                  # an import: its own order
     assert feature_cache.walks_in_steps({"spec": spec}) is False                        # random views
+
+
+def test_a_corrupt_shard_with_its_mtime_put_back_is_refused_not_served_from_the_cache(model_shards, tmp_path):
+    """The cache is keyed by the shard's verified SHA-256, not its size and mtime: bit rot,
+    `cp -p` or `rsync -t` of a damaged copy keep those."""
+    from tests.helpers import flip_stored_byte
+
+    folder = shutil.copytree(model_shards, tmp_path / "shards")
+    config = FeatureConfig(ellipse="direct")
+    load_features(folder, config)
+    shard = find_shards(folder)[0]
+    st = shard.stat()
+    flip_stored_byte(shard, "pose")
+    os.utime(shard, ns=(st.st_atime_ns, st.st_mtime_ns))
+    assert (shard.stat().st_size, shard.stat().st_mtime_ns) == (st.st_size, st.st_mtime_ns)
+    with pytest.raises(ShardError, match=f"{shard}: field 'pose' fails its checksum"):
+        load_features(folder, config)
+
+
+def test_a_refused_run_leaves_no_cache_folder(model_shards, tmp_path):
+    from tests.helpers import flip_stored_byte
+
+    folder = shutil.copytree(model_shards, tmp_path / "shards", ignore=shutil.ignore_patterns(".spm-features"))
+    flip_stored_byte(find_shards(folder)[-1], "rgb")
+    with pytest.raises(ShardError, match="field 'rgb' fails its checksum"):
+        load_features(folder, FeatureConfig(ellipse="direct"))
+    assert not (folder / feature_cache.CACHE_DIR).exists()

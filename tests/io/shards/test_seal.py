@@ -1,0 +1,38 @@
+"""spm_data.io.shards.seal: the header naming a shard's SHA-256, and the check every open runs."""
+
+import hashlib
+
+import pytest
+
+from spm_data.io.shards.seal import (HDF5_SIGNATURE, MAGIC, USERBLOCK, SealError, check, content_digest, header, seal,
+                                     stored_digest, verified_digest)
+
+
+def test_a_sealed_file_names_the_sha256_of_what_follows_its_header(tmp_path):
+    path = tmp_path / "f"
+    body = b"\x89HDF\r\n\x1a\n" + bytes(range(256)) * 10
+    path.write_bytes(b"\0" * USERBLOCK + body)
+    digest = seal(path)
+    assert digest == hashlib.sha256(body).hexdigest() == content_digest(path) == verified_digest(path)
+    assert path.read_bytes()[:USERBLOCK] == header(digest) == MAGIC + digest.encode() + b"\n" + b"\0" * (
+        USERBLOCK - len(MAGIC) - 65)
+
+
+@pytest.mark.parametrize("block, reason", [
+    (HDF5_SIGNATURE + b"\0" * 504, "without spm's whole-file checksum"),
+    (b"PK\3\4" + b"\0" * 508, "not an spm shard: it does not start with spm's header"),
+    (b"", "not an spm shard"),
+    (MAGIC + b"z" * 64 + b"\n" + b"\0" * 430, r"checksum header \(the first 512 bytes\) is damaged"),
+    (header("ab" * 32)[:-1] + b"\1", r"checksum header \(the first 512 bytes\) is damaged"),
+])
+def test_a_header_that_is_not_spms_is_refused_with_why(block, reason):
+    with pytest.raises(SealError, match=reason) as info:
+        stored_digest(block)
+    assert not info.value.mismatch
+
+
+def test_check_compares_the_content_with_the_header():
+    assert check(header("ab" * 32), lambda: "ab" * 32) == "ab" * 32
+    with pytest.raises(SealError, match="differ from the SHA-256 it was written with") as info:
+        check(header("ab" * 32), lambda: "cd" * 32)
+    assert info.value.mismatch

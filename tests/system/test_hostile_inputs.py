@@ -1,0 +1,144 @@
+"""The hostile inputs of issue 22, each one line and exit 1 with nothing written or left
+behind: a class name that cannot name a file, a seed past 2**63, a 300-byte --out, a
+manifest with values of the wrong type, a folder merged with itself, --rects 10**6, a
+full disk in occlude's object copy, and a corrupt shard whose mtime was put back
+(refused by train and evaluate, not served from the feature cache)."""
+
+import json
+import os
+import shutil
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from cli import data_cli, model_cli
+from spm_data.io.shards import write_manifest, write_shard
+from tests.helpers import flip_stored_byte, make_arrays
+
+
+def one_error(result) -> str:
+    assert result.exit_code == 1, result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit), result.exc_info
+    errors = [line for line in result.output.splitlines() if line.startswith("error: ")]
+    assert len(errors) == 1 and "Traceback" not in result.output, result.output
+    return errors[0]
+
+
+def run(cli, *args):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+@pytest.fixture
+def folder(tmp_path):
+    """Two shards of 4 frames (cup) with a manifest."""
+    d = tmp_path / "in"
+    d.mkdir()
+    for k in range(2):
+        arrays = make_arrays(n=4, h=16, w=16, seed=k)
+        arrays["class_name"], arrays["source"] = ["cup"] * 4, ["synthetic"] * 4
+        arrays["mask"] = np.ones((4, 16, 16), np.uint8)
+        arrays["occlusion_fraction"] = np.zeros(4, np.float32)
+        arrays["occlusion_rects"] = np.zeros((4, 1, 4), np.int32)
+        write_shard(d / f"cup-{k:05d}.h5", arrays, {"renderer": "x", "seed": 0})
+    write_manifest(d)
+    return d
+
+
+def test_a_class_that_cannot_name_a_file_is_a_spec_error(tmp_path):
+    spec = tmp_path / "cup.toml"
+    spec.write_text('class = ".cup"\n[render]\nrenderer = "pyrender"\n')
+    line = one_error(run(data_cli, "render", "--spec", spec, "--out", tmp_path / "out"))
+    assert "class: '.cup' cannot name a shard file (CLASS-00000.h5)" in line
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_seed_past_2_63_is_one_line(folder, tmp_path):
+    spec = tmp_path / "cup.toml"
+    spec.write_text('class = "cup"\n[render]\nrenderer = "pyrender"\n')
+    line = one_error(run(data_cli, "render", "--spec", spec, "--out", tmp_path / "out", "--seed", 2**70))
+    assert f"seed: expected an integer in [0, {2**63 - 1}], got {2**70}" in line
+    line = one_error(run(data_cli, "occlude", "--in", folder, "--out", tmp_path / "occ", "--seed", 2**70))
+    assert line == f"error: --seed {2**70}: expected an integer in [0, {2**63 - 1}]"
+    assert not (tmp_path / "out").exists() and not (tmp_path / "occ").exists()
+
+
+def test_rects_are_bounded(folder, tmp_path):
+    line = one_error(run(data_cli, "occlude", "--in", folder, "--out", tmp_path / "occ", "--rects", 1000000))
+    assert line == "error: --rects 1000000: at most 64 rectangles per frame" and not (tmp_path / "occ").exists()
+
+
+@pytest.mark.parametrize("command", ["occlude", "merge", "export"])
+def test_an_out_name_too_long_for_the_file_system_is_one_line(folder, tmp_path, command):
+    out = tmp_path / ("x" * 300)
+    args = {"occlude": ["occlude", "--in", folder, "--out", out], "merge": ["merge", folder, "--out", out],
+            "export": ["export", "bop", folder, "--out", out]}[command]
+    line = one_error(run(data_cli, *args))
+    assert "the name xxxxxxxxxxxxxxxxxxxxxxxx... is 300 bytes, over the" in line and "give a shorter name" in line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in"]
+
+
+@pytest.mark.parametrize("change, command", [({"missing": 7}, "occlude"), ({"shards": [None]}, "validate"),
+                                             ({"missing": "abc"}, "merge")])
+def test_a_manifest_with_values_of_the_wrong_type_is_one_line(folder, tmp_path, change, command):
+    manifest = folder / "manifest.json"
+    manifest.write_text(json.dumps({**json.loads(manifest.read_text()), **change}))
+    args = {"occlude": ["occlude", "--in", folder, "--out", tmp_path / "occ"], "validate": ["validate", folder],
+            "merge": ["merge", folder, "--out", tmp_path / "occ"]}[command]
+    r = run(data_cli, *args)
+    if command == "validate":  # validate lists problems
+        assert r.exit_code == 1 and "Traceback" not in r.output and "shards[0] is null" in r.output, r.output
+    else:
+        assert "the manifest is damaged" in one_error(r)
+    assert not (tmp_path / "occ").exists()
+
+
+def test_a_folder_merged_with_itself_is_said_so_not_called_corrupt(folder, tmp_path):
+    line = one_error(run(data_cli, "merge", folder, folder, "--out", tmp_path / "m"))
+    assert line == f"error: cup-00000.h5 is in the inputs twice ({folder} and {folder}); give each folder once"
+    assert "corrupt" not in line and not (tmp_path / "m").exists()
+
+
+def test_a_full_disk_in_occludes_object_copy_is_one_line(folder, tmp_path, monkeypatch):
+    import h5py
+
+    def full(*args, **kwargs):
+        raise RuntimeError("Unable to synchronously copy object (file write failed: time = Mon Nov 23 2026, "
+                           "filename = 'x', file descriptor = 7, errno = 28, error message = 'No space left on "
+                           "device', buf = 0x1, total write size = 4096, bytes this sub-write = 4096)")
+
+    monkeypatch.setattr(h5py.Group, "copy", full)
+    r = run(data_cli, "occlude", "--in", folder, "--out", tmp_path / "occ")
+    assert r.exit_code == 1 and "Traceback" not in r.output and "Unable to" not in r.output, r.output
+    occ = tmp_path / "occ"
+    assert [line.strip() for line in r.output.splitlines() if "failed cup" in line] == [
+        f"failed cup-0000{k}.h5: could not write shard {occ}/cup-0000{k}.h5: No space left on device" for k in (0, 1)]
+    assert not occ.exists()  # every shard failed: the folder it made is removed
+
+
+@pytest.fixture(scope="module")
+def trained(model_shards, tmp_path_factory):
+    """A copy of model_shards, trained on (features cached), and its model."""
+    root = tmp_path_factory.mktemp("trained")
+    shards = shutil.copytree(model_shards, root / "shards", ignore=shutil.ignore_patterns(".spm-features", "report"))
+    r = run(model_cli, "train", "--shards", shards, "--report", root / "report", "--runs", "1", "--protocol", "views",
+            "--ellipse", "direct", "--methods", "spm")
+    assert r.exit_code == 0, r.output
+    return shards, root / "report" / "model.npz"
+
+
+def test_a_corrupt_shard_with_its_mtime_put_back_is_refused_by_train_and_evaluate(trained, tmp_path):
+    shards, model = trained
+    shard = sorted(shards.glob("*.h5"))[0]
+    before = shard.read_bytes()
+    st = shard.stat()
+    try:
+        flip_stored_byte(shard, "pose")
+        os.utime(shard, ns=(st.st_atime_ns, st.st_mtime_ns))  # bit rot, cp -p, rsync -t: size and mtime kept
+        expected = f"{shard}: field 'pose' fails its checksum"
+        line = one_error(run(model_cli, "train", "--shards", shards, "--report", tmp_path / "r", "--runs", "1",
+                             "--protocol", "views", "--ellipse", "direct", "--methods", "spm"))
+        assert expected in line and not (tmp_path / "r").exists()
+        assert expected in one_error(run(model_cli, "evaluate", "--model", model, "--shards", shards))
+    finally:
+        shard.write_bytes(before)
