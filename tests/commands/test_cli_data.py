@@ -46,7 +46,7 @@ def test_errors_are_one_line_and_exit_1(small_specs_dir, tmp_path):
     assert r.exit_code == 1 and "no such shard or folder" in r.output
     (tmp_path / "junk.h5").write_bytes(b"junk")
     r = run("show", tmp_path / "junk.h5")
-    assert r.exit_code == 1 and "not a readable HDF5 shard" in r.output
+    assert r.exit_code == 1 and "not an spm shard" in r.output
 
 
 def test_console_scripts_run_as_processes(small_specs_dir, tmp_path):
