@@ -79,16 +79,16 @@ def aggregate(evaluation: dict) -> dict:
     return out
 
 
-def _axes():
+def _axes(width: float = 6.0):
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    return plt.subplots(figsize=(6, 4), dpi=100)
+    return plt.subplots(figsize=(width, 4), dpi=100)
 
 
-def _finish(fig, ax, path, xlabel: str, ylabel: str) -> Path:
+def _finish(fig, ax, path, xlabel: str, ylabel: str, legend_outside: bool = False) -> Path:
     """Label, grid, legend, then write ``path`` atomically and free the figure."""
     import matplotlib.pyplot as plt
 
@@ -96,7 +96,10 @@ def _finish(fig, ax, path, xlabel: str, ylabel: str) -> Path:
     ax.set_ylabel(ylabel)
     ax.set_ylim(0, 100)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    if legend_outside:  # beside the curves, which fill the whole plot
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+    else:
+        ax.legend(fontsize=7)
     fig.tight_layout()
     path = Path(path)
     try:
@@ -123,19 +126,20 @@ def plot_accuracy(summary: dict, path) -> Path:
 def plot_occlusion(summary: dict, path) -> Path:
     """Success (sum < 5°, solid; sum < 3°, dotted) against occlusion: with offgrid, the seen
     instances' rectangle curves (the paper's Fig. 5), else every test frame's."""
-    fig, ax = _axes()
     fig5 = (summary.get("fig5") or {}).get("seen") or (summary.get("fig5") or {}).get("all") or {}
     curves = fig5.get("rectangles") or fig5.get("all") or summary["occlusion"]
-    for i, (m, rows) in enumerate(curves.items()):
+    fig, ax = _axes(8.5 if fig5 else 6.0)
+    for m, rows in curves.items():
         rows = [r for r in rows if r["frames"] and r["success_sum5"] is not None]
         x = [50 * (r["low"] + r["high"]) for r in rows]
         line, = ax.plot(x, [r["success_sum5"] for r in rows], marker="o", label=name(m),
                         linestyle="--" if m == "chance" else "-")
         if fig5:
             ax.plot(x, [r["success_sum3"] for r in rows], linestyle=":", color=line.get_color())
-    ylabel = "success rate (%), rotation error sum < 5° (dotted: < 3°)" if fig5 else \
-        "success rate (%), rotation error sum < 5°"
-    return _finish(fig, ax, path, "occlusion of the object (%)", ylabel)
+    if fig5:
+        ax.set_title("Fig. 5: seen instances, rectangles; solid sum < 5°, dotted sum < 3°", fontsize=9)
+    return _finish(fig, ax, path, "occlusion of the object (%)", "success rate (%)" if fig5 else
+                   "success rate (%), rotation error sum < 5°", legend_outside=bool(fig5))
 
 
 def check_report_folder(out_dir) -> Path:
