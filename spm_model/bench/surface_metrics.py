@@ -183,14 +183,23 @@ def _mesh_key(attrs: dict, instance_id: int):
 
 
 _MODELS: dict = {}
+_MESHES: dict = {}
+
+
+def rebuilt_mesh(key):
+    """The TexturedMesh of a rendered instance (a :func:`mesh_keys` key), rebuilt from its
+    spec once per process: the surface errors and the symmetry-aware errors share it."""
+    if key not in _MESHES:
+        from spm_data.core.instances import shard_mesh
+
+        _MESHES[key] = shard_mesh(dict(key[0]), key[1])
+    return _MESHES[key]
 
 
 def _model(key) -> ObjectModel:
     """The ObjectModel of a rendered instance, rebuilt from its spec (cached per process)."""
     if key not in _MODELS:
-        from spm_data.core.instances import shard_mesh
-
-        mesh = shard_mesh(dict(key[0]), key[1])
+        mesh = rebuilt_mesh(key)
         _MODELS[key] = object_model(mesh.to_trimesh(), mesh.symmetries)
     return _MODELS[key]
 

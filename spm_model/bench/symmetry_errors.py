@@ -22,6 +22,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from spm_data.core.poses import label_to_pose, pose_to_label, wrap_degrees
+from spm_model.bench.surface_metrics import rebuilt_mesh
 
 
 def _smallest_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -85,17 +86,8 @@ def symmetric_errors(pred: np.ndarray, true: np.ndarray, symmetries: list) -> di
     return {"geodesic_sym": geodesic, "rotation_max_sym": rot_max}
 
 
-_SYMMETRIES: dict = {}
-
-
 def instance_symmetries(mesh_keys: list) -> list:
     """Per frame, the declared Symmetries of its mesh (None where the mesh is unknown),
-    from bench/surface_metrics.mesh_keys; each mesh rebuilt once per process."""
-    from spm_data.core.instances import shard_mesh
-
-    out = []
-    for key in mesh_keys:
-        if key is not None and key not in _SYMMETRIES:
-            _SYMMETRIES[key] = shard_mesh(dict(key[0]), key[1]).symmetries
-        out.append(None if key is None else _SYMMETRIES[key])
-    return out
+    from bench/surface_metrics.mesh_keys; each mesh rebuilt once per process, shared with
+    the surface errors (surface_metrics.rebuilt_mesh)."""
+    return [None if key is None else rebuilt_mesh(key).symmetries for key in mesh_keys]
