@@ -10,7 +10,7 @@ from spm_data.errors import FeatureError
 from spm_model.base.images import raw_vector
 from spm_model.methods.descriptors import hog_descriptor, template_descriptor
 from spm_model.spm.features import FeatureConfig, manifold_from_keypoints, working_image
-from spm_model.spm.keypoints import homography_inliers, sift_keypoints
+from spm_model.spm.keypoints import homography_inliers, sift_keypoints, sift_locations
 
 
 def path_neighbours(instance_id: np.ndarray, path_index: np.ndarray) -> list[list[int]]:
@@ -38,11 +38,11 @@ def frames_features(rgb: np.ndarray, mask: np.ndarray, instance_id: np.ndarray, 
     float64 (spm_model/methods/template.py's descriptor)."""
     hog = hog_descriptor()
     n = len(rgb)
-    sift = []
-    for i in range(n):
-        small, small_mask = working_image(rgb[i], mask[i], config.max_side)
-        sift.append(sift_keypoints(small, small_mask))
     neighbours = path_neighbours(instance_id, path_index) if path_steps else [[] for _ in range(n)]
+    sift = []
+    for i in range(n):  # descriptors only where a path neighbour is matched (neighbours are mutual)
+        small, small_mask = working_image(rgb[i], mask[i], config.max_side)
+        sift.append(sift_keypoints(small, small_mask) if neighbours[i] else (sift_locations(small, small_mask), None))
     out = {f"{kind}_{name}": np.full((n, config.dims) if name == "vector" else n,
                                      np.nan if name != "keypoints" else 0,
                                      dtype=np.float64 if name != "keypoints" else np.int32)

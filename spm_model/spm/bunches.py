@@ -38,19 +38,19 @@ def _kmeans_pp(x, k, rng):
     return np.array(centres)
 
 
-def _log_gauss(x, means, covs):
-    """(N, k) log densities of (N, 2) points under k 2-D Gaussians; closed-form 2x2
-    inverses and determinants (LAPACK per 2x2 matrix dominated the run time)."""
-    return _log_gauss_xy(x[:, 0][:, None], x[:, 1][:, None], means, covs[:, 0, 0], covs[:, 0, 1], covs[:, 1, 1])
+LOG_2PI = float(np.log(2 * np.pi))
 
 
-def _log_gauss_xy(px, py, means, a, b, c):
-    """_log_gauss from the points' columns px, py (N, 1) and the covariances' entries
-    a = s_xx, b = s_xy, c = s_yy (k,): the same arithmetic, fewer temporaries."""
+def _log_density_coefficients(means, a, b, c, weights) -> np.ndarray:
+    """(6, k) coefficients of log(w_k N(v | mu_k, S_k)) as a quadratic in v = (x, y):
+    [1, x, y, x^2, xy, y^2] @ coef[:, k], for means (k, 2), covariance entries a = s_xx,
+    b = s_xy, c = s_yy (k,) and weights (k,). One matrix product then scores every
+    point under every cluster (numpy's per-call overhead dominated the element-wise form)."""
+    mx, my = means[:, 0], means[:, 1]
     det = a * c - b * b
-    d0, d1 = px - means[:, 0], py - means[:, 1]  # (N, k)
-    quad = (c * d0 ** 2 - 2 * b * d0 * d1 + a * d1 ** 2) / det
-    return -0.5 * (quad + np.log(det) + 2 * np.log(2 * np.pi))
+    h = -0.5 / det  # log N = -(c dx^2 - 2b dx dy + a dy^2) / (2 det) - log(det) / 2 - log(2 pi)
+    return np.stack([h * (c * mx * mx - 2 * b * mx * my + a * my * my) + np.log(weights) - 0.5 * np.log(det) - LOG_2PI,
+                     h * 2 * (b * my - c * mx), h * 2 * (b * mx - a * my), h * c, -2 * h * b, h * a])
 
 
 def fit_bunches(locations, gamma: int = GAMMA, seed: int = 0, tol: float = 1e-2, max_iter: int = 100,
@@ -62,28 +62,33 @@ def fit_bunches(locations, gamma: int = GAMMA, seed: int = 0, tol: float = 1e-2,
     if len(x) < 2 * gamma:
         raise BunchError(f"{len(x)} keypoints is too few for {gamma} clusters (need at least {2 * gamma})")
     rng = np.random.default_rng(seed)
-    means = _kmeans_pp(x, gamma, rng)
+    origin = x.mean(axis=0)  # centred coordinates keep the moments below well conditioned
+    means = _kmeans_pp(x, gamma, rng) - origin
     spread = np.cov(x.T) / gamma + ridge * np.eye(2)
-    covs = np.repeat(spread[None], gamma, axis=0)
+    a, b, c = np.full(gamma, spread[0, 0]), np.full(gamma, spread[0, 1]), np.full(gamma, spread[1, 1])
     weights = np.full(gamma, 1.0 / gamma)
-    px, py = x[:, 0][:, None], x[:, 1][:, None]
-    a, b, c = covs[:, 0, 0], covs[:, 0, 1], covs[:, 1, 1]
+    px, py = x[:, 0] - origin[0], x[:, 1] - origin[1]
+    powers = np.column_stack([np.ones(len(x)), px, py, px * px, px * py, py * py])  # (N, 6)
     for it in range(1, max_iter + 1):  # noqa: B007 - the count is reported after the loop
         # E-step: P(b_k | v) for every keypoint (log-sum-exp for stability).
-        log_p = np.log(weights) + _log_gauss_xy(px, py, means, a, b, c)
+        log_p = powers @ _log_density_coefficients(means, a, b, c, weights)
         log_p -= log_p.max(axis=1, keepdims=True)
         resp = np.exp(log_p)
         resp /= resp.sum(axis=1, keepdims=True)
-        # M-step: Eq. 8 for the means and covariances, Eq. 9 for the priors.
-        nk = resp.sum(axis=0) + 1e-12
-        new_means = (resp.T @ x) / nk[:, None]
-        dx, dy = px - new_means[:, 0], py - new_means[:, 1]  # (N, k)
-        sxx, sxy, syy = ((resp * dx * dx).sum(0), (resp * dx * dy).sum(0), (resp * dy * dy).sum(0))
-        a, b, c = sxx / nk + ridge, sxy / nk + 0.0, syy / nk + ridge
+        # M-step: Eq. 8 for the means and covariances, Eq. 9 for the priors, from the
+        # responsibility-weighted moments (k, 6): sums of 1, x, y, x^2, xy, y^2.
+        m = resp.T @ powers
+        nk = m[:, 0] + 1e-12
+        mx, my = m[:, 1] / nk, m[:, 2] / nk
+        a = (m[:, 3] - mx * (2 * m[:, 1] - mx * m[:, 0])) / nk + ridge
+        b = (m[:, 4] - mx * m[:, 2] - my * m[:, 1] + mx * my * m[:, 0]) / nk
+        c = (m[:, 5] - my * (2 * m[:, 2] - my * m[:, 0])) / nk + ridge
         weights = nk / len(x)
+        new_means = np.column_stack([mx, my])
         moved = np.abs(new_means - means).max()
         means = new_means
         if moved < tol:
             break
+    means = means + origin
     covs = np.stack([np.stack([a, b], -1), np.stack([b, c], -1)], -2)
     return Bunches(means=means, covariances=covs, weights=weights, iterations=it)

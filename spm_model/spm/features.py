@@ -24,7 +24,7 @@ from spm_data.errors import FeatureError
 from spm_model.base.images import raw_vector
 from spm_model.spm.bunches import BunchError, fit_bunches
 from spm_model.spm.ellipse import EllipseError
-from spm_model.spm.keypoints import sift_keypoints
+from spm_model.spm.keypoints import sift_locations
 from spm_model.spm.manifold import ORDERS, initial_manifold
 
 FEATURE_VERSION = 6  # 5: template descriptors and K in the cache; 6: from the visible mask
@@ -106,7 +106,7 @@ def image_features(rgb: np.ndarray, mask: np.ndarray | None = None,
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
         raise FeatureError(f"expected an (H, W, 3) uint8 RGB image, got {rgb.dtype} {rgb.shape}")
     small, small_mask = working_image(rgb, mask, config.max_side)
-    locations, _ = sift_keypoints(small, small_mask)
+    locations = sift_locations(small, small_mask)
     if len(locations) < 2 * config.gamma:
         raise FeatureError(f"SIFT found {len(locations)} keypoints, need at least {2 * config.gamma}")
     vector, ecc = manifold_from_keypoints(locations, config)

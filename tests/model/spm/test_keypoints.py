@@ -10,7 +10,7 @@ from spm_data.core.paths import camera_path
 from spm_data.render import make_renderer
 from spm_data.core.specs import parse_spec
 from spm_model.spm.bunches import fit_bunches
-from spm_model.spm.keypoints import frame_keypoints, homography_inliers, sift_keypoints
+from spm_model.spm.keypoints import frame_keypoints, homography_inliers, sift_keypoints, sift_locations
 from spm_model.spm.manifold import initial_manifold
 
 
@@ -31,6 +31,15 @@ def test_sift_keypoints_lie_in_the_mask(two_neighbours):
     cols, rows = np.round(loc[:, 0]).astype(int), np.round(loc[:, 1]).astype(int)
     near = cv2.dilate(frame["mask"], np.ones((3, 3), np.uint8))
     assert near[rows, cols].all()
+
+
+def test_sift_locations_are_sift_keypoints_without_descriptors(two_neighbours):
+    for frame in two_neighbours:
+        for mask in (frame["mask"], None):
+            loc, _ = sift_keypoints(frame["rgb"], mask)
+            assert len(loc) >= 30
+            np.testing.assert_array_equal(sift_locations(frame["rgb"], mask), loc)
+    assert sift_locations(np.zeros((32, 32, 3), np.uint8)).shape == (0, 2)  # flat: none, still (N, 2)
 
 
 def test_ransac_against_a_known_homography():
