@@ -65,6 +65,9 @@ class _Frame(Mapping):
             raise KeyError(key)
         return self._frames._value(self._i, key)
 
+    def __contains__(self, key) -> bool:  # Mapping's would read the field to find out
+        return key in TRAIN_KEYS
+
     def __iter__(self):
         return iter(TRAIN_KEYS)
 

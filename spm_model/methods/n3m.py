@@ -97,7 +97,8 @@ class N3MPose(PoseEstimator):
             _check_keys(frame, TRAIN_KEYS, int(i), "training")
             K, depth = np.asarray(frame["K"], dtype=np.float64), np.asarray(frame["depth"], dtype=np.float32)
             obj = int(frame.get("sequence", 0))
-            uv, desc = pts.sift_features(frame["rgb"], frame["mask"], side=self.sift_side, sift=sift)
+            uv, desc = pts.remembered_sift_features(frame["rgb"], frame["mask"], side=self.sift_side,
+                                                    max_keypoints=self.max_keypoints, sift=sift)
             xyz, ok = pts.lift(uv, depth, K, Rs[j], ts[j])
             z = (xyz[ok] @ Rs[j].T + ts[j])[:, 2]
             cols["xyz"].append(xyz[ok])
@@ -200,7 +201,8 @@ class N3MPose(PoseEstimator):
         return out, sources
 
     def _predict_one(self, frame, index, sift):
-        uv, desc = pts.sift_features(frame["rgb"], frame["mask"], side=self.sift_side, sift=sift)
+        uv, desc = pts.remembered_sift_features(frame["rgb"], frame["mask"], side=self.sift_side,
+                                                max_keypoints=self.max_keypoints, sift=sift)
         desc_xyz = self.points_[self.descriptor_point_]
         keypoint, point = match(index, desc_xyz, self.descriptor_point_, desc, ratio=float(self.ratio),
                                 same_radius=2 * self.merge_radius_)

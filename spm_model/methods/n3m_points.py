@@ -12,6 +12,8 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from spm_model.base.feature_memo import memoized
+
 DEPTH_STEP = 0.02     # a keypoint whose 3x3 depth neighbourhood spans more than this fraction
                       # of its depth sits on a silhouette or a grazing surface: not lifted
 VISIBLE_SIDE = 64     # depth maps kept for the visibility test, at most this many pixels a side
@@ -43,6 +45,20 @@ def sift_features(rgb, mask, *, side: int, sift) -> tuple[np.ndarray, np.ndarray
     pts = np.array([kp.pt for kp in keypoints], dtype=np.float64)
     scale = np.array([size[0] / w, size[1] / h])
     return (pts + 0.5) / scale - 0.5, desc.astype(np.float32)
+
+
+def remembered_sift_features(rgb, mask, *, side: int, max_keypoints: int, sift) -> tuple[np.ndarray, np.ndarray]:
+    """sift_features of a ``make_sift(max_keypoints)`` detector, remembered per image
+    (spm_model/base/feature_memo.py: a benchmark shows N3M each frame in several folds and
+    runs). Descriptors are kept as uint8 when exact (OpenCV's SIFT values are whole
+    numbers 0..255) and returned float32 (n, 128), a new array each call."""
+    def compute():
+        uv, desc = sift_features(rgb, mask, side=side, sift=sift)
+        small = desc.astype(np.uint8)
+        return uv, small if np.array_equal(small, desc) else desc
+
+    uv, desc = memoized(("n3m-sift", int(side), int(max_keypoints)), (rgb, mask), compute)
+    return uv, desc.astype(np.float32)
 
 
 def lift(uv, depth, K, R, t) -> tuple[np.ndarray, np.ndarray]:

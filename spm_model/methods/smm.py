@@ -26,7 +26,7 @@ from spm_data.core.poses import label_to_pose, label_to_view, wrap_degrees
 from spm_data.errors import ModelError
 from spm_model.base.estimator import PoseEstimator
 from spm_model.methods.smm_graph import manifold_distances, select_parts, selection_weights, training_pairs
-from spm_model.methods.smm_parts import fit_codebook, local_features, mask_frame
+from spm_model.methods.smm_parts import fit_codebook, mask_frame, remembered_local_features
 
 PAPER_BINS = 8  # azimuth classes of 45 degrees, centred on 0, 45, ..., 315
 
@@ -94,7 +94,7 @@ class SMMPose(PoseEstimator):
         for i, frame in enumerate(frames):
             _check_frame(frame, keys, i, call)
             mask = np.asarray(frame["mask"]) > 0
-            feats.append(local_features(frame["rgb"], mask, self.max_features))
+            feats.append(remembered_local_features(frame["rgb"], mask, self.max_features))
             box = mask_frame(mask)
             centroids.append(box[0] if box else np.full(2, np.nan))
             scales.append(box[1] if box else np.nan)

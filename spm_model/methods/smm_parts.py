@@ -17,6 +17,7 @@ import numpy as np
 from scipy.cluster.vq import kmeans2
 
 from spm_data.errors import ModelError
+from spm_model.base.feature_memo import memoized
 
 UPSAMPLE_BELOW = 200   # images whose longest side is shorter are doubled before SIFT
 PRESENCE_QUANTILE = 0.5  # a part's radius: this quantile of its members' Mahalanobis distances
@@ -55,6 +56,12 @@ def local_features(rgb: np.ndarray, mask: np.ndarray, max_features: int = 80):
     xy = (np.array([k.pt for k in keypoints]) + 0.5) / scale - 0.5
     centroid, size = frame
     return (xy - centroid) / size, root_sift(desc)
+
+
+def remembered_local_features(rgb: np.ndarray, mask: np.ndarray, max_features: int = 80):
+    """local_features, remembered per image (spm_model/base/feature_memo.py: a benchmark
+    shows SMM each frame in several folds and runs); the arrays are read-only."""
+    return memoized(("smm-local", int(max_features)), (rgb, mask), lambda: local_features(rgb, mask, max_features))
 
 
 def root_sift(desc: np.ndarray) -> np.ndarray:

@@ -57,3 +57,16 @@ def test_camera_frames_hold_what_a_camera_sees_in_the_order_asked(model_shards):
         assert np.array_equal(cam[i]["rgb"], train[i]["rgb"]) and np.array_equal(cam[i]["mask"], train[i]["mask"])
     assert np.array_equal(cam.column("template"), table.template[rows]) and cam.column("train_vector") is None
     assert cam.column("pose") is None and len(cam[::2]) == 2 and np.array_equal(cam[::2][1]["K"], table.K[57])
+
+
+def test_asking_whether_a_frame_has_a_key_reads_nothing(model_shards, monkeypatch):
+    from spm_model.base.frames import Frames
+
+    table = load_features(model_shards, FAST)
+    frames = Frames(table, np.arange(3))
+    reads = []
+    monkeypatch.setattr(Frames, "_value", lambda self, i, key: reads.append(key))
+    assert "rgb" in frames[0] and "depth" in frames[0] and "pose" not in frames[0] and "label" not in frames[1]
+    assert reads == []
+    frames[0]["mask"]
+    assert reads == ["mask"]

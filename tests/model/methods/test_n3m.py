@@ -68,3 +68,22 @@ def test_parameters_read_back():
     model = N3MPose(sift_side=128, ratio=0.7)
     assert model.get_params()["sift_side"] == 128 and model.get_params()["ratio"] == 0.7
     assert "N3MPose(sift_side=128" in repr(model)
+
+
+def test_remembered_features_give_the_same_model_and_poses(model_shards, monkeypatch):
+    from spm_model.base.feature_memo import clear_memo, memo_stats
+
+    train, poses, test, _ = split(model_shards)
+    runs = []
+    monkeypatch.setenv("SPM_FEATURE_MEMO_MB", "64")
+    clear_memo()
+    for _ in range(2):                                  # computed (and kept), then served
+        model = N3MPose(max_train_frames=60).fit(train, poses)
+        runs.append((model.points_, model.descriptors_, model.predict(test[:12])))
+    assert memo_stats()["hits"] >= 60 + 12 and memo_stats()["misses"] <= 60 + 12
+    clear_memo()
+    for points, descriptors, pred in runs[1:]:
+        np.testing.assert_array_equal(points, runs[0][0])
+        np.testing.assert_array_equal(descriptors, runs[0][1])
+        np.testing.assert_array_equal(pred, runs[0][2])
+    assert np.isfinite(runs[0][2]).all(axis=1).sum() >= 6

@@ -101,3 +101,24 @@ def test_fit_predict_on_a_small_render_beats_chance(model_shards):
     assert accuracy >= majority + 0.35, (accuracy, majority)
     # Translation from apparent size: within 5 cm on every axis for 90% of frames (measured 94-100%).
     assert np.mean(np.all(np.abs(pred[:, 3:] - poses[held, 3:]) < 0.05, axis=1)) >= 0.9
+
+
+def test_remembered_features_give_the_same_model_and_poses(model_shards, monkeypatch):
+    from spm_model.base.feature_memo import clear_memo, memo_stats
+
+    frames, poses, held = _real_frames(model_shards)
+    train = [f for f, h in zip(frames, held) if not h]
+    test = [{k: f[k] for k in ("rgb", "mask", "K")} for f, h in zip(frames, held) if h]
+    runs = []
+    monkeypatch.setenv("SPM_FEATURE_MEMO_MB", "64")
+    clear_memo()
+    for _ in range(2):                                  # computed (and kept), then served
+        model = SMMPose(candidate_parts=16, parts=8, codebook_frames=60, seed=0).fit(train, poses[~held])
+        runs.append((model.presence_, model.location_, model.predict(test)))
+    assert memo_stats()["hits"] >= len(train) + len(test)
+    clear_memo()
+    for presence, location, pred in runs[1:]:
+        np.testing.assert_array_equal(presence, runs[0][0])
+        np.testing.assert_array_equal(location, runs[0][1])
+        np.testing.assert_array_equal(pred, runs[0][2])
+    assert np.isfinite(runs[0][2]).all(axis=1).mean() > 0.5
