@@ -1,0 +1,89 @@
+"""How long the benchmark takes: `spm train` under each protocol, features cached.
+
+    python benchmarks/protocol_times.py SHARDS --out DIR [--protocols loco,views,instances]
+        [--runs 3] [--workers 2] [--methods spm,knn1,...]
+    python benchmarks/protocol_times.py --compare DIR_A DIR_B
+
+Runs the library call behind `spm train SHARDS --protocol P --runs R --workers W` for
+each protocol into DIR/P and prints its wall time (loading the cached features, the
+runs and splits, the final models and the report), then the total against the
+issue's targets: all three protocols <= 10 min, loco <= 5 min (default dataset:
+`spm-data render --all --renderer pyrender`, features extracted once beforehand, e.g.
+by a first `spm train`). ``--compare`` prints, per protocol and method, the largest
+difference between two such folders' results.json summaries (0 when a change is
+exact).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from spm_data.jobs.executor import LocalExecutor  # noqa: E402
+from spm_model.commands.train import train  # noqa: E402
+
+TARGETS = {"total": 600.0, "loco": 300.0}
+
+
+def leaves(value, prefix=""):
+    """{dotted key: number} of every numeric leaf of a JSON value."""
+    if isinstance(value, dict):
+        return {k: v for key, item in value.items() for k, v in leaves(item, f"{prefix}{key}.").items()}
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return {prefix.rstrip("."): float(value)}
+    return {}
+
+
+def compare(a: Path, b: Path) -> None:
+    for folder in sorted(p for p in a.iterdir() if (p / "results.json").exists()):
+        other = b / folder.name / "results.json"
+        if not other.exists():
+            print(f"{folder.name}: missing in {b}")
+            continue
+        A = json.loads((folder / "results.json").read_text())["summary"]["methods"]
+        B = json.loads(other.read_text())["summary"]["methods"]
+        for method in A:
+            la, lb = leaves(A[method]), leaves(B.get(method, {}))
+            keys = set(la) | set(lb)
+            worst = max((abs(la.get(k, float("nan")) - lb.get(k, float("nan"))), k) for k in keys) if keys else (0, "")
+            print(f"{folder.name} {method}: largest difference {worst[0]:.3g} ({worst[1]})")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("shards", type=Path, nargs="?")
+    parser.add_argument("--out", type=Path)
+    parser.add_argument("--protocols", default="loco,views,instances")
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--methods", help="comma-separated built-in methods (default all)")
+    parser.add_argument("--compare", type=Path, nargs=2)
+    args = parser.parse_args()
+    if args.compare:
+        return compare(*args.compare)
+    if args.shards is None or args.out is None:
+        parser.error("give SHARDS and --out")
+    builtins = args.methods.split(",") if args.methods else None
+    load = os.getloadavg()[0]
+    times = {}
+    for protocol in args.protocols.split(","):
+        t0 = time.perf_counter()
+        train(args.shards, args.out / protocol, protocol=protocol, runs=args.runs, builtins=builtins,
+              executor=LocalExecutor(workers=args.workers))
+        times[protocol] = time.perf_counter() - t0
+        print(f"{protocol}: {times[protocol]:.0f} s ({args.runs} runs, {args.workers} workers, "
+              f"methods {args.methods or 'all'})", flush=True)
+    total = sum(times.values())
+    print(f"total {total:.0f} s = {total / 60:.1f} min (target {TARGETS['total'] / 60:.0f} min); "
+          + (f"loco {times['loco'] / 60:.1f} min (target {TARGETS['loco'] / 60:.0f} min); " if "loco" in times else "")
+          + f"load average {load:.1f} at the start, {os.getloadavg()[0]:.1f} at the end; {os.cpu_count()} CPUs")
+
+
+if __name__ == "__main__":
+    main()
