@@ -1,31 +1,46 @@
-"""A per-process memo of per-image features, keyed by the image's content.
+"""A memo of per-image features, keyed by the image's content: in memory per process,
+and in a folder shared by processes and runs when the benchmark names one.
 
 Methods that extract local features inside ``fit`` and ``predict`` (N3M, SMM) see the
 same images again and again in a benchmark: under ``loco`` every frame trains in five
 of the six folds of each run and is tested in one, so SMM extracted SIFT about 15
-times per frame and run. The memo returns the arrays computed the first time. The key is
-a hash of the pixels the method was given (and the method's feature parameters), so it
-knows nothing a camera would not show: it is the method's own deterministic function,
-remembered, and results are identical with or without it.
+times per frame and run, in every worker, and again under the next protocol. The memo
+returns the arrays computed the first time. The key is a hash of the pixels the method
+was given (and the method's feature parameters), so it knows nothing a camera would not
+show: it is the method's own deterministic function, remembered, and results are
+identical with or without it.
 
-Memory: each worker process keeps at most ``SPM_FEATURE_MEMO_MB`` megabytes (default
-2048; 0 turns the memo off). Once full, new features are computed and not kept (an
-LRU would evict every entry before its reuse when folds sweep a set larger than the
+Memory: each process keeps at most ``SPM_FEATURE_MEMO_MB`` megabytes (default 2048;
+0 turns the memo off, the folder too). Once full, new features are not kept in memory
+(an LRU would evict every entry before its reuse when folds sweep a set larger than the
 budget; keeping the first ones gives a hit rate of about budget / working set).
+
+Folder: ``spm train``'s workers use ``<feature cache>/memo/`` (spm_model/bench/protocols.py),
+one ``.npz`` file per image and method (zip CRCs: a damaged file is recomputed and
+rewritten, never used), written to a temporary name and renamed. About 50 KB per
+128-pixel frame for N3M and SMM together; delete the folder to reclaim the space.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+import socket
+import warnings
+import zipfile
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
+from spm_data.io.locking import pid_alive
+
 DEFAULT_MB = 2048
 
 _entries: dict[bytes, tuple] = {}
-_stats = {"bytes": 0, "hits": 0, "misses": 0}
+_stats = {"bytes": 0, "hits": 0, "misses": 0, "disk_hits": 0}
+_folder: list = [None]  # the process's memo folder, or None
 
 
 def budget_bytes() -> int:
@@ -36,6 +51,19 @@ def budget_bytes() -> int:
     except ValueError:
         mb = DEFAULT_MB  # a malformed setting must not stop a benchmark; the default applies
     return int(max(mb, 0.0) * 2 ** 20)
+
+
+def use_folder(folder) -> None:
+    """Keep features in ``folder`` too (None: memory only); it is created on first write.
+    Files half-written by processes of this host that are gone (killed) are removed."""
+    _folder[0] = None if folder is None else Path(folder)
+    if _folder[0] is None or not _folder[0].is_dir():
+        return
+    host = socket.gethostname()
+    for path in _folder[0].glob("*/.*.partial"):
+        parts = path.name.rsplit(".", 3)  # .KEY . host . pid . partial
+        if len(parts) == 4 and parts[1] == host and parts[2].isdigit() and not pid_alive(int(parts[2])):
+            path.unlink(missing_ok=True)
 
 
 def content_key(kind: tuple, *arrays) -> bytes:
@@ -49,9 +77,40 @@ def content_key(kind: tuple, *arrays) -> bytes:
     return h.digest()
 
 
+def _path(key: bytes) -> Path:
+    name = key.hex()
+    return _folder[0] / name[:2] / f"{name}.npz"
+
+
+def _read(key: bytes) -> tuple | None:
+    try:
+        with np.load(_path(key), allow_pickle=False) as f:
+            return tuple(f[f"arr_{i}"] for i in range(len(f.files)))
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        return None  # damaged or half-written by a killed process: recomputed and rewritten
+
+
+def _write(key: bytes, value: tuple) -> None:
+    path = _path(key)
+    tmp = path.with_name(f".{path.stem}.{socket.gethostname()}.{os.getpid()}.partial")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as f:
+            np.savez(f, *value)
+        os.replace(tmp, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        warnings.warn(f"cannot write the feature memo {_folder[0]} ({exc.strerror or exc}); "
+                      "features are kept in memory only")
+        _folder[0] = None
+
+
 def memoized(kind: tuple, arrays: tuple, compute: Callable[[], tuple]) -> tuple:
     """``compute()`` (a tuple of numpy arrays) for these input ``arrays``, remembered under
-    ``kind``; the arrays returned from the memo are read-only (callers copy to modify)."""
+    ``kind``; the arrays returned are read-only (callers copy to modify)."""
     limit = budget_bytes()
     if limit <= 0:
         return compute()
@@ -60,23 +119,29 @@ def memoized(kind: tuple, arrays: tuple, compute: Callable[[], tuple]) -> tuple:
     if found is not None:
         _stats["hits"] += 1
         return found
-    _stats["misses"] += 1
-    value = tuple(np.asarray(v) for v in compute())
+    value = _read(key) if _folder[0] is not None else None
+    if value is not None:
+        _stats["disk_hits"] += 1
+    else:
+        _stats["misses"] += 1
+        value = tuple(np.asarray(v) for v in compute())
+        if _folder[0] is not None:
+            _write(key, value)
+    for v in value:
+        v.flags.writeable = False
     size = sum(v.nbytes for v in value) + 200  # the key, the tuple and the array headers
     if _stats["bytes"] + size <= limit:
-        for v in value:
-            v.flags.writeable = False
         _entries[key] = value
         _stats["bytes"] += size
     return value
 
 
 def memo_stats() -> dict:
-    """{"entries", "bytes", "hits", "misses"} of this process's memo."""
+    """{"entries", "bytes", "hits", "misses", "disk_hits"} of this process's memo."""
     return {"entries": len(_entries), **_stats}
 
 
 def clear_memo() -> None:
-    """Forget every entry and reset the counts."""
+    """Forget every entry in memory and reset the counts (the folder is kept)."""
     _entries.clear()
-    _stats.update(bytes=0, hits=0, misses=0)
+    _stats.update(bytes=0, hits=0, misses=0, disk_hits=0)

@@ -99,6 +99,12 @@ def cache_path(shard: Path, config: FeatureConfig, digest: str | None = None) ->
                    "set SPM_CACHE_DIR to a writable folder")
 
 
+def memo_folder(shard, config: FeatureConfig) -> Path:
+    """The folder of the per-image feature memo (spm_model/base/feature_memo.py): ``memo/``
+    in the feature cache of ``shard``'s folder."""
+    return cache_path(Path(shard), config).parent / "memo"
+
+
 def cached(shard: Path, config: FeatureConfig) -> Path | None:
     """The shard's cache file when present and made from the shard as it is now (its bytes
     verified: a ShardError naming it when they fail)."""

@@ -30,8 +30,9 @@ from __future__ import annotations
 import numpy as np
 
 from spm_data.errors import ModelError
+from spm_model.base.feature_memo import use_folder
 from spm_model.base.frames import Frames, camera_chunks, read_camera_frames
-from spm_model.bench.feature_cache import FeatureTable, load_features, offgrid_table
+from spm_model.bench.feature_cache import FeatureTable, load_features, memo_folder, offgrid_table
 from spm_model.bench.scoring import eccentricity, run_summary
 from spm_model.bench.surface_metrics import mesh_keys
 from spm_model.bench.symmetry_errors import instance_symmetries
@@ -137,6 +138,8 @@ def _table(source) -> FeatureTable:
             table = offgrid_table(table, load_features(test, config, allow_partial=allow_partial))
         _TABLES.clear()  # one table per process at a time
         _TABLES[source] = table
+        if len(table):  # N3M's and SMM's local features, shared by workers, runs and protocols
+            use_folder(memo_folder(table.shard[0], config))
     return _TABLES[source]
 
 

@@ -38,6 +38,25 @@ def local_features(rgb: np.ndarray, mask: np.ndarray, max_features: int = 80):
     (N, 128) float32 RootSIFT descriptors, the ``max_features`` strongest keypoints
     inside ``mask``. Images under 200 px are doubled first (SIFT finds few keypoints
     on small objects). Empty arrays when the mask is empty or nothing is found."""
+    geometry, sift = _local_sift(rgb, mask, max_features)
+    return geometry, root_sift(sift)
+
+
+def remembered_local_features(rgb: np.ndarray, mask: np.ndarray, max_features: int = 80):
+    """local_features, remembered per image (spm_model/base/feature_memo.py: a benchmark
+    shows SMM each frame in several folds and runs); the SIFT descriptors are kept, as
+    uint8 when exact (OpenCV's values are whole numbers 0..255)."""
+    def compute():
+        geometry, sift = _local_sift(rgb, mask, max_features)
+        small = sift.astype(np.uint8)
+        return geometry, small if np.array_equal(small, sift) else sift
+
+    geometry, sift = memoized(("smm-local", int(max_features)), (rgb, mask), compute)
+    return geometry, root_sift(sift)
+
+
+def _local_sift(rgb, mask, max_features: int):
+    """local_features with the plain SIFT descriptors (N, 128) float32."""
     import cv2
 
     frame = mask_frame(mask)
@@ -55,13 +74,7 @@ def local_features(rgb: np.ndarray, mask: np.ndarray, max_features: int = 80):
     # OpenCV centres: pixel x in the doubled image is at (x + 0.5) / 2 - 0.5 in the original.
     xy = (np.array([k.pt for k in keypoints]) + 0.5) / scale - 0.5
     centroid, size = frame
-    return (xy - centroid) / size, root_sift(desc)
-
-
-def remembered_local_features(rgb: np.ndarray, mask: np.ndarray, max_features: int = 80):
-    """local_features, remembered per image (spm_model/base/feature_memo.py: a benchmark
-    shows SMM each frame in several folds and runs); the arrays are read-only."""
-    return memoized(("smm-local", int(max_features)), (rgb, mask), lambda: local_features(rgb, mask, max_features))
+    return (xy - centroid) / size, desc
 
 
 def root_sift(desc: np.ndarray) -> np.ndarray:

@@ -1,17 +1,23 @@
-"""spm_model.base.feature_memo: features remembered by image content, within a byte budget."""
+"""spm_model.base.feature_memo: features remembered by image content, within a byte budget, and in a
+folder shared by processes (damaged files recomputed, half-written ones of dead processes removed)."""
 
 import numpy as np
 import pytest
 
-from spm_model.base.feature_memo import clear_memo, content_key, memo_stats, memoized
+import os
+import socket
+
+from spm_model.base.feature_memo import clear_memo, content_key, memo_stats, memoized, use_folder
 
 
 @pytest.fixture(autouse=True)
 def empty_memo(monkeypatch):
     monkeypatch.delenv("SPM_FEATURE_MEMO_MB", raising=False)
     clear_memo()
+    use_folder(None)
     yield
     clear_memo()
+    use_folder(None)
 
 
 def counting(calls):
@@ -57,3 +63,52 @@ def test_a_full_memo_keeps_what_it_has_and_zero_turns_it_off(monkeypatch):
     for img in imgs[:1] * 3:
         memoized(("k",), (img,), lambda: f(img))
     assert memo_stats()["entries"] == 0 and len(calls) == 9
+
+
+def test_the_folder_serves_other_processes_and_damage_is_recomputed(tmp_path):
+    calls = []
+    f = counting(calls)
+    img = np.random.default_rng(1).integers(0, 255, (16, 16, 3), dtype=np.uint8)
+    use_folder(tmp_path / "memo")
+    first = memoized(("k",), (img,), lambda: f(img))
+    files = list((tmp_path / "memo").glob("*/*.npz"))
+    assert len(files) == 1 and len(calls) == 1
+    clear_memo()                                                        # as a new process would start
+    served = memoized(("k",), (img,), lambda: f(img))
+    assert len(calls) == 1 and memo_stats()["disk_hits"] == 1
+    assert all(np.array_equal(a, b) and a.dtype == b.dtype for a, b in zip(first, served))
+    data = bytearray(files[0].read_bytes())
+    data[len(data) // 2] ^= 0xFF                                        # a flipped byte: the zip CRC fails
+    files[0].write_bytes(bytes(data))
+    clear_memo()
+    again = memoized(("k",), (img,), lambda: f(img))
+    assert len(calls) == 2 and all(np.array_equal(a, b) for a, b in zip(first, again))
+    clear_memo()
+    memoized(("k",), (img,), lambda: f(img))                            # rewritten whole: served again
+    assert len(calls) == 2 and memo_stats()["disk_hits"] == 1
+
+
+def test_half_written_files_of_dead_processes_are_removed(tmp_path):
+    folder = tmp_path / "memo" / "ab"
+    folder.mkdir(parents=True)
+    host = socket.gethostname()
+    dead = folder / f".abcd.{host}.999999999.partial"
+    live = folder / f".abce.{host}.{os.getpid()}.partial"
+    other = folder / ".abcf.another-host.999999999.partial"
+    for p in (dead, live, other):
+        p.write_bytes(b"half")
+    use_folder(tmp_path / "memo")
+    assert not dead.exists() and live.exists() and other.exists()
+
+
+def test_an_unwritable_folder_warns_once_and_memory_still_serves(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    calls = []
+    f = counting(calls)
+    img = np.zeros((4, 4, 3), np.uint8)
+    use_folder(blocker / "memo")
+    with pytest.warns(UserWarning, match="cannot write the feature memo"):
+        memoized(("k",), (img,), lambda: f(img))
+    memoized(("k",), (img,), lambda: f(img))
+    assert len(calls) == 1 and memo_stats()["hits"] == 1

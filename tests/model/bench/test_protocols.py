@@ -166,3 +166,19 @@ def test_splits_on_two_workers_give_the_results_of_one(model_shards, tmp_path):
                    source=(str(shards), None, FAST, False), report=said.append)
     assert json.dumps(one["runs"], sort_keys=True) == json.dumps(two["runs"], sort_keys=True)
     assert len(said) == 6 and all(line.startswith("run ") for line in said)
+
+
+def test_split_workers_share_the_feature_memo_beside_the_feature_cache(model_shards, tmp_path):
+    from spm_model.base import feature_memo
+    from spm_model.bench import protocols
+    from spm_model.bench.feature_cache import load_features as load
+
+    shards = tmp_path / "s"
+    shutil.copytree(model_shards, shards)
+    load(shards, FAST)
+    try:
+        protocols._table((str(shards), None, FAST, False))
+        assert feature_memo._folder[0] == shards / ".spm-features" / "memo"
+    finally:
+        feature_memo.use_folder(None)
+        protocols._TABLES.clear()
