@@ -41,16 +41,18 @@ def _kmeans_pp(x, k, rng):
 LOG_2PI = float(np.log(2 * np.pi))
 
 
-def _log_density_coefficients(means, a, b, c, weights) -> np.ndarray:
-    """(6, k) coefficients of log(w_k N(v | mu_k, S_k)) as a quadratic in v = (x, y):
-    [1, x, y, x^2, xy, y^2] @ coef[:, k], for means (k, 2), covariance entries a = s_xx,
-    b = s_xy, c = s_yy (k,) and weights (k,). One matrix product then scores every
-    point under every cluster (numpy's per-call overhead dominated the element-wise form)."""
-    mx, my = means[:, 0], means[:, 1]
+def _log_density_coefficients(coef, mx, my, a, b, c, log_weights) -> None:
+    """Fill ``coef`` (k, 6) so that log(w_k N(v | mu_k, S_k)) = coef[k] @ [1, x, y, x^2, xy, y^2]
+    for v = (x, y): means (mx, my), covariance entries a = s_xx, b = s_xy, c = s_yy and log
+    weights, all (k,). One matrix product then scores every point under every cluster
+    (numpy's per-call overhead, not arithmetic, dominated the element-wise form)."""
     det = a * c - b * b
     h = -0.5 / det  # log N = -(c dx^2 - 2b dx dy + a dy^2) / (2 det) - log(det) / 2 - log(2 pi)
-    return np.stack([h * (c * mx * mx - 2 * b * mx * my + a * my * my) + np.log(weights) - 0.5 * np.log(det) - LOG_2PI,
-                     h * 2 * (b * my - c * mx), h * 2 * (b * mx - a * my), h * c, -2 * h * b, h * a])
+    hc, hb, ha = h * c, h * b, h * a
+    coef[:, 0] = hc * mx * mx - 2 * hb * mx * my + ha * my * my + log_weights - 0.5 * np.log(det) - LOG_2PI
+    coef[:, 1] = 2 * (hb * my - hc * mx)
+    coef[:, 2] = 2 * (hb * mx - ha * my)
+    coef[:, 3], coef[:, 4], coef[:, 5] = hc, -2 * hb, ha
 
 
 def fit_bunches(locations, gamma: int = GAMMA, seed: int = 0, tol: float = 1e-2, max_iter: int = 100,
@@ -61,34 +63,38 @@ def fit_bunches(locations, gamma: int = GAMMA, seed: int = 0, tol: float = 1e-2,
         raise BunchError(f"expected (N, 2) keypoint locations, got shape {x.shape}")
     if len(x) < 2 * gamma:
         raise BunchError(f"{len(x)} keypoints is too few for {gamma} clusters (need at least {2 * gamma})")
+    n = len(x)
     rng = np.random.default_rng(seed)
     origin = x.mean(axis=0)  # centred coordinates keep the moments below well conditioned
     means = _kmeans_pp(x, gamma, rng) - origin
+    mx, my = means[:, 0].copy(), means[:, 1].copy()
     spread = np.cov(x.T) / gamma + ridge * np.eye(2)
     a, b, c = np.full(gamma, spread[0, 0]), np.full(gamma, spread[0, 1]), np.full(gamma, spread[1, 1])
-    weights = np.full(gamma, 1.0 / gamma)
+    log_weights = np.full(gamma, np.log(1.0 / gamma))
     px, py = x[:, 0] - origin[0], x[:, 1] - origin[1]
-    powers = np.column_stack([np.ones(len(x)), px, py, px * px, px * py, py * py])  # (N, 6)
+    powers = np.stack([np.ones(n), px, py, px * px, px * py, py * py])  # (6, N)
+    coef = np.empty((gamma, 6))
     for it in range(1, max_iter + 1):  # noqa: B007 - the count is reported after the loop
-        # E-step: P(b_k | v) for every keypoint (log-sum-exp for stability).
-        log_p = powers @ _log_density_coefficients(means, a, b, c, weights)
-        log_p -= log_p.max(axis=1, keepdims=True)
-        resp = np.exp(log_p)
-        resp /= resp.sum(axis=1, keepdims=True)
+        # E-step: P(b_k | v) for every keypoint, (k, N) (log-sum-exp for stability).
+        _log_density_coefficients(coef, mx, my, a, b, c, log_weights)
+        resp = coef @ powers
+        resp -= resp.max(axis=0)
+        np.exp(resp, out=resp)
+        resp /= resp.sum(axis=0)
         # M-step: Eq. 8 for the means and covariances, Eq. 9 for the priors, from the
         # responsibility-weighted moments (k, 6): sums of 1, x, y, x^2, xy, y^2.
-        m = resp.T @ powers
+        m = resp @ powers.T
         nk = m[:, 0] + 1e-12
-        mx, my = m[:, 1] / nk, m[:, 2] / nk
-        a = (m[:, 3] - mx * (2 * m[:, 1] - mx * m[:, 0])) / nk + ridge
-        b = (m[:, 4] - mx * m[:, 2] - my * m[:, 1] + mx * my * m[:, 0]) / nk
-        c = (m[:, 5] - my * (2 * m[:, 2] - my * m[:, 0])) / nk + ridge
-        weights = nk / len(x)
-        new_means = np.column_stack([mx, my])
-        moved = np.abs(new_means - means).max()
-        means = new_means
+        new_x, new_y = m[:, 1] / nk, m[:, 2] / nk
+        a = (m[:, 3] - new_x * (2 * m[:, 1] - new_x * m[:, 0])) / nk + ridge
+        b = (m[:, 4] - new_x * m[:, 2] - new_y * m[:, 1] + new_x * new_y * m[:, 0]) / nk
+        c = (m[:, 5] - new_y * (2 * m[:, 2] - new_y * m[:, 0])) / nk + ridge
+        log_weights = np.log(nk / n)
+        moved = max(np.abs(new_x - mx).max(), np.abs(new_y - my).max())
+        mx, my = new_x, new_y
         if moved < tol:
             break
-    means = means + origin
+    weights = nk / n
+    means = np.column_stack([mx, my]) + origin
     covs = np.stack([np.stack([a, b], -1), np.stack([b, c], -1)], -2)
     return Bunches(means=means, covariances=covs, weights=weights, iterations=it)
