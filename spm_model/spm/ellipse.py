@@ -19,11 +19,11 @@ same order of floating-point operations as the plain formulation
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.lib.stride_tricks import as_strided
 from scipy.linalg import lapack
 
 from spm_data.errors import EllipseError
@@ -32,6 +32,7 @@ from spm_data.errors import EllipseError
 LAMBDA = 0.1
 UNIT_CIRCLE = np.array([0.5, 0.0, 0.5, 0.0, 0.0, -0.5])  # x^2 + y^2 = 1, on the constraint
 _NOT_F = np.diag([1.0, 1, 1, 1, 1, 0])  # Eq. 1 regularises A..E, not the bias F
+_C1_INVERSE = np.array([[0.5], [-1.0], [0.5]])  # C1^-1 M = M[::-1] * this, C1 = [[0,0,2],[0,-1,0],[2,0,0]]
 _BLOCK = 20  # iterations whose random numbers are drawn at once
 
 
@@ -62,11 +63,13 @@ def _normalise(points: np.ndarray):
         raise EllipseError(f"expected (N, 2) points, got shape {points.shape}")
     if len(points) < 5:
         raise EllipseError(f"an ellipse needs at least 5 points, got {len(points)}")
-    mean = points.mean(axis=0)
-    scale = np.sqrt(((points - mean) ** 2).sum(axis=1).mean())
-    if not np.isfinite(scale) or scale <= 1e-12:
+    n = len(points)
+    mean = np.add.reduce(points, 0) / n  # points.mean(axis=0), without its wrapper
+    d = points - mean
+    scale = math.sqrt(np.add.reduce(np.add.reduce(d * d, 1)) / n)
+    if not math.isfinite(scale) or scale <= 1e-12:
         raise EllipseError("points coincide")
-    return (points - mean) / scale, mean, scale
+    return d / scale, mean, scale
 
 
 def _design(p: np.ndarray) -> np.ndarray:
@@ -95,8 +98,9 @@ def _real_eigenvectors(m: np.ndarray) -> np.ndarray:
     wi, _, vectors, info = lapack.dgeev(m, compute_vl=0)[1:]
     if info != 0:
         raise EllipseError("no ellipse fits these points (eigenvalues did not converge)")
-    for j in np.flatnonzero(wi > 0):
-        vectors[:, j + 1] = vectors[:, j]
+    for j, imaginary in enumerate(wi.tolist()):
+        if imaginary > 0:
+            vectors[:, j + 1] = vectors[:, j]
     return vectors
 
 
@@ -107,11 +111,9 @@ def direct_conic(p: np.ndarray, gram: np.ndarray | None = None) -> np.ndarray:
     S1, S2, S3 = S[:3, :3], S[:3, 3:], S[3:, 3:]
     T = -_solve(S3, S2.T, "points are degenerate (collinear?)")
     M = S1 + S2 @ T
-    M = M[::-1] * np.array([[0.5], [-1.0], [0.5]])  # C1^-1 M with C1 = [[0,0,2],[0,-1,0],[2,0,0]]
-    vectors = _real_eigenvectors(M)
-    cond = 4 * vectors[0] * vectors[2] - vectors[1] ** 2
-    good = np.flatnonzero(cond > 0)
-    if len(good) == 0:
+    vectors = _real_eigenvectors(M[::-1] * _C1_INVERSE)
+    good = [j for j, (a, b, c) in enumerate(zip(*vectors.tolist())) if 4 * a * c - b * b > 0]
+    if not good:
         raise EllipseError("no ellipse fits these points")
     a1 = vectors[:, good[0]]
     conic = np.concatenate([a1, T @ a1])
@@ -123,6 +125,14 @@ def direct_conic(p: np.ndarray, gram: np.ndarray | None = None) -> np.ndarray:
 def _gram(p: np.ndarray) -> np.ndarray:
     design = _design(p)
     return design.T @ design
+
+
+@functools.lru_cache(maxsize=8)
+def _constants(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Read-only (2, n) rows of 4 and 1, and (n,) 1e-12: array operands are cheaper than scalars."""
+    four, tiny = np.repeat([[4.0], [1.0]], n, axis=1), np.full(n, 1e-12)
+    four.flags.writeable = tiny.flags.writeable = False
+    return four, tiny
 
 
 class _Swarm:
@@ -138,21 +148,24 @@ class _Swarm:
         x[...] = start.T
         # Eq. 1 as x^T G x: the terms (x_i G_ij) x_j summed over (i, j) in order, as np.einsum does.
         rows, cols = x.strides
-        self.G = np.ascontiguousarray(np.broadcast_to(G[:, :, None], (6, 6, n)))
-        self.quadratic = (as_strided(x, (6, 6, n), (rows, 0, cols)), self.G, np.empty((6, 6, n)),
-                          as_strided(x, (6, 6, n), (0, rows, cols)), cost)
+        self.quadratic = (np.ndarray((6, 6, n), x.dtype, x, 0, (rows, 0, cols)),  # x_i, repeated over j
+                          np.repeat(G[:, :, None], n, axis=2), np.empty((6, 6, n)),
+                          np.ndarray((6, 6, n), x.dtype, x, 0, (0, rows, cols)), cost)  # x_j, repeated over i
         # 4AC - B^2 from rows (A, B) * (4, 1) * (C, B); columns below 1e-12 are no ellipse.
         products = np.empty((2, n))
         self.ok, self.root = np.empty(n, dtype=bool), np.empty(n)
-        self.constraint = (x, x[0:2], np.repeat([[4.0], [1.0]], n, axis=1), products, x[2:0:-1],
-                           products[0], products[1], np.empty(n), np.full(n, 1e-12), self.ok, self.root)
+        four, tiny = _constants(n)
+        self.constraint = (x, x[0:2], four, products, x[2:0:-1], products[0], products[1], np.empty(n), tiny,
+                           self.ok, self.root)
         # pulls[0]: each particle's best position (row 6: its cost); pulls[1, :6]: the swarm's best.
         self.pulls = np.empty((2, 7, n))
         self.moves = np.empty((3, 6, n))  # velocity, pull to own best, pull to the swarm's best
         self.scales = np.empty((_BLOCK, 3, 6, n))  # per iteration: 0.72, 1.49 r1, 1.49 r2
         self.scales[:, 0] = 0.72
         self.motion = (self.pulls[:, :6], x, self.moves[1:], self.moves, *self.moves)
-        self.keep = (cost, self.pulls[0, 6], np.empty(n, dtype=bool), self.ok, self.pulls[0], self.state)
+        better = np.empty(n, dtype=bool)
+        self.keep = (cost, self.pulls[0, 6], better, self.ok, self.pulls[0],
+                     np.ndarray((7, n), better.dtype, better, 0, (0, better.strides[0])), self.state)
 
     def constrain(self) -> None:
         """Scale each column onto 4AC - B^2 = 1 (a column that is no ellipse stays as it is)."""
@@ -195,10 +208,10 @@ class _Swarm:
         np.add(velocity, best, velocity)
         np.add(x, velocity, x)
         self.score()
-        cost, own_cost, better, ok, own_best, state = self.keep
+        cost, own_cost, better, ok, own_best, better_rows, state = self.keep
         np.less(cost, own_cost, better)
         np.logical_and(better, ok, better)
-        np.copyto(own_best, state, where=better)
+        np.putmask(own_best, better_rows, state)  # np.copyto(..., where=better), at half the cost
         return self.best()
 
     def best(self) -> tuple[int, float]:
