@@ -198,21 +198,38 @@ class _Swarm:
         r = rng.random((count, 2, self.n, 6))
         np.multiply(r.transpose(0, 1, 3, 2), 1.49, out=self.scales[:count, 1:])
 
-    def step(self, k: int) -> tuple[int, float]:
-        """velocity = 0.72 velocity + 1.49 r1 (own best - x) + 1.49 r2 (best - x); x += velocity;
-        score; keep each particle's improvement. Returns the best particle and its cost."""
+    def run(self, rng, best_cost: float, iterations: int, patience: int, tol: float) -> float:
+        """The iterations: velocity = 0.72 velocity + 1.49 r1 (own best - x) + 1.49 r2 (best - x);
+        x += velocity; score; keep each particle's improvement and the swarm's, until ``patience``
+        iterations improved the best cost by less than ``tol`` (relative). Returns the best cost."""
         pulls, x, pull, moves, velocity, own, best = self.motion
-        np.subtract(pulls, x, pull)
-        np.multiply(moves, self.scales[k], moves)
-        np.add(velocity, own, velocity)
-        np.add(velocity, best, velocity)
-        np.add(x, velocity, x)
-        self.score()
         cost, own_cost, better, ok, own_best, better_rows, state = self.keep
-        np.less(cost, own_cost, better)
-        np.logical_and(better, ok, better)
-        np.putmask(own_best, better_rows, state)  # np.copyto(..., where=better), at half the cost
-        return self.best()
+        xi, G, terms, xj, _ = self.quadratic
+        scales, stale = list(self.scales), 0
+        for it in range(iterations):
+            if it % _BLOCK == 0:
+                self.draw(rng, min(_BLOCK, iterations - it))
+            np.subtract(pulls, x, pull)
+            np.multiply(moves, scales[it % _BLOCK], moves)
+            np.add(velocity, own, velocity)
+            np.add(velocity, best, velocity)
+            np.add(x, velocity, x)
+            self.constrain()
+            np.multiply(xi, G, terms)
+            np.einsum("ijp,ijp->p", terms, xj, out=cost)
+            np.less(cost, own_cost, better)
+            np.logical_and(better, ok, better)
+            np.putmask(own_best, better_rows, state)  # np.copyto(..., where=better), at half the cost
+            g = int(own_cost.argmin())
+            low = own_cost.item(g)
+            improved = best_cost - low > tol * abs(best_cost) if math.isfinite(best_cost) else True
+            if low < best_cost:
+                best_cost = low
+                self.take_best(g)
+            stale = 0 if improved else stale + 1
+            if stale >= patience:
+                break
+        return best_cost
 
     def best(self) -> tuple[int, float]:
         own_cost = self.keep[1]
@@ -251,18 +268,7 @@ def pso_conic(p: np.ndarray, lam: float = LAMBDA, particles: int = 48, iteration
     swarm.constrain()
     g, best_cost = swarm.start(rng.normal(0, 0.1, (swarm.n, 6)))
     swarm.take_best(g)
-    stale = 0
-    for it in range(iterations):
-        if it % _BLOCK == 0:
-            swarm.draw(rng, min(_BLOCK, iterations - it))
-        g, low = swarm.step(it % _BLOCK)
-        improved = best_cost - low > tol * abs(best_cost) if math.isfinite(best_cost) else True
-        if low < best_cost:
-            best_cost = low
-            swarm.take_best(g)
-        stale = 0 if improved else stale + 1
-        if stale >= patience:
-            break
+    best_cost = swarm.run(rng, best_cost, iterations, patience, tol)
     if not math.isfinite(best_cost):
         raise EllipseError("the swarm found no ellipse")
     return swarm.pulls[1, :6, 0].copy()
