@@ -24,6 +24,8 @@ in-plane rotation.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from spm_model.spm.ellipse import LAMBDA, Ellipse, fit_ellipse
@@ -37,9 +39,10 @@ def canonical_order(centres: np.ndarray, ellipse: Ellipse, order: str = "sign") 
     centres = np.asarray(centres, dtype=np.float64)
     if order == "sign":
         d = centres - ellipse.centre
-        u = ellipse.u
-        angle = np.arctan2(u[0] * d[:, 1] - u[1] * d[:, 0], d @ u) % (2 * np.pi)
-        return np.argsort(angle, kind="stable")
+        u0, u1 = ellipse.u.tolist()
+        angle = np.arctan2(u0 * d[:, 1] - u1 * d[:, 0], d @ ellipse.u)
+        angle %= 2 * np.pi
+        return angle.argsort(kind="stable")
     if order == "angle":
         d = centres - centres.mean(axis=0)
         return np.argsort(np.arctan2(d[:, 1], d[:, 0]) % (2 * np.pi), kind="stable")
@@ -53,12 +56,13 @@ def foci_distances(centres: np.ndarray, ellipse: Ellipse, order: str = "sign", n
     the first and the second focus; a unit vector unless ``normalise`` is False
     (then in the centres' units, pixels)."""
     centres = np.asarray(centres, dtype=np.float64)
-    f = ellipse.foci
     ordered = centres[canonical_order(centres, ellipse, order)]
-    distances = np.linalg.norm(ordered[:, None, :] - f[None, :, :], axis=2).ravel()
+    diff = ordered[:, None, :] - ellipse.foci[None, :, :]
+    # np.linalg.norm's own operations (axis=2; then x.dot(x)), without its wrapper's overhead
+    distances = np.sqrt(np.add.reduce(diff * diff, 2)).ravel()
     if not normalise:
         return distances
-    norm = np.linalg.norm(distances)
+    norm = math.sqrt(distances.dot(distances))
     return distances / norm if norm > 0 else distances
 
 
