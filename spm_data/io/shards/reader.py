@@ -11,12 +11,14 @@ from __future__ import annotations
 
 import errno
 import os
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 from spm_data.errors import ShardError
 from spm_data.io.shards.checksums import CHECKSUMS_ATTR, FLETCHER32, checksum_mismatch, dataset_layout, stored_chunk_ok
+from spm_data.io.shards.chunks import SHUFFLE, THREADS, decodable, decode_run, runs
 from spm_data.io.shards.schema import SCHEMA_VERSION
 from spm_data.io.shards.seal import SealError, verified_digest
 
@@ -26,6 +28,9 @@ def open_h5(path):
     path = Path(path)
     shard_digest(path)
     return _h5_file(path)
+
+
+_checked: dict[str, dict] = {}  # content digest -> its attributes, checked (_checked_attrs)
 
 
 def shard_digest(path) -> str:
@@ -89,8 +94,16 @@ H5_ERRORS = (OSError, KeyError, ValueError, RuntimeError, TypeError, IndexError)
 def read_attrs(path) -> dict:
     """A shard's file attributes as plain Python values, verified against its
     checksums (with the layout of its fields); checks the schema version."""
-    with open_h5(path) as f:
-        return _verified_attrs(path, f)
+    with ShardReader(path) as reader:
+        return reader.attrs
+
+
+def _checked_attrs(path, f, digest: str) -> dict:
+    """_verified_attrs of an open file whose content hashes to ``digest`` (verified): the
+    check is a function of those bytes, so it runs once per process for each digest."""
+    if digest not in _checked:
+        _checked[digest] = _verified_attrs(path, f)
+    return dict(_checked[digest])
 
 
 def _verified_attrs(path, f) -> dict:
@@ -155,9 +168,10 @@ class ShardReader:
     def __init__(self, path):
         self.path = Path(path)
         self.pid = os.getpid()
-        self._file = open_h5(self.path)
+        self.digest = shard_digest(self.path)  # every byte checked (seal.py), then opened
+        self._file = _h5_file(self.path)
         try:
-            self.attrs = _verified_attrs(self.path, self._file)
+            self.attrs = _checked_attrs(self.path, self._file, self.digest)
         except BaseException:
             self._file.close()
             raise
@@ -190,7 +204,8 @@ class ShardReader:
             if h5_is_string(ds):
                 value = ds.asstr()[frames]
                 return value if isinstance(value, str) else np.asarray(value, dtype=object)
-            return ds[frames]
+            decoded = self._decoded(name, ds, frames)
+            return ds[frames] if decoded is None else decoded
         except ShardError:
             raise
         except (OSError, UnicodeDecodeError):  # a chunk failing its Fletcher-32, or not decoding
@@ -199,6 +214,45 @@ class ShardReader:
         except H5_ERRORS as exc:  # the bytes were verified: a request h5py cannot serve, not corruption
             raise ShardError(f"{self.path}: cannot read field {name!r} for frames {_describe(frames)} "
                              f"({type(exc).__name__}: {exc})") from None
+
+    def _decoded(self, name: str, ds, frames):
+        """``ds[frames]`` for a slice of an image field, decoded by chunks.py on THREADS threads
+        from the stored chunks (each checked against its Fletcher-32, as HDF5 would); None for
+        what HDF5 decodes (other layouts and filters, index arrays, unwritten chunks)."""
+        if not isinstance(frames, slice) or ds.ndim < 2:
+            return None
+        filters = dataset_layout(ds)[3]
+        index = range(ds.shape[0])[frames]
+        if not decodable(filters, ds.chunks, ds.shape) or ds.id.get_num_chunks() != ds.shape[0]:
+            return None
+        tail = (0,) * (ds.ndim - 1)
+        raws = []
+        for i in index:
+            skipped, raw = ds.id.read_direct_chunk((i, *tail))
+            if skipped:  # a filter was not applied to this chunk: HDF5 knows how to read it
+                return None
+            raws.append(raw)
+        out = np.empty((len(index), *ds.shape[1:]), ds.dtype)
+        parts, shuffled = runs(len(raws)), SHUFFLE in filters
+        if len(parts) > 1:
+            with ThreadPoolExecutor(THREADS) as pool:
+                failed = list(pool.map(lambda r: decode_run(raws[r.start:r.stop], out, r.start, shuffled), parts))
+        else:
+            failed = [decode_run(raws, out, 0, shuffled)]
+        first = min((k for k in failed if k is not None), default=None)
+        if first is not None:
+            raise ShardError(f"{self.path}: field {name!r} fails its checksum or cannot be decoded (frame "
+                             f"{index[first]}); the shard is corrupt")
+        return out
+
+    def copy_fields(self, names, dst) -> None:
+        """Copy fields verbatim into the open h5py file ``dst`` (HDF5's object copy: chunks and
+        their Fletcher-32 as stored, no codec work); their bytes matched the SHA-256 at open.
+        A failed write is HDF5's RuntimeError or OSError (the writer says which)."""
+        for field in names:
+            if field not in self._file:
+                raise ShardError(f"{self.path}: shard has no field {field!r}")
+            self._file.copy(self._file[field], dst, name=field)
 
     def close(self) -> None:
         self._file.close()

@@ -113,6 +113,20 @@ def verified_digest(path) -> str:
     return digest
 
 
+def verification(path) -> tuple | None:
+    """What this process knows of ``path`` verified, ``(stat key, digest)``, or None; for a worker
+    process (reuse_verification), so the file is not hashed again there."""
+    return _verified.get(os.path.abspath(path))
+
+
+def reuse_verification(path, known: tuple | None) -> None:
+    """Take ``known`` (verification(path) in another process of this run) as this process's own
+    check of ``path`` when the file's device, inode, size, mtime and ctime are still those it
+    was verified with (verified_digest's own rule); otherwise nothing: the next open hashes."""
+    if known is not None and _stat_key(os.stat(path)) == tuple(known[0]):
+        _verified[os.path.abspath(path)] = (tuple(known[0]), known[1])
+
+
 def forget(path=None) -> None:
     """Drop what this process knows verified (one path, or all): the next open hashes again."""
     if path is None:
