@@ -21,7 +21,6 @@ from spm_data.io.outputs import check_out_name
 from spm_data.core.occlusion import apply_occlusion, check_range, occlude_mask
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
 from spm_data.io.shards import ShardReader, ShardWriter, manifest_entry, reuse_verification, verification
-from spm_data.io.shards.chunks import runs
 
 DERIVED_FIELDS = ("visible_mask", "source_shard", "source_frame")
 IMAGES = ("rgb", "visible_mask")  # what occlude writes anew; in this order (the same bytes as before)
@@ -111,7 +110,8 @@ def occlude_shard(job: OccludeJob, report=lambda n: None) -> dict:
     the writer's threads compress the runs before."""
     reuse_verification(job.source, job.verified)
     with ShardReader(job.source) as reader:
-        data, attrs, layout = reader.read(["rgb", "mask", "class_name"]), reader.attrs, reader.layout()
+        data, attrs, layout = reader.read(["mask", "class_name"]), reader.attrs, reader.layout()
+        data["rgb"] = reader.read_runs("rgb")  # decoded on the reader's threads while frames are placed
         n, (h, w) = int(attrs["frames"]), data["mask"].shape[1:]
         labels = dict(occlusion_rects=np.zeros((n, job.rects, 4), np.int32),
                       occlusion_fraction=np.zeros(n, np.float32),
@@ -123,7 +123,7 @@ def occlude_shard(job: OccludeJob, report=lambda n: None) -> dict:
                          occlusion_max=job.high, occlusion_rects=job.rects, occlusion_copy=job.copy,
                          occlusion_source=Path(job.source).name, source_plan_key=attrs.get("plan_key", ""))
         with ShardWriter(Path(job.out_dir) / job.name, frames=n, height=h, width=w, images=IMAGES) as writer:
-            images = {"rgb": np.empty_like(data["rgb"]), "visible_mask": np.zeros((n, h, w), np.uint8)}
+            images = {"rgb": np.empty(layout["rgb"][0], np.uint8), "visible_mask": np.zeros((n, h, w), np.uint8)}
             reached = _place(job, data, images, labels, writer, report)
             writer.write_images(0, images)
             # Depth, mask, poses...: copied chunk for chunk, no decompressing and recompressing.
@@ -138,14 +138,17 @@ def _place(job: OccludeJob, data: dict, images: dict, labels: dict, writer, repo
     target. Frame i draws from default_rng([seed, crc32(source name), i, copy])."""
     reached = np.zeros(len(labels["source_frame"]), bool)
     stem = zlib.crc32(Path(job.source).name.encode())
-    for run in runs(len(reached)):
+    for run, rgb in data["rgb"]:  # rgb(): the run's frames, decoded
         for i in run:
             rng = np.random.default_rng([job.seed, stem, i, job.copy])
             target = float(rng.uniform(job.low, job.high)) if job.high > job.low else job.low
             occ = occlude_mask(data["mask"][i], target, rng, rects=job.rects, bounds=(job.low, job.high))
-            images["rgb"][i], images["visible_mask"][i] = apply_occlusion(data["rgb"][i], data["mask"][i], occ.rects)
             labels["occlusion_rects"][i], labels["occlusion_fraction"][i], reached[i] = (occ.rects, occ.fraction,
                                                                                          occ.reached)
+        frames = rgb()
+        for i in run:
+            images["rgb"][i], images["visible_mask"][i] = apply_occlusion(frames[i - run.start], data["mask"][i],
+                                                                          labels["occlusion_rects"][i])
         writer.prepare(run.start, {name: frames[run.start:run.stop] for name, frames in images.items()})
         report(len(run))
     return reached
@@ -158,4 +161,7 @@ def occlude_dataset(in_dir, out_dir, *, low=0.0, high=0.6, copies=1, rects=1, se
     check_options(low, high, copies, rects, seed)
     shards = check_inputs(in_dir, out_dir, allow_partial)
     jobs = plan_occlusion(shards, out_dir, low, high, copies, rects, seed)
-    return run_shard_jobs(occlude_shard, jobs, out_dir, executor=executor, progress=progress, verb="occluded")
+    # Light jobs: this process occludes too while the other workers start (their imports cost
+    # about as much as a shard's work).
+    return run_shard_jobs(occlude_shard, jobs, out_dir, executor=executor, progress=progress, verb="occluded",
+                          parent_works=True)

@@ -20,7 +20,7 @@ from spm_data.errors import ShardError
 from spm_data.io.shards.checksums import CHECKSUMS_ATTR, FLETCHER32, checksum_mismatch, dataset_layout, stored_chunk_ok
 from spm_data.io.shards.chunks import SHUFFLE, THREADS, decodable, decode_run, runs
 from spm_data.io.shards.schema import SCHEMA_VERSION
-from spm_data.io.shards.seal import SealError, verified_digest
+from spm_data.io.shards.seal import SealError, forget, verified_digest
 
 
 def open_h5(path):
@@ -98,6 +98,13 @@ def read_attrs(path) -> dict:
         return reader.attrs
 
 
+def forget_checks() -> None:
+    """Forget every check this process made (seal.forget and the attribute checks): the next
+    open of any shard hashes it and checks its attributes again (a benchmark's fresh start)."""
+    forget()
+    _checked.clear()
+
+
 def _checked_attrs(path, f, digest: str) -> dict:
     """_verified_attrs of an open file whose content hashes to ``digest`` (verified): the
     check is a function of those bytes, so it runs once per process for each digest."""
@@ -168,6 +175,8 @@ class ShardReader:
     def __init__(self, path):
         self.path = Path(path)
         self.pid = os.getpid()
+        self._pool = None  # threads decoding ahead (read_runs)
+        self._layout = None  # layout(), once looked up
         self.digest = shard_digest(self.path)  # every byte checked (seal.py), then opened
         self._file = _h5_file(self.path)
         try:
@@ -184,11 +193,15 @@ class ShardReader:
             raise ShardError(f"{self.path}: corrupt shard index ({type(exc).__name__}: {exc})") from None
 
     def layout(self) -> dict:
-        """Every field: name -> (shape, dtype name; "str" for strings), in file order."""
-        try:
-            return {name: (ds.shape, "str" if h5_is_string(ds) else str(ds.dtype)) for name, ds in self._file.items()}
-        except H5_ERRORS as exc:
-            raise ShardError(f"{self.path}: corrupt shard index ({type(exc).__name__}: {exc})") from None
+        """Every field: name -> (shape, dtype name; "str" for strings), in file order (looked up
+        once per open: the file is read-only and h5py's lookups cost more than a small read)."""
+        if self._layout is None:
+            try:
+                self._layout = {name: (ds.shape, "str" if h5_is_string(ds) else str(ds.dtype))
+                                for name, ds in self._file.items()}
+            except H5_ERRORS as exc:
+                raise ShardError(f"{self.path}: corrupt shard index ({type(exc).__name__}: {exc})") from None
+        return dict(self._layout)
 
     def read(self, fields=None, frames=slice(None)) -> dict:
         """``fields`` (default: all) for ``frames``: a slice or sorted index array
@@ -215,15 +228,58 @@ class ShardReader:
             raise ShardError(f"{self.path}: cannot read field {name!r} for frames {_describe(frames)} "
                              f"({type(exc).__name__}: {exc})") from None
 
+    def read_runs(self, name: str) -> list:
+        """An image field's frames run by run (chunks.RUN frames): [(frame range, get)], where
+        ``get()`` returns that run's (k, ...) array. The runs are decoded on the reader's threads
+        from now on, in order, so a caller working on one run finds the next decoded."""
+        if name not in self.fields():
+            raise ShardError(f"{self.path}: shard has no field {name!r}")
+        n = self._file[name].shape[0]
+        source = self._chunk_source(self._file[name], range(n))
+        if source is None:  # HDF5 decodes it, run by run when asked
+            return [(run, lambda run=run: self._read_field(name, slice(run.start, run.stop))) for run in runs(n)]
+        raws, out, shuffled = source
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(THREADS)
+        got = []
+        for run in runs(n):
+            future = self._pool.submit(decode_run, raws[run.start:run.stop], out, run.start, shuffled)
+            got.append((run, lambda run=run, future=future: self._decoded_run(name, out, run, future.result())))
+        return got
+
+    def _decoded_run(self, name: str, out: np.ndarray, run: range, failed):
+        if failed is not None:
+            raise ShardError(f"{self.path}: field {name!r} fails its checksum or cannot be decoded (frame "
+                             f"{failed}); the shard is corrupt")
+        return out[run.start:run.stop]
+
     def _decoded(self, name: str, ds, frames):
         """``ds[frames]`` for a slice of an image field, decoded by chunks.py on THREADS threads
-        from the stored chunks (each checked against its Fletcher-32, as HDF5 would); None for
-        what HDF5 decodes (other layouts and filters, index arrays, unwritten chunks)."""
+        from the stored chunks; None for what HDF5 decodes (other layouts and filters, index
+        arrays, unwritten chunks)."""
         if not isinstance(frames, slice) or ds.ndim < 2:
             return None
-        filters = dataset_layout(ds)[3]
         index = range(ds.shape[0])[frames]
-        if not decodable(filters, ds.chunks, ds.shape) or ds.id.get_num_chunks() != ds.shape[0]:
+        source = self._chunk_source(ds, index)
+        if source is None:
+            return None
+        raws, out, shuffled = source
+        parts = runs(len(raws))
+        if len(parts) > 1:
+            with ThreadPoolExecutor(THREADS) as pool:
+                failed = list(pool.map(lambda r: decode_run(raws[r.start:r.stop], out, r.start, shuffled), parts))
+        else:
+            failed = [decode_run(raws, out, 0, shuffled)]
+        return self._decoded_run(name, out, range(len(out)),
+                                 min((index[k] for k in failed if k is not None), default=None))
+
+    @staticmethod
+    def _chunk_source(ds, index: range):
+        """(stored chunks of frames ``index``, the array to decode them into, shuffled?) for a
+        dataset chunks.py decodes; None otherwise. The chunks' bytes are those the SHA-256
+        verified when the shard was opened (their Fletcher-32 is for readers without spm)."""
+        filters = dataset_layout(ds)[3]
+        if ds.ndim < 2 or not decodable(filters, ds.chunks, ds.shape) or ds.id.get_num_chunks() != ds.shape[0]:
             return None
         tail = (0,) * (ds.ndim - 1)
         raws = []
@@ -232,18 +288,7 @@ class ShardReader:
             if skipped:  # a filter was not applied to this chunk: HDF5 knows how to read it
                 return None
             raws.append(raw)
-        out = np.empty((len(index), *ds.shape[1:]), ds.dtype)
-        parts, shuffled = runs(len(raws)), SHUFFLE in filters
-        if len(parts) > 1:
-            with ThreadPoolExecutor(THREADS) as pool:
-                failed = list(pool.map(lambda r: decode_run(raws[r.start:r.stop], out, r.start, shuffled), parts))
-        else:
-            failed = [decode_run(raws, out, 0, shuffled)]
-        first = min((k for k in failed if k is not None), default=None)
-        if first is not None:
-            raise ShardError(f"{self.path}: field {name!r} fails its checksum or cannot be decoded (frame "
-                             f"{index[first]}); the shard is corrupt")
-        return out
+        return raws, np.empty((len(index), *ds.shape[1:]), ds.dtype), SHUFFLE in filters
 
     def copy_fields(self, names, dst) -> None:
         """Copy fields verbatim into the open h5py file ``dst`` (HDF5's object copy: chunks and
@@ -255,6 +300,8 @@ class ShardReader:
             self._file.copy(self._file[field], dst, name=field)
 
     def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
         self._file.close()
 
     def __enter__(self):
