@@ -18,7 +18,7 @@ import numpy as np
 from spm_data.errors import ShardError, SpmError
 from spm_data.io.folders import open_folder
 from spm_data.io.outputs import check_out_name
-from spm_data.core.occlusion import apply_occlusion, check_range, occlude_mask
+from spm_data.core.occlusion import black_out, check_range, occlude_mask
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
 from spm_data.io.shards import ShardReader, ShardWriter, manifest_entry, reuse_verification, verification
 
@@ -145,10 +145,11 @@ def _place(job: OccludeJob, data: dict, images: dict, labels: dict, writer, repo
             occ = occlude_mask(data["mask"][i], target, rng, rects=job.rects, bounds=(job.low, job.high))
             labels["occlusion_rects"][i], labels["occlusion_fraction"][i], reached[i] = (occ.rects, occ.fraction,
                                                                                          occ.reached)
-        frames = rgb()
+        # apply_occlusion, in place on the output arrays: the run copied once, then its rectangles blacked out
+        images["rgb"][run.start:run.stop] = rgb()
+        np.greater(data["mask"][run.start:run.stop], 0, out=images["visible_mask"][run.start:run.stop])
         for i in run:
-            images["rgb"][i], images["visible_mask"][i] = apply_occlusion(frames[i - run.start], data["mask"][i],
-                                                                          labels["occlusion_rects"][i])
+            black_out(images["rgb"][i], images["visible_mask"][i], rects=labels["occlusion_rects"][i])
         writer.prepare(run.start, {name: frames[run.start:run.stop] for name, frames in images.items()})
         report(len(run))
     return reached

@@ -143,10 +143,15 @@ def apply_occlusion(rgb: np.ndarray, mask: np.ndarray, rects: np.ndarray) -> tup
     """Black out ``rects`` in ``rgb``; returns (occluded rgb (H, W, 3) uint8, visible_mask (H, W) uint8)."""
     rgb = np.array(rgb, copy=True)
     visible = (np.asarray(mask) > 0).astype(np.uint8)
-    for x0, y0, x1, y1 in np.asarray(rects).reshape(-1, 4):
-        rgb[y0:y1, x0:x1] = 0
-        visible[y0:y1, x0:x1] = 0
+    black_out(rgb, visible, rects=rects)
     return rgb, visible
+
+
+def black_out(*images: np.ndarray, rects: np.ndarray) -> None:
+    """Set ``rects`` ((R, 4) x0, y0, x1, y1) to 0 in each (H, W, ...) image, in place."""
+    for x0, y0, x1, y1 in np.asarray(rects).reshape(-1, 4):
+        for image in images:
+            image[y0:y1, x0:x1] = 0
 
 
 def occlude_image(rgb: np.ndarray, mask: np.ndarray, rng: np.random.Generator, low: float = 0.0,
