@@ -21,6 +21,7 @@ from spm_data.io.outputs import check_out_name
 from spm_data.core.occlusion import black_out, check_range, occlude_mask
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
 from spm_data.io.shards import ShardReader, ShardWriter, manifest_entry, reuse_verification, verification
+from spm_data.io.shards.chunks import runs
 
 DERIVED_FIELDS = ("visible_mask", "source_shard", "source_frame")
 IMAGES = ("rgb", "visible_mask")  # what occlude writes anew; in this order (the same bytes as before)
@@ -61,11 +62,11 @@ def check_inputs(in_dir, out_dir, allow_partial=False) -> dict:
         with ShardReader(path) as reader:  # every checksum, before anything is written; one open
             attrs = shards[path] = reader.attrs
             try:
-                data = reader.read(["mask", "occlusion_rects"])
+                has_object = _any_mask(reader, int(attrs["frames"]))
             except ShardError as exc:
                 raise ShardError(f"{path}: cannot occlude a shard without masks ({exc})") from None
-            layout = reader.layout()
-        if int(attrs["frames"]) and not data["mask"].any():
+            data, layout = reader.read(["occlusion_rects"]), reader.layout()
+        if int(attrs["frames"]) and not has_object:
             raise ShardError(f"{path}: every mask is empty, so there is no object to occlude")
         if data["occlusion_rects"].any():
             raise ShardError(f"{path}: already occluded; occlude the unoccluded shards instead")
@@ -73,6 +74,17 @@ def check_inputs(in_dir, out_dir, allow_partial=False) -> dict:
             raise ShardError(f"{path}: already occluded (it has a visible_mask, e.g. from [distractors]); "
                              "occlude shards rendered without distractors")
     return shards
+
+
+def _any_mask(reader: ShardReader, frames: int) -> bool:
+    """Whether any frame's mask has a pixel: decoded a run at a time up to the first that has
+    one (usually the first run; the bytes were verified whole when the shard was opened)."""
+    for run in runs(frames):
+        if reader.read(["mask"], frames=slice(run.start, run.stop))["mask"].any():
+            return True
+    if not frames:
+        reader.read(["mask"], frames=slice(0, 0))  # a shard without the field says so
+    return False
 
 
 MAX_RECTS = 64  # rectangles per frame: more only slows placement (each takes a share of the target)
