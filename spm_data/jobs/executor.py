@@ -74,8 +74,8 @@ def _run_jobs(fn, jobs, workers, retries, recycle_after, on_progress, on_outcome
               parent_works=False):
     if workers <= 0 or (parent_works and workers == 1):
         return _run_in_process(fn, jobs, on_progress, on_outcome, stop)
-    pool = _Pool(fn, jobs, workers, retries, recycle_after, on_progress, on_outcome, on_worker_death, stop)
-    pool.parent_works, pool.spawned = parent_works, workers - 1 if parent_works else workers
+    pool = _Pool(fn, jobs, workers, retries, recycle_after, on_progress, on_outcome, on_worker_death, stop,
+                 parent_works)
     try:
         pool.run()
     finally:
@@ -116,7 +116,8 @@ class _Pool:
     """Spawned workers, one pipe each, running ``jobs`` to an outcome each: a job whose
     worker dies goes back to the queue (``retries`` times), then fails."""
 
-    def __init__(self, fn, jobs, workers, retries, recycle_after, on_progress, on_outcome, on_worker_death, stop):
+    def __init__(self, fn, jobs, workers, retries, recycle_after, on_progress, on_outcome, on_worker_death, stop,
+                 parent_works=False):
         self.fn, self.jobs, self.workers, self.retries = fn, jobs, workers, retries
         self.recycle_after, self.on_outcome, self.on_worker_death, self.stop = (recycle_after, on_outcome,
                                                                                on_worker_death, stop)
@@ -127,7 +128,8 @@ class _Pool:
         self.attempts = [0] * len(jobs)
         self.pool: dict[int, _Worker] = {}
         self.next_id = 0
-        self.parent_works, self.spawned = False, workers  # run_jobs' parent_works; processes to spawn
+        self.parent_works = parent_works  # run_jobs' parent_works
+        self.spawned = workers - 1 if parent_works else workers  # processes to keep running
 
     def run(self) -> None:
         for _ in range(min(self.spawned, len(self.jobs))):

@@ -23,7 +23,7 @@ from spm_data.errors import ShardError, one_line
 from spm_data.io.files import partial_path
 from spm_data.io.shards.checksums import CHECKSUMS_ATTR, file_checksums
 from spm_data.io.shards.chunks import GZIP_LEVEL, RUN, THREADS, encode_chunk, encode_run
-from spm_data.io.shards.reader import ShardReader, read_shard
+from spm_data.io.shards.reader import ShardReader
 from spm_data.io.shards.schema import (FIELDS, IMAGE_FIELDS, OPTIONAL_FIELDS, SCHEMA_VERSION, check_arrays,
                                        expected_shape)
 from spm_data.io.shards.seal import USERBLOCK, seal
