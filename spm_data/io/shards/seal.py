@@ -123,8 +123,11 @@ def reuse_verification(path, known: tuple | None) -> None:
     """Take ``known`` (verification(path) in another process of this run) as this process's own
     check of ``path`` when the file's device, inode, size, mtime and ctime are still those it
     was verified with (verified_digest's own rule); otherwise nothing: the next open hashes."""
-    if known is not None and _stat_key(os.stat(path)) == tuple(known[0]):
-        _verified[os.path.abspath(path)] = (tuple(known[0]), known[1])
+    try:
+        if known is not None and _stat_key(os.stat(path)) == tuple(known[0]):
+            _verified[os.path.abspath(path)] = (tuple(known[0]), known[1])
+    except OSError:
+        pass  # gone or unreadable: the open that follows says so
 
 
 def forget(path=None) -> None:

@@ -66,3 +66,4 @@ def test_a_verification_handed_to_another_process_holds_while_the_file_is_unchan
         verified_digest(path)
     assert hashed == [path]
     reuse_verification(path, None)  # nothing handed: nothing changes
+    reuse_verification(tmp_path / "gone", known)  # a file gone since: the open that follows says so
