@@ -20,7 +20,8 @@ from spm_data.io.folders import open_folder
 from spm_data.io.outputs import check_out_name
 from spm_data.core.occlusion import black_out, check_range, occlude_mask
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
-from spm_data.io.shards import ShardReader, ShardWriter, manifest_entry, reuse_verification, verification
+from spm_data.io.shards import (ShardReader, ShardWriter, hash_ahead, manifest_entry, reuse_verification,
+                                verification)
 from spm_data.io.shards.chunks import runs
 
 DERIVED_FIELDS = ("visible_mask", "source_shard", "source_frame")
@@ -57,8 +58,9 @@ def check_inputs(in_dir, out_dir, allow_partial=False) -> dict:
     if out_dir.exists() and out_dir.resolve() == in_dir.resolve():
         raise ShardError(f"--out {out_dir} is the input folder; occlusion never modifies its input, "
                          "give another --out")
-    shards = {}
-    for path in open_folder(in_dir, allow_partial=allow_partial).shards:
+    shards, paths = {}, open_folder(in_dir, allow_partial=allow_partial).shards
+    hash_ahead(paths)  # on two threads; each open below finds its file's check done
+    for path in paths:
         with ShardReader(path) as reader:  # every checksum, before anything is written; one open
             attrs = shards[path] = reader.attrs
             try:

@@ -67,3 +67,26 @@ def test_a_verification_handed_to_another_process_holds_while_the_file_is_unchan
     assert hashed == [path]
     reuse_verification(path, None)  # nothing handed: nothing changes
     reuse_verification(tmp_path / "gone", known)  # a file gone since: the open that follows says so
+
+
+def test_hash_ahead_leaves_each_open_its_check_done_and_failures_to_the_open(tmp_path, monkeypatch):
+    import spm_data.io.shards.seal as seal_module
+    from spm_data.io.shards.seal import forget, hash_ahead
+
+    monkeypatch.setattr(seal_module, "RACY_SECONDS", -1.0)
+    paths = []
+    for k in range(3):
+        path = tmp_path / f"f{k}"
+        path.write_bytes(b"\0" * USERBLOCK + b"\x89HDF\r\n\x1a\n" + bytes([k]) * 5000)
+        seal(path)
+        paths.append(path)
+    (tmp_path / "bad").write_bytes(b"not a shard")
+    forget()
+    hash_ahead(paths + [tmp_path / "bad", tmp_path / "gone"])  # the bad and the missing: no error here
+    hashed = []
+    real = seal_module.content_digest
+    monkeypatch.setattr(seal_module, "content_digest", lambda p: hashed.append(p) or real(p))
+    assert [verified_digest(p) for p in paths] == [content_digest(p) for p in paths]
+    assert hashed == []  # every open found its check done
+    with pytest.raises(SealError, match="not an spm shard"):
+        verified_digest(tmp_path / "bad")
