@@ -136,3 +136,20 @@ def test_each_input_is_hashed_once_and_each_output_twice(rendered, tmp_path, mon
     assert sorted(hashed) == sorted(inputs + outputs)
     assert sorted(whole) == sorted(inputs)  # the outputs' names, for the manifest
     assert read_manifest(tmp_path / "occ")["shards"][0]["sha256"] == file_sha256(tmp_path / "occ" / inputs[0])
+
+
+def test_shards_occluded_in_a_spawned_worker_are_the_same_bytes(rendered, tmp_path, monkeypatch):
+    """The jobs run in a spawned worker (which takes the parent's check of each input) give the
+    bytes this process gives; occlude_dataset with --workers 2 mixes the two."""
+    import spm_data.io.shards.seal as seal_module
+    from spm_data.commands.occlude_jobs import check_inputs, occlude_shard, plan_occlusion
+    from spm_data.jobs.shard_runs import run_shard_jobs
+
+    monkeypatch.setattr(seal_module, "RACY_SECONDS", -1.0)  # the inputs were just made: remember their checks
+    here = occlude_dataset(rendered, tmp_path / "here", seed=6, copies=2)
+    jobs = plan_occlusion(check_inputs(rendered, tmp_path / "there"), tmp_path / "there", 0.0, 0.6, copies=2, seed=6)
+    assert all(job.verified is not None and len(job.verified[1]) == 64 for job in jobs)
+    there = run_shard_jobs(occlude_shard, jobs, tmp_path / "there", executor=LocalExecutor(workers=1),
+                           in_process=False, verb="occluded")
+    assert sorted(there.done) == sorted(here.done) and len(there.done) == 4
+    assert hashes(tmp_path / "there") == hashes(tmp_path / "here")
