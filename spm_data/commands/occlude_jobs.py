@@ -18,11 +18,14 @@ import numpy as np
 from spm_data.errors import ShardError, SpmError
 from spm_data.io.folders import open_folder
 from spm_data.io.outputs import check_out_name
-from spm_data.core.occlusion import apply_occlusion, check_range, occlude_mask
+from spm_data.core.occlusion import black_out, check_range, occlude_mask
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
-from spm_data.io.shards import ShardReader, manifest_entry, verify_shard, write_shard
+from spm_data.io.shards import (ShardReader, ShardWriter, hash_ahead, manifest_entry, reuse_verification,
+                                verification)
+from spm_data.io.shards.chunks import runs
 
 DERIVED_FIELDS = ("visible_mask", "source_shard", "source_frame")
+IMAGES = ("rgb", "visible_mask")  # what occlude writes anew; in this order (the same bytes as before)
 
 
 @dataclass(frozen=True)
@@ -37,6 +40,7 @@ class OccludeJob:
     plan_key: str
     out_dir: str
     frames: int
+    verified: tuple | None = None  # the parent's check of the source (seal.py): not hashed again in a worker
 
 
 def occlusion_report(summary: RunSummary) -> str:
@@ -54,16 +58,17 @@ def check_inputs(in_dir, out_dir, allow_partial=False) -> dict:
     if out_dir.exists() and out_dir.resolve() == in_dir.resolve():
         raise ShardError(f"--out {out_dir} is the input folder; occlusion never modifies its input, "
                          "give another --out")
-    shards = {}
-    for path in open_folder(in_dir, allow_partial=allow_partial).shards:
-        attrs = shards[path] = verify_shard(path)  # every checksum, before anything is written
-        with ShardReader(path) as reader:  # one open for the reads and the layout
+    shards, paths = {}, open_folder(in_dir, allow_partial=allow_partial).shards
+    hash_ahead(paths)  # on two threads; each open below finds its file's check done
+    for path in paths:
+        with ShardReader(path) as reader:  # every checksum, before anything is written; one open
+            attrs = shards[path] = reader.attrs
             try:
-                data = reader.read(["mask", "occlusion_rects"])
+                has_object = _any_mask(reader, int(attrs["frames"]))
             except ShardError as exc:
                 raise ShardError(f"{path}: cannot occlude a shard without masks ({exc})") from None
-            layout = reader.layout()
-        if int(attrs["frames"]) and not data["mask"].any():
+            data, layout = reader.read(["occlusion_rects"]), reader.layout()
+        if int(attrs["frames"]) and not has_object:
             raise ShardError(f"{path}: every mask is empty, so there is no object to occlude")
         if data["occlusion_rects"].any():
             raise ShardError(f"{path}: already occluded; occlude the unoccluded shards instead")
@@ -71,6 +76,17 @@ def check_inputs(in_dir, out_dir, allow_partial=False) -> dict:
             raise ShardError(f"{path}: already occluded (it has a visible_mask, e.g. from [distractors]); "
                              "occlude shards rendered without distractors")
     return shards
+
+
+def _any_mask(reader: ShardReader, frames: int) -> bool:
+    """Whether any frame's mask has a pixel: decoded a run at a time up to the first that has
+    one (usually the first run; the bytes were verified whole when the shard was opened)."""
+    for run in runs(frames):
+        if reader.read(["mask"], frames=slice(run.start, run.stop))["mask"].any():
+            return True
+    if not frames:
+        reader.read(["mask"], frames=slice(0, 0))  # a shard without the field says so
+    return False
 
 
 MAX_RECTS = 64  # rectangles per frame: more only slows placement (each takes a share of the target)
@@ -98,40 +114,59 @@ def plan_occlusion(shards: dict, out_dir, low, high, copies=1, rects=1, seed=0) 
             key = hashlib.sha256(json.dumps([stamp, low, high, rects, seed, k]).encode()).hexdigest()
             name = f"{path.stem}-occ{k}.h5" if copies > 1 else path.name
             jobs.append(OccludeJob(str(path), name, k, float(low), float(high), int(rects), int(seed), key,
-                                   str(out_dir), int(attrs["frames"])))
+                                   str(out_dir), int(attrs["frames"]), verification(path)))
     return jobs
 
 
 def occlude_shard(job: OccludeJob, report=lambda n: None) -> dict:
-    """Occlude every frame of one input shard; write the output shard atomically."""
-    with ShardReader(job.source) as reader:  # one open (each verifies the attributes and layout)
-        data, attrs, layout = reader.read(["rgb", "mask"]), reader.attrs, reader.layout()
-    n = int(attrs["frames"])
-    h, w = data["mask"].shape[1:]
-    rgb = data["rgb"].copy()
-    visible = np.zeros((n, h, w), np.uint8)
-    rects = np.zeros((n, job.rects, 4), np.int32)
-    fractions = np.zeros(n, np.float32)
-    reached = np.zeros(n, bool)
+    """Occlude every frame of one input shard; write the output shard atomically. The input
+    is opened once (its every byte verified); the frames are placed a run at a time while
+    the writer's threads compress the runs before."""
+    reuse_verification(job.source, job.verified)
+    with ShardReader(job.source) as reader:
+        data, attrs, layout = reader.read(["mask", "class_name"]), reader.attrs, reader.layout()
+        data["rgb"] = reader.read_runs("rgb")  # decoded on the reader's threads while frames are placed
+        n, (h, w) = int(attrs["frames"]), data["mask"].shape[1:]
+        labels = dict(occlusion_rects=np.zeros((n, job.rects, 4), np.int32),
+                      occlusion_fraction=np.zeros(n, np.float32),
+                      source_shard=np.asarray([Path(job.source).name] * n, dtype=object),
+                      source_frame=np.arange(n, dtype=np.int64))
+        unchanged = [name for name in layout if name not in (*IMAGES, *labels)]
+        out_attrs = {k: v for k, v in attrs.items() if k not in ("schema_version", "frames", "height", "width")}
+        out_attrs.update(plan_key=job.plan_key, occlusion_seed=job.seed, occlusion_min=job.low,
+                         occlusion_max=job.high, occlusion_rects=job.rects, occlusion_copy=job.copy,
+                         occlusion_source=Path(job.source).name, source_plan_key=attrs.get("plan_key", ""))
+        with ShardWriter(Path(job.out_dir) / job.name, frames=n, height=h, width=w, images=IMAGES) as writer:
+            images = {"rgb": np.empty(layout["rgb"][0], np.uint8), "visible_mask": np.zeros((n, h, w), np.uint8)}
+            reached = _place(job, data, images, labels, writer, report)
+            writer.write_images(0, images)
+            # Depth, mask, poses...: copied chunk for chunk, no decompressing and recompressing.
+            target = writer.finish(labels, out_attrs, copy_from=(reader, unchanged))
+            entry = manifest_entry(target, written=(writer.attrs, data["class_name"]))
+    return {"entry": entry, "unreachable": int((~reached).sum())}
+
+
+def _place(job: OccludeJob, data: dict, images: dict, labels: dict, writer, report) -> np.ndarray:
+    """Draw and apply every frame's rectangles into ``images`` and ``labels`` (in place), handing
+    each run of frames to the writer's threads as it is done; returns which frames reached their
+    target. Frame i draws from default_rng([seed, crc32(source name), i, copy])."""
+    reached = np.zeros(len(labels["source_frame"]), bool)
     stem = zlib.crc32(Path(job.source).name.encode())
-    for i in range(n):
-        rng = np.random.default_rng([job.seed, stem, i, job.copy])
-        target = float(rng.uniform(job.low, job.high)) if job.high > job.low else job.low
-        occ = occlude_mask(data["mask"][i], target, rng, rects=job.rects, bounds=(job.low, job.high))
-        rgb[i], visible[i] = apply_occlusion(data["rgb"][i], data["mask"][i], occ.rects)
-        rects[i], fractions[i], reached[i] = occ.rects, occ.fraction, occ.reached
-        report(1)
-    changed = dict(rgb=rgb, visible_mask=visible, occlusion_rects=rects, occlusion_fraction=fractions,
-                   source_shard=np.asarray([Path(job.source).name] * n, dtype=object),
-                   source_frame=np.arange(n, dtype=np.int64))
-    unchanged = [name for name in layout if name not in changed]
-    out_attrs = {k: v for k, v in attrs.items() if k not in ("schema_version", "frames", "height", "width")}
-    out_attrs.update(plan_key=job.plan_key, occlusion_seed=job.seed, occlusion_min=job.low,
-                     occlusion_max=job.high, occlusion_rects=job.rects, occlusion_copy=job.copy,
-                     occlusion_source=Path(job.source).name, source_plan_key=attrs.get("plan_key", ""))
-    # Depth, mask, poses...: copied chunk for chunk, no decompressing and recompressing.
-    target = write_shard(Path(job.out_dir) / job.name, changed, out_attrs, copy_from=(job.source, unchanged))
-    return {"entry": manifest_entry(target), "unreachable": int((~reached).sum())}
+    for run, rgb in data["rgb"]:  # rgb(): the run's frames, decoded
+        for i in run:
+            rng = np.random.default_rng([job.seed, stem, i, job.copy])
+            target = float(rng.uniform(job.low, job.high)) if job.high > job.low else job.low
+            occ = occlude_mask(data["mask"][i], target, rng, rects=job.rects, bounds=(job.low, job.high))
+            labels["occlusion_rects"][i], labels["occlusion_fraction"][i], reached[i] = (occ.rects, occ.fraction,
+                                                                                         occ.reached)
+        # apply_occlusion, in place on the output arrays: the run copied once, then its rectangles blacked out
+        images["rgb"][run.start:run.stop] = rgb()
+        np.greater(data["mask"][run.start:run.stop], 0, out=images["visible_mask"][run.start:run.stop])
+        for i in run:
+            black_out(images["rgb"][i], images["visible_mask"][i], rects=labels["occlusion_rects"][i])
+        writer.prepare(run.start, {name: frames[run.start:run.stop] for name, frames in images.items()})
+        report(len(run))
+    return reached
 
 
 def occlude_dataset(in_dir, out_dir, *, low=0.0, high=0.6, copies=1, rects=1, seed=0,
@@ -141,4 +176,7 @@ def occlude_dataset(in_dir, out_dir, *, low=0.0, high=0.6, copies=1, rects=1, se
     check_options(low, high, copies, rects, seed)
     shards = check_inputs(in_dir, out_dir, allow_partial)
     jobs = plan_occlusion(shards, out_dir, low, high, copies, rects, seed)
-    return run_shard_jobs(occlude_shard, jobs, out_dir, executor=executor, progress=progress, verb="occluded")
+    # Light jobs: this process occludes too while the other workers start (their imports cost
+    # about as much as a shard's work).
+    return run_shard_jobs(occlude_shard, jobs, out_dir, executor=executor, progress=progress, verb="occluded",
+                          parent_works=True)

@@ -43,23 +43,35 @@ def _best_rect_at(table, cx, cy, need, band, rng, box, size):
     x1, y1) and no further: beyond it a rectangle covers no more of the object.
     ``table`` is the summed-area table of the mask inside ``box`` (the mask is
     empty outside it); ``size`` the image's (H, W). Returns (x0, y0, x1, y1, covered),
-    in image pixels."""
+    in image pixels. (cx, cy) lies inside ``box``, so each bound is clipped on one side only.
+    """
     h, w = size
-    reach_w = max(cx - box[0], box[2] - 1 - cx)
-    reach_h = max(cy - box[1], box[3] - 1 - cy)
-    half_w = np.arange(0, reach_w + 1)  # every rectangle half-size at once
-    half_h = np.arange(0, reach_h + 1)
-    x0, x1 = np.clip(cx - half_w, 0, w), np.clip(cx + half_w + 1, 0, w)
-    y0, y1 = np.clip(cy - half_h, 0, h), np.clip(cy + half_h + 1, 0, h)
+    half_w = np.arange(0, max(cx - box[0], box[2] - 1 - cx) + 1)  # every rectangle half-size at once
+    half_h = np.arange(0, max(cy - box[1], box[3] - 1 - cy) + 1)
+    x0, x1 = np.maximum(cx - half_w, 0), np.minimum(cx + half_w + 1, w)
+    y0, y1 = np.maximum(cy - half_h, 0), np.minimum(cy + half_h + 1, h)
     # The table's indices: the same rectangles clipped to the box (nothing to count outside).
-    tx0, tx1 = np.clip(x0, box[0], box[2]) - box[0], np.clip(x1, box[0], box[2]) - box[0]
-    ty0, ty1 = np.clip(y0, box[1], box[3]) - box[1], np.clip(y1, box[1], box[3]) - box[1]
+    tx0, tx1 = np.maximum(x0, box[0]) - box[0], np.minimum(x1, box[2]) - box[0]
+    ty0, ty1 = np.maximum(y0, box[1]) - box[1], np.minimum(y1, box[3]) - box[1]
     rows0, rows1 = table[ty0], table[ty1]  # (len(half_h), box width + 1)
     covered = (rows1[:, tx1] - rows0[:, tx1] - rows1[:, tx0] + rows0[:, tx0]).T  # (len(half_w), len(half_h))
     ok = np.flatnonzero((covered >= band[0]) & (covered <= band[1]))
-    pick = rng.choice(ok) if len(ok) else int(np.argmin(np.abs(covered - need)))
-    i, j = np.unravel_index(pick, covered.shape)
+    # ok[rng.integers(len(ok))] draws as rng.choice(ok) does, without its overhead
+    pick = int(ok[rng.integers(len(ok))]) if len(ok) else int(np.argmin(np.abs(covered - need)))
+    i, j = divmod(pick, covered.shape[1])
     return int(x0[i]), int(y0[j]), int(x1[i]), int(y1[j]), int(covered[i, j])
+
+
+def _state(obj: np.ndarray):
+    """What a rectangle is placed on: the still visible pixels (flat indices), their bounding
+    box (x0, y0, x1, y1) and the summed-area table inside it (None, None when none is left)."""
+    flat = np.flatnonzero(obj)
+    if len(flat) == 0:
+        return flat, None, None
+    rows = np.flatnonzero(obj.any(axis=1))
+    cols = np.flatnonzero(obj.any(axis=0))
+    box = (int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1)
+    return flat, box, _summed_area(obj[box[1]:box[3], box[0]:box[2]])
 
 
 def occlude_mask(mask: np.ndarray, target: float, rng: np.random.Generator, rects: int = 1,
@@ -77,7 +89,7 @@ def occlude_mask(mask: np.ndarray, target: float, rng: np.random.Generator, rect
     if rects < 1:
         raise SpmError(f"rects must be >= 1, got {rects}")
     obj = np.asarray(mask) > 0
-    total = int(obj.sum())
+    total = int(np.count_nonzero(obj))
     out = np.zeros((rects, 4), dtype=np.int32)
     if total == 0:
         return Occlusion(out, 0.0, float(target), target == 0.0)
@@ -87,29 +99,10 @@ def occlude_mask(mask: np.ndarray, target: float, rng: np.random.Generator, rect
         lo_px, hi_px = max(bounds[0], target - tolerance) * total, min(bounds[1], target + tolerance) * total
     else:  # a range narrower than the tolerance (--min 0.3 --max 0.3): target +- tolerance
         lo_px, hi_px = (target - tolerance) * total, (target + tolerance) * total
+    first = _state(obj)  # the same for every try
     best = None
     for _ in range(tries):
-        visible = obj.copy()
-        placed = np.zeros((rects, 4), dtype=np.int32)
-        covered = 0
-        for k in range(rects):
-            left = rects - k
-            need = (target * total - covered) / left
-            # Each rectangle gets its share of the band; the last one closes it exactly.
-            band = (need - (target * total - lo_px) / rects, need + (hi_px - target * total) / rects) \
-                if left > 1 else (lo_px - covered, hi_px - covered)
-            flat = np.flatnonzero(visible)
-            if len(flat) == 0:
-                break
-            cy, cx = divmod(int(flat[rng.integers(len(flat))]), visible.shape[1])
-            rows = np.flatnonzero(visible.any(axis=1))
-            cols = np.flatnonzero(visible.any(axis=0))
-            box = (int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1)
-            table = _summed_area(visible[box[1]:box[3], box[0]:box[2]])
-            x0, y0, x1, y1, got = _best_rect_at(table, cx, cy, need, band, rng, box, visible.shape)
-            placed[k] = (x0, y0, x1, y1)
-            visible[y0:y1, x0:x1] = False
-            covered += got
+        placed, covered = _place_rects(obj, first, rects, target * total, (lo_px, hi_px), rng)
         fraction = covered / total
         inside = lo_px <= covered <= hi_px
         if best is None or (inside, -abs(fraction - target)) > (best.reached, -abs(best.fraction - target)):
@@ -119,14 +112,46 @@ def occlude_mask(mask: np.ndarray, target: float, rng: np.random.Generator, rect
     return best
 
 
+def _place_rects(obj, first, rects: int, goal: float, band: tuple, rng) -> tuple[np.ndarray, int]:
+    """One try: ``rects`` rectangles, each covering its share of ``goal`` pixels of what the
+    ones before left visible (the last closing the pixel band (lo, hi)); returns the (R, 4)
+    rectangles and the pixels they cover."""
+    lo_px, hi_px = band
+    visible = obj
+    placed = np.zeros((rects, 4), dtype=np.int32)
+    covered = 0
+    for k in range(rects):
+        left = rects - k
+        need = (goal - covered) / left
+        # Each rectangle gets its share of the band; the last one closes it exactly.
+        share = (need - (goal - lo_px) / rects, need + (hi_px - goal) / rects) \
+            if left > 1 else (lo_px - covered, hi_px - covered)
+        flat, box, table = first if k == 0 else _state(visible)
+        if len(flat) == 0:
+            break
+        cy, cx = divmod(int(flat[rng.integers(len(flat))]), visible.shape[1])
+        x0, y0, x1, y1, got = _best_rect_at(table, cx, cy, need, share, rng, box, visible.shape)
+        placed[k] = (x0, y0, x1, y1)
+        if k < rects - 1:  # what the next rectangle sees
+            visible = visible.copy() if k == 0 else visible
+            visible[y0:y1, x0:x1] = False
+        covered += got
+    return placed, covered
+
+
 def apply_occlusion(rgb: np.ndarray, mask: np.ndarray, rects: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Black out ``rects`` in ``rgb``; returns (occluded rgb (H, W, 3) uint8, visible_mask (H, W) uint8)."""
     rgb = np.array(rgb, copy=True)
     visible = (np.asarray(mask) > 0).astype(np.uint8)
-    for x0, y0, x1, y1 in np.asarray(rects).reshape(-1, 4):
-        rgb[y0:y1, x0:x1] = 0
-        visible[y0:y1, x0:x1] = 0
+    black_out(rgb, visible, rects=rects)
     return rgb, visible
+
+
+def black_out(*images: np.ndarray, rects: np.ndarray) -> None:
+    """Set ``rects`` ((R, 4) x0, y0, x1, y1) to 0 in each (H, W, ...) image, in place."""
+    for x0, y0, x1, y1 in np.asarray(rects).reshape(-1, 4):
+        for image in images:
+            image[y0:y1, x0:x1] = 0
 
 
 def occlude_image(rgb: np.ndarray, mask: np.ndarray, rng: np.random.Generator, low: float = 0.0,

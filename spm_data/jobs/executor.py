@@ -4,7 +4,9 @@ Each worker has its own pipe, so the parent always knows which job a worker
 holds: a worker that dies (SIGKILL, out of memory, a segfault in a renderer)
 loses only that job, which is retried ``retries`` times and then reported;
 the other jobs go on. Workers retire after ``recycle_after`` jobs so a slow
-leak in a renderer cannot grow without bound. ``workers=0`` runs in-process.
+leak in a renderer cannot grow without bound. ``workers=0`` runs in-process;
+``parent_works``: this process is one of the workers (for light jobs, whose
+start-up in a new process is a large share: it works while the others start).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ class _Worker:
     job_id: int | None = None
     done: int = 0
     progress: dict = field(default_factory=dict)
+    ready: bool = False  # it said so (its imports done)
 
 
 def _worker_main(fn, conn, recycle_after):
@@ -33,6 +36,7 @@ def _worker_main(fn, conn, recycle_after):
     # A parent that imported bpy hands us Blender's script folders on sys.path;
     # with them, `import bpy` here would find Blender's scripts/modules/bpy instead.
     sys.path[:] = [p for p in sys.path if not is_blender_script_dir(p)]
+    conn.send(("ready", None, None))
     done = 0
     while True:
         item = conn.recv()
@@ -51,8 +55,10 @@ def _worker_main(fn, conn, recycle_after):
 
 
 def run_jobs(fn, jobs, *, workers=1, retries=1, recycle_after=0, on_progress=None, on_outcome=None,
-             on_worker_death=None):
+             on_worker_death=None, parent_works=False):
     """Run ``fn(job, report)`` for every job; ``report(n)`` advances progress by n.
+    parent_works: with ``workers`` > 1, this process runs jobs too and ``workers - 1`` are
+    spawned; a spawned worker gets a job once it is ready (its imports done).
 
     Returns a list of :class:`JobOutcome` in job order. ``on_progress(n)`` gets
     progress deltas (negative when a crashed job's frames are lost);
@@ -61,13 +67,15 @@ def run_jobs(fn, jobs, *, workers=1, retries=1, recycle_after=0, on_progress=Non
     """
     with deferred_interrupt() as stop:
         return _run_jobs(fn, list(jobs), workers, retries, recycle_after, on_progress, on_outcome,
-                         on_worker_death, stop)
+                         on_worker_death, stop, parent_works)
 
 
-def _run_jobs(fn, jobs, workers, retries, recycle_after, on_progress, on_outcome, on_worker_death, stop):
-    if workers <= 0:
+def _run_jobs(fn, jobs, workers, retries, recycle_after, on_progress, on_outcome, on_worker_death, stop,
+              parent_works=False):
+    if workers <= 0 or (parent_works and workers == 1):
         return _run_in_process(fn, jobs, on_progress, on_outcome, stop)
-    pool = _Pool(fn, jobs, workers, retries, recycle_after, on_progress, on_outcome, on_worker_death, stop)
+    pool = _Pool(fn, jobs, workers, retries, recycle_after, on_progress, on_outcome, on_worker_death, stop,
+                 parent_works)
     try:
         pool.run()
     finally:
@@ -90,20 +98,26 @@ def _run_in_process(fn, jobs, on_progress, on_outcome, stop) -> list:
     progress = _checked_progress(on_progress, stop)
     outcomes = []
     for job in jobs:
-        try:
-            outcomes.append(JobOutcome(job, result=fn(job, progress)))
-        except SpmError as exc:
-            outcomes.append(JobOutcome(job, error=error_text(exc)))
+        outcomes.append(_run_here(fn, job, progress))
         if on_outcome:
             on_outcome(outcomes[-1])
     return outcomes
+
+
+def _run_here(fn, job, progress, attempts=1) -> JobOutcome:
+    """One job in this process: its outcome (an SpmError is its error; anything else is raised)."""
+    try:
+        return JobOutcome(job, result=fn(job, progress), attempts=attempts)
+    except SpmError as exc:
+        return JobOutcome(job, error=error_text(exc), attempts=attempts)
 
 
 class _Pool:
     """Spawned workers, one pipe each, running ``jobs`` to an outcome each: a job whose
     worker dies goes back to the queue (``retries`` times), then fails."""
 
-    def __init__(self, fn, jobs, workers, retries, recycle_after, on_progress, on_outcome, on_worker_death, stop):
+    def __init__(self, fn, jobs, workers, retries, recycle_after, on_progress, on_outcome, on_worker_death, stop,
+                 parent_works=False):
         self.fn, self.jobs, self.workers, self.retries = fn, jobs, workers, retries
         self.recycle_after, self.on_outcome, self.on_worker_death, self.stop = (recycle_after, on_outcome,
                                                                                on_worker_death, stop)
@@ -114,21 +128,29 @@ class _Pool:
         self.attempts = [0] * len(jobs)
         self.pool: dict[int, _Worker] = {}
         self.next_id = 0
+        self.parent_works = parent_works  # run_jobs' parent_works
+        self.spawned = workers - 1 if parent_works else workers  # processes to keep running
 
     def run(self) -> None:
-        for _ in range(min(self.workers, len(self.jobs))):
+        for _ in range(min(self.spawned, len(self.jobs))):
             self.start_worker()
         while any(o is None for o in self.outcomes):
             self.hand_out_jobs()
             if self.stop.is_set():
                 raise KeyboardInterrupt
+            here = self.parent_works and bool(self.queue)
+            if here:  # this process takes the next job itself, then looks at the workers' messages
+                job_id = self.queue.pop(0)
+                self.attempts[job_id] += 1
+                self.finish(job_id, outcome=_run_here(self.fn, self.jobs[job_id], self.progress,
+                                                      self.attempts[job_id]))
             conns = [w.conn for w in self.pool.values()] + [w.process.sentinel for w in self.pool.values()]
-            ready = wait(conns, timeout=0.5)
+            ready = wait(conns, timeout=0 if here else 0.5)
             for wid, w in list(self.pool.items()):
                 retired = self.read_messages(w) if w.conn in ready else False
                 if retired or not w.process.is_alive():
                     self.replace_worker(wid, w)
-            if not self.pool and self.queue:
+            if not self.pool and self.queue and self.spawned:
                 self.start_worker()
 
     def start_worker(self) -> None:
@@ -141,7 +163,7 @@ class _Pool:
 
     def hand_out_jobs(self) -> None:
         for w in list(self.pool.values()):
-            if w.job_id is None and self.queue and w.process.is_alive():
+            if w.job_id is None and self.queue and w.process.is_alive() and (w.ready or not self.parent_works):
                 w.job_id = self.queue.pop(0)
                 self.attempts[w.job_id] += 1
                 w.progress[w.job_id] = 0
@@ -155,7 +177,9 @@ class _Pool:
         try:
             while w.conn.poll():
                 kind, job_id, payload = w.conn.recv()
-                if kind == "progress":
+                if kind == "ready":
+                    w.ready = True
+                elif kind == "progress":
                     w.progress[job_id] = w.progress.get(job_id, 0) + payload
                     self.progress(payload)
                 elif kind in ("done", "error"):
@@ -177,12 +201,12 @@ class _Pool:
         w.conn.close()
         del self.pool[wid]
         busy = sum(1 for x in self.pool.values() if x.job_id is not None)
-        if self.queue and len(self.pool) < self.workers and len(self.pool) < len(self.queue) + busy:
+        if self.queue and len(self.pool) < self.spawned and len(self.pool) < len(self.queue) + busy:
             self.start_worker()
 
-    def finish(self, job_id, result=None, error=None) -> None:
-        self.outcomes[job_id] = JobOutcome(self.jobs[job_id], result=result, error=error,
-                                           attempts=self.attempts[job_id])
+    def finish(self, job_id, result=None, error=None, outcome=None) -> None:
+        self.outcomes[job_id] = outcome or JobOutcome(self.jobs[job_id], result=result, error=error,
+                                                      attempts=self.attempts[job_id])
         if self.on_outcome:
             self.on_outcome(self.outcomes[job_id])
 
@@ -226,7 +250,10 @@ class LocalExecutor:
         self.retries = retries
         self.recycle_after = recycle_after
 
-    def run(self, fn, jobs, *, in_process=True, on_progress=None, on_outcome=None, on_worker_death=None):
+    def run(self, fn, jobs, *, in_process=True, on_progress=None, on_outcome=None, on_worker_death=None,
+            parent_works=False):
+        """parent_works (with in_process): this process is one of the workers (run_jobs)."""
         workers = 0 if (in_process and self.workers <= 1) else max(1, self.workers)
         return run_jobs(fn, jobs, workers=workers, retries=self.retries, recycle_after=self.recycle_after,
-                        on_progress=on_progress, on_outcome=on_outcome, on_worker_death=on_worker_death)
+                        on_progress=on_progress, on_outcome=on_outcome, on_worker_death=on_worker_death,
+                        parent_works=parent_works and in_process)

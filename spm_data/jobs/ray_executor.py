@@ -95,7 +95,9 @@ class RayExecutor:
             raise SpmError(f"cannot start Ray on {where}: {type(exc).__name__}: {exc}") from None
         return True
 
-    def run(self, fn, jobs, *, in_process=True, on_progress=None, on_outcome=None, on_worker_death=None):
+    def run(self, fn, jobs, *, in_process=True, on_progress=None, on_outcome=None, on_worker_death=None,
+            parent_works=False):
+        """parent_works: ignored (every job is a Ray task)."""
         ray = _import_ray()
         jobs = list(jobs)
         outcomes: list[JobOutcome | None] = [None] * len(jobs)

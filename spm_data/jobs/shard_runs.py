@@ -92,12 +92,14 @@ def _discard_partial(job) -> None:
 
 
 def run_shard_jobs(fn, jobs, out_dir, *, executor=None, in_process=True, progress=None, verb="wrote",
-                   manifest_extra=None) -> RunSummary:
+                   manifest_extra=None, parent_works=False) -> RunSummary:
     """Run ``fn(job, report)`` for the jobs whose shard is missing, then write the manifest.
 
     executor: where the jobs run (spm_data.jobs.make_executor: its workers,
     recycling and retries); default: this process. in_process: whether a local
-    executor with one worker may run the jobs in this process (not for Blender).
+    executor with one worker may run the jobs in this process (not for Blender);
+    parent_works: with several local workers, this process is one of them (light jobs,
+    for which a new process's start-up is a large share; executor.run_jobs).
     progress: a callable taking frame deltas with a ``total`` attribute (a tqdm
     bar), or None. Jobs write their shard themselves; only their small results
     come back here, and the manifest is written here, last.
@@ -109,7 +111,8 @@ def run_shard_jobs(fn, jobs, out_dir, *, executor=None, in_process=True, progres
     started = time.perf_counter()
     summary = RunSummary(out_dir=out, verb=verb, planned=len(jobs))
     try:
-        return _run_locked(fn, jobs, out, summary, started, executor, in_process, progress, manifest_extra)
+        return _run_locked(fn, jobs, out, summary, started, executor, (in_process, parent_works), progress,
+                           manifest_extra)
     except OSError as exc:  # the folder itself: read-only, full, gone (shards' own errors are ShardErrors)
         raise ShardError(f"cannot write to {out}/: {exc.strerror or exc}") from None
     finally:
@@ -128,7 +131,8 @@ def remove_if_empty(folder: Path) -> None:
         pass  # someone else is using it: leave it
 
 
-def _run_locked(fn, jobs, out, summary, started, executor, in_process, progress, manifest_extra) -> RunSummary:
+def _run_locked(fn, jobs, out, summary, started, executor, where, progress, manifest_extra) -> RunSummary:
+    in_process, parent_works = where
     with OutputLock(out):
         remove_partials(out)
         todo = _pending(jobs, summary)
@@ -148,7 +152,7 @@ def _run_locked(fn, jobs, out, summary, started, executor, in_process, progress,
 
         try:
             executor.run(fn, todo, in_process=in_process, on_outcome=on_outcome, on_progress=progress,
-                         on_worker_death=_discard_partial)
+                         on_worker_death=_discard_partial, **({"parent_works": True} if parent_works else {}))
         except KeyboardInterrupt:
             summary.interrupted = True
         finally:

@@ -1,3 +1,5 @@
+from pathlib import Path
+
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -111,3 +113,43 @@ def test_cli_occlude_runs(rendered, tmp_path):
     r = run("occlude", rendered, "--out", tmp_path / "o", "--max", "0.6", "--seed", "2")
     assert r.exit_code == 0, r.output
     assert "occluded 2 shards (78 frames)" in r.output and "0 frames could not reach" in r.output
+
+
+def test_each_input_is_hashed_once_and_each_output_twice(rendered, tmp_path, monkeypatch):
+    """occlude verifies every input before writing (check_inputs) and reads it again in its job:
+    one SHA-256 pass over each input in all. Each output is hashed to seal it and once more for
+    the manifest's file checksum, never read back."""
+    import spm_data.io.files as files_module
+    import spm_data.io.shards.manifest as manifest_module
+    import spm_data.io.shards.seal as seal_module
+    from spm_data.io.shards import forget_checks
+
+    monkeypatch.setattr(seal_module, "RACY_SECONDS", -1.0)  # remember every verification (inputs just made)
+    forget_checks()
+    hashed, whole = [], []
+    real, real_file = seal_module.content_digest, files_module.file_sha256
+    monkeypatch.setattr(seal_module, "content_digest", lambda p: hashed.append(Path(p).name) or real(p))
+    monkeypatch.setattr(manifest_module, "file_sha256", lambda p: whole.append(Path(p).name) or real_file(p))
+    occlude_dataset(rendered, tmp_path / "occ", seed=3)
+    inputs = [p.name for p in list_shards(rendered)]
+    outputs = [".{}.partial".format(name) for name in inputs]  # sealed before the os.replace
+    assert sorted(hashed) == sorted(inputs + outputs)
+    assert sorted(whole) == sorted(inputs)  # the outputs' names, for the manifest
+    assert read_manifest(tmp_path / "occ")["shards"][0]["sha256"] == file_sha256(tmp_path / "occ" / inputs[0])
+
+
+def test_shards_occluded_in_a_spawned_worker_are_the_same_bytes(rendered, tmp_path, monkeypatch):
+    """The jobs run in a spawned worker (which takes the parent's check of each input) give the
+    bytes this process gives; occlude_dataset with --workers 2 mixes the two."""
+    import spm_data.io.shards.seal as seal_module
+    from spm_data.commands.occlude_jobs import check_inputs, occlude_shard, plan_occlusion
+    from spm_data.jobs.shard_runs import run_shard_jobs
+
+    monkeypatch.setattr(seal_module, "RACY_SECONDS", -1.0)  # the inputs were just made: remember their checks
+    here = occlude_dataset(rendered, tmp_path / "here", seed=6, copies=2)
+    jobs = plan_occlusion(check_inputs(rendered, tmp_path / "there"), tmp_path / "there", 0.0, 0.6, copies=2, seed=6)
+    assert all(job.verified is not None and len(job.verified[1]) == 64 for job in jobs)
+    there = run_shard_jobs(occlude_shard, jobs, tmp_path / "there", executor=LocalExecutor(workers=1),
+                           in_process=False, verb="occluded")
+    assert sorted(there.done) == sorted(here.done) and len(there.done) == 4
+    assert hashes(tmp_path / "there") == hashes(tmp_path / "here")

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from spm_data.errors import SpmError
-from spm_data.core.occlusion import apply_occlusion, occlude_image, occlude_mask
+from spm_data.core.occlusion import apply_occlusion, black_out, occlude_image, occlude_mask
 
 
 def disc(h=128, w=128, r=30, cx=60, cy=70):
@@ -83,3 +83,79 @@ def test_bad_ranges():
         occlude_image(np.zeros((4, 4, 3), np.uint8), np.ones((4, 4)), np.random.default_rng(0), 0.7, 0.6)
     np.testing.assert_array_equal(apply_occlusion(np.ones((2, 2, 3), np.uint8), np.ones((2, 2)),
                                                   np.zeros((1, 4), np.int32))[1], np.ones((2, 2)))
+
+
+def test_black_out_zeroes_each_rectangle_in_every_image_in_place():
+    rgb = np.full((6, 8, 3), 7, np.uint8)
+    visible = np.ones((6, 8), np.uint8)
+    black_out(rgb, visible, rects=np.array([[1, 2, 3, 4], [6, 0, 8, 1]], np.int32))
+    expected = np.ones((6, 8), np.uint8)
+    expected[2:4, 1:3] = 0
+    expected[0:1, 6:8] = 0
+    np.testing.assert_array_equal(visible, expected)
+    np.testing.assert_array_equal(rgb, 7 * expected[..., None].repeat(3, axis=2))
+    rects = np.array([[1, 2, 3, 4], [6, 0, 8, 1]])
+    again, vis = apply_occlusion(np.full((6, 8, 3), 7, np.uint8), np.ones((6, 8)), rects)
+    np.testing.assert_array_equal(again, rgb)
+    np.testing.assert_array_equal(vis, visible)
+
+
+def test_placements_equal_the_straightforward_reference():
+    """occlude_mask reuses the first rectangle's state across tries and draws with
+    ok[rng.integers(len(ok))]: the same rectangles, coverage and draws as placing every
+    try from scratch with rng.choice (the code before), on random blobs and settings."""
+    for seed in range(60):
+        rng = np.random.default_rng(seed)
+        mask = np.zeros((40, 50), np.uint8)
+        for _ in range(1 + seed % 3):
+            y, x = rng.integers(0, 35), rng.integers(0, 45)
+            mask[y:y + rng.integers(2, 20), x:x + rng.integers(2, 25)] = 1
+        rects, target = 1 + seed % 3, float(rng.uniform(0.05, 0.9))
+        got = occlude_mask(mask, target, np.random.default_rng(seed), rects=rects, bounds=(0.0, 1.0))
+        want_rng = np.random.default_rng(seed)
+        want = _reference_occlude(mask, target, want_rng, rects)
+        np.testing.assert_array_equal(got.rects, want[0])
+        assert (got.fraction, got.reached) == want[1:]
+
+
+def _reference_occlude(mask, target, rng, rects, tries=8, tolerance=0.005):
+    """The placement as first written (every try from scratch, rng.choice)."""
+    obj = mask > 0
+    total = int(obj.sum())
+    lo_px, hi_px = max(0.0, target - tolerance) * total, min(1.0, target + tolerance) * total
+    best = None
+    for _ in range(tries):
+        visible, placed, covered = obj.copy(), np.zeros((rects, 4), np.int32), 0
+        for k in range(rects):
+            left = rects - k
+            need = (target * total - covered) / left
+            band = (need - (target * total - lo_px) / rects, need + (hi_px - target * total) / rects) \
+                if left > 1 else (lo_px - covered, hi_px - covered)
+            flat = np.flatnonzero(visible)
+            if len(flat) == 0:
+                break
+            cy, cx = divmod(int(flat[rng.integers(len(flat))]), visible.shape[1])
+            rows, cols = np.flatnonzero(visible.any(axis=1)), np.flatnonzero(visible.any(axis=0))
+            box = (int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1)
+            table = np.zeros((box[3] - box[1] + 1, box[2] - box[0] + 1), np.int64)
+            table[1:, 1:] = visible[box[1]:box[3], box[0]:box[2]].cumsum(0).cumsum(1)
+            h, w = visible.shape
+            half_w = np.arange(max(cx - box[0], box[2] - 1 - cx) + 1)
+            half_h = np.arange(max(cy - box[1], box[3] - 1 - cy) + 1)
+            x0, x1 = np.clip(cx - half_w, 0, w), np.clip(cx + half_w + 1, 0, w)
+            y0, y1 = np.clip(cy - half_h, 0, h), np.clip(cy + half_h + 1, 0, h)
+            tx0, tx1 = np.clip(x0, box[0], box[2]) - box[0], np.clip(x1, box[0], box[2]) - box[0]
+            ty0, ty1 = np.clip(y0, box[1], box[3]) - box[1], np.clip(y1, box[1], box[3]) - box[1]
+            cov = (table[ty1][:, tx1] - table[ty0][:, tx1] - table[ty1][:, tx0] + table[ty0][:, tx0]).T
+            ok = np.flatnonzero((cov >= band[0]) & (cov <= band[1]))
+            pick = rng.choice(ok) if len(ok) else int(np.argmin(np.abs(cov - need)))
+            i, j = np.unravel_index(pick, cov.shape)
+            placed[k] = (x0[i], y0[j], x1[i], y1[j])
+            visible[y0[j]:y1[j], x0[i]:x1[i]] = False
+            covered += int(cov[i, j])
+        fraction, inside = covered / total, lo_px <= covered <= hi_px
+        if best is None or (inside, -abs(fraction - target)) > (best[2], -abs(best[1] - target)):
+            best = (placed, fraction, inside)
+        if best[2]:
+            break
+    return best

@@ -65,3 +65,16 @@ def test_workers_are_recycled_after_n_jobs(recycle_after, processes):
 def test_in_process_mode():
     outcomes = run_jobs(crashing_job, [(1, None, ""), (2, None, "error")], workers=0)
     assert outcomes[0].result == 2 and outcomes[1].error == "bad job 2"
+
+
+def test_the_parent_works_too_and_results_stay_in_job_order():
+    """parent_works: this process runs jobs while the spawned worker starts (it takes the first
+    job itself: no worker is ready then); an SpmError in its job is that job's error."""
+    from spm_data.jobs.outcome import probe_job
+
+    outcomes = run_jobs(probe_job, list(range(6)), workers=2, parent_works=True)
+    assert [o.result["job"] for o in outcomes] == list(range(6))
+    assert outcomes[0].result["pid"] == os.getpid()
+    assert len({o.result["pid"] for o in outcomes}) <= 2  # the parent and at most one worker
+    outcomes = run_jobs(crashing_job, [(2, None, "error"), (3, None, "")], workers=2, parent_works=True)
+    assert outcomes[0].error == "bad job 2" and outcomes[1].result == 6

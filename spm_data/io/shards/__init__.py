@@ -2,21 +2,25 @@
 
 ``schema`` (fields, dtypes, shapes), ``seal`` (a shard's SHA-256 in its header,
 checked on every open), ``reader`` (every read verified),
-``writer`` (streamed, checksummed, atomic), ``manifest`` (a folder's shards and
+``writer`` (streamed, checksummed, atomic), ``chunks`` (image frames encoded and
+decoded as HDF5's filters store them, on threads), ``manifest`` (a folder's shards and
 ``manifest.json``), ``checksums`` (Fletcher-32 as HDF5 computes it, CRC-32 of
 attributes and layouts). Nothing else in spm opens an HDF5 file; import from here.
 """
 
 from spm_data.io.shards.manifest import (list_shards, manifest_entry, no_shards, read_manifest, remove_partials,
                                          write_manifest)
-from spm_data.io.shards.reader import (H5_ERRORS, ShardReader, h5_is_string, read_attrs, read_shard, shard_digest,
-                                       shard_layout, verify_shard)
+from spm_data.io.shards.reader import (H5_ERRORS, ShardReader, forget_checks, h5_is_string, read_attrs, read_shard,
+                                       shard_digest, shard_layout, verify_shard)
 from spm_data.io.shards.schema import (FIELDS, IMAGE_FIELDS, MANIFEST, MISSING, OPTIONAL_FIELDS, REQUIRED_ATTRS,
                                        SCHEMA_VERSION, SHARD_SUFFIX, SIZED_FIELDS, SOURCES,
                                        check_arrays)
-from spm_data.io.shards.writer import ShardWriter, encode_chunk, write_shard
+from spm_data.io.shards.seal import hash_ahead, reuse_verification, verification
+from spm_data.io.shards.chunks import encode_chunk
+from spm_data.io.shards.writer import ShardWriter, write_shard
 
 __all__ = ["FIELDS", "H5_ERRORS", "IMAGE_FIELDS", "MANIFEST", "MISSING", "OPTIONAL_FIELDS", "REQUIRED_ATTRS",
-           "SCHEMA_VERSION", "SHARD_SUFFIX", "SIZED_FIELDS", "SOURCES", "ShardReader", "ShardWriter", "check_arrays", "encode_chunk",
-           "h5_is_string", "list_shards", "manifest_entry", "no_shards", "read_attrs", "read_manifest", "read_shard",
-           "remove_partials", "shard_digest", "shard_layout", "verify_shard", "write_manifest", "write_shard"]
+           "SCHEMA_VERSION", "SHARD_SUFFIX", "SIZED_FIELDS", "SOURCES", "ShardReader", "ShardWriter", "check_arrays",
+           "encode_chunk", "forget_checks", "h5_is_string", "hash_ahead", "list_shards", "manifest_entry", "no_shards",
+           "read_attrs", "read_manifest", "read_shard", "remove_partials", "reuse_verification", "shard_digest",
+           "shard_layout", "verification", "verify_shard", "write_manifest", "write_shard"]

@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 USERBLOCK = 512
@@ -111,6 +112,37 @@ def verified_digest(path) -> str:
     if time.time() - st.st_ctime > RACY_SECONDS and _stat_key(os.stat(path)) == _stat_key(st):
         _verified[key] = (_stat_key(st), digest)
     return digest
+
+
+def hash_ahead(paths, threads: int = 2) -> None:
+    """verified_digest of each file on ``threads`` threads (hashlib releases the GIL), ahead of
+    the opens that then find the check done while a file is unchanged (a file changed within
+    RACY_SECONDS is hashed again). What fails is left to the open, which says it."""
+    def digest(path):
+        try:
+            verified_digest(path)
+        except (SealError, OSError):
+            pass
+
+    with ThreadPoolExecutor(threads) as pool:
+        list(pool.map(digest, paths))
+
+
+def verification(path) -> tuple | None:
+    """What this process knows of ``path`` verified, ``(stat key, digest)``, or None; for a worker
+    process (reuse_verification), so the file is not hashed again there."""
+    return _verified.get(os.path.abspath(path))
+
+
+def reuse_verification(path, known: tuple | None) -> None:
+    """Take ``known`` (verification(path) in another process of this run) as this process's own
+    check of ``path`` when the file's device, inode, size, mtime and ctime are still those it
+    was verified with (verified_digest's own rule); otherwise nothing: the next open hashes."""
+    try:
+        if known is not None and _stat_key(os.stat(path)) == tuple(known[0]):
+            _verified[os.path.abspath(path)] = (tuple(known[0]), known[1])
+    except OSError:
+        pass  # gone or unreadable: the open that follows says so
 
 
 def forget(path=None) -> None:

@@ -3,8 +3,9 @@
 A shard is written to a hidden ``.NAME.partial`` file in the same folder,
 sealed (the SHA-256 of its bytes into its 512-byte header, seal.py) and
 ``os.replace``-d to ``NAME`` once complete, so a shard that exists is whole.
-Image chunks are compressed by our code on two threads and stored raw with
-their Fletcher-32; derived shards copy unchanged fields chunk for chunk, verified.
+Image chunks are compressed by our code on two threads (chunks.py) and stored raw
+with their Fletcher-32; derived shards copy unchanged fields chunk for chunk from
+their source, whose every byte its SHA-256 verified (seal.py).
 """
 
 from __future__ import annotations
@@ -13,7 +14,6 @@ import json
 import os
 import re
 import threading
-import zlib
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -21,28 +21,15 @@ import numpy as np
 
 from spm_data.errors import ShardError, one_line
 from spm_data.io.files import partial_path
-from spm_data.io.shards.checksums import CHECKSUMS_ATTR, file_checksums, with_fletcher32
-from spm_data.io.shards.reader import open_h5, read_shard, verify_stored_chunks
+from spm_data.io.shards.checksums import CHECKSUMS_ATTR, file_checksums
+from spm_data.io.shards.chunks import GZIP_LEVEL, RUN, THREADS, encode_chunk, encode_run
+from spm_data.io.shards.reader import ShardReader
 from spm_data.io.shards.schema import (FIELDS, IMAGE_FIELDS, OPTIONAL_FIELDS, SCHEMA_VERSION, check_arrays,
                                        expected_shape)
 from spm_data.io.shards.seal import USERBLOCK, seal
 
-GZIP_LEVEL = 1
 COMPRESS_NICE = 19  # niceness of the compression threads (_nice_thread)
-
-
-RUN = 64  # frames per compression task of write_images
 LABEL_CHUNK = 4096  # frames per chunk of a label field (read whole; verified per chunk)
-
-
-def encode_chunk(frame: np.ndarray) -> bytes:
-    """One frame as HDF5's filters store it: byte shuffle (multi-byte dtypes
-    only), deflate level 1 (zlib format), then the Fletcher-32 checksum
-    (checksums.py). Deterministic."""
-    a = np.ascontiguousarray(frame)
-    if a.dtype.itemsize > 1:
-        a = a.view(np.uint8).reshape(-1, a.dtype.itemsize).T  # HDF5 shuffle: byte planes
-    return with_fletcher32(zlib.compress(np.ascontiguousarray(a), GZIP_LEVEL))  # zlib reads the buffer: no copy
 
 
 def _chunked(n: int, shape: tuple, per: int) -> dict:
@@ -95,8 +82,10 @@ class ShardWriter:
         self.tmp = partial_path(self.path)
         self._written = {f: 0 for f in self.images}
         self._file = self._pool = self._ahead_pool = None
-        self._ahead = {}  # (field, frame index) -> Future of its encoded chunk (encode_ahead)
+        self._ahead = {}  # (field, frame index) -> (Future, position in its result): encode_ahead, prepare
         self._done = False
+        self.attrs = None  # the attributes written (finish)
+        self.digest = None  # the SHA-256 of the content after the header (seal.py), once finished
 
     def __enter__(self):
         import h5py
@@ -114,8 +103,19 @@ class ShardWriter:
             if isinstance(exc, (OSError, RuntimeError)):
                 raise self._os_error(exc) from None
             raise
-        self._pool = ThreadPoolExecutor(max_workers=2)  # write_images: its caller waits, so normal priority
+        self._pool = ThreadPoolExecutor(max_workers=THREADS)  # its caller waits, so normal priority
         return self
+
+    def prepare(self, start: int, block: dict) -> None:
+        """Start compressing frames ``start .. start + k`` of some image fields ({field: (k, ...)
+        array}) on the writer's threads, in runs of RUN frames, while the caller makes the next
+        frames; the write_images call that covers them stores these chunks (the same bytes, in
+        the same order). The arrays must stay unchanged until then."""
+        for field, frames in block.items():
+            for run in range(0, len(frames), RUN):
+                future = self._pool.submit(encode_run, frames[run: run + RUN])
+                for k in range(min(RUN, len(frames) - run)):
+                    self._ahead[(field, int(start) + run + k)] = (future, k)
 
     def encode_ahead(self, index: int, frames: dict) -> None:
         """Start compressing frame ``index`` of some image fields ({field: one frame}) on the
@@ -125,7 +125,7 @@ class ShardWriter:
         if self._ahead_pool is None:
             self._ahead_pool = ThreadPoolExecutor(max_workers=2, initializer=_nice_thread)
         for field, frame in frames.items():
-            self._ahead[(field, int(index))] = self._ahead_pool.submit(encode_chunk, frame)
+            self._ahead[(field, int(index))] = (self._ahead_pool.submit(encode_chunk, frame), None)
 
     def write_images(self, start: int, block: dict) -> None:
         """Frames ``start .. start + k`` of some image fields: {field: (k, ...) array}.
@@ -154,17 +154,18 @@ class ShardWriter:
 
     def _chunks(self, where: list, frames: list):
         """The encoded chunks of frames (at keys where), in order: those given to encode_ahead
-        from their futures, the others compressed on the pool in a few runs of consecutive
+        or prepare from their futures, the others compressed on the pool in a few runs of consecutive
         frames (one task per frame cost more than compressing a small frame)."""
         todo = [i for i, key in enumerate(where) if key not in self._ahead]
         runs = [todo[a: a + RUN] for a in range(0, len(todo), RUN)] if todo else []
         done = {}
-        for run, future in zip(runs, [self._pool.submit(_encode_run, [frames[i] for i in r]) for r in runs]):
+        for run, future in zip(runs, [self._pool.submit(encode_run, [frames[i] for i in r]) for r in runs]):
             done[run[0]] = (run, future)
         pending = {}
         for i, key in enumerate(where):
             if key in self._ahead:
-                yield self._ahead.pop(key).result()
+                future, k = self._ahead.pop(key)
+                yield future.result() if k is None else future.result()[k]
                 continue
             if i not in pending:
                 run, future = done.pop(i)
@@ -173,9 +174,10 @@ class ShardWriter:
 
     def finish(self, labels: dict, attrs: dict, copy_from=None, copied=None) -> Path:
         """Write the other fields and the attributes, then move the shard into place.
-        copy_from: ``(shard path, fields)`` copied verbatim (chunks and checksums
-        as stored) after verifying those chunks; for derived shards. copied: their
-        stand-ins (_copy_placeholders), when the caller has them already."""
+        copy_from: ``(source, fields)`` copied verbatim (chunks and checksums as
+        stored), for derived shards; source: a shard path or an open ShardReader, whose
+        every byte its SHA-256 verified. copied: their stand-ins (_copy_placeholders),
+        when the caller has them already."""
         copied = _copy_placeholders(copy_from) if copied is None else copied
         placeholders = {f: np.broadcast_to(np.zeros((), self._file[f].dtype), self._file[f].shape)
                         for f in self.images}
@@ -191,9 +193,10 @@ class ShardWriter:
             for key, value in attrs.items():
                 self._file.attrs[key] = value
             self._file.attrs.update({"schema_version": SCHEMA_VERSION, "frames": n, "height": h, "width": w})
+            self.attrs = {**attrs, "schema_version": SCHEMA_VERSION, "frames": n, "height": h, "width": w}
             self._file.attrs[CHECKSUMS_ATTR] = json.dumps(file_checksums(self._file), sort_keys=True)
             self._file.close()
-            seal(self.tmp)  # the SHA-256 of every byte after the header, into the header
+            self.digest = seal(self.tmp)  # the SHA-256 of every byte after the header, into the header
             with open(self.tmp, "rb") as fh:
                 os.fsync(fh.fileno())
             os.replace(self.tmp, self.path)
@@ -227,10 +230,6 @@ class ShardWriter:
         return False
 
 
-def _encode_run(frames: list) -> list[bytes]:
-    return [encode_chunk(frame) for frame in frames]
-
-
 def write_failure(exc: Exception) -> str:
     """Why a write failed, in a few words: the system's text for the errno HDF5 reports
     inside its message ("... errno = 28 ..." is "No space left on device"), else the
@@ -257,22 +256,25 @@ def _copy_placeholders(copy_from) -> dict:
     if copy_from is None:
         return {}
     source, names = copy_from
-    copied = read_shard(source, [f for f in names if f not in IMAGE_FIELDS])  # small; verified
-    with open_h5(source) as src:
-        for f in names:
-            if f in IMAGE_FIELDS:
-                copied[f] = np.broadcast_to(np.zeros((), src[f].dtype), src[f].shape)
+    if not isinstance(source, ShardReader):
+        with ShardReader(source) as reader:
+            return _copy_placeholders((reader, names))
+    copied = source.read([f for f in names if f not in IMAGE_FIELDS])  # small; verified
+    for f, (shape, dtype) in source.layout().items():
+        if f in names and f in IMAGE_FIELDS:
+            copied[f] = np.broadcast_to(np.zeros((), dtype), shape)
     return copied
 
 
 def _copy_verified(copy_from, dst) -> None:
-    """Copy fields verbatim, each chunk's checksum checked first: a derived shard
+    """Copy fields verbatim (HDF5's object copy: chunks and their checksums as stored) from
+    a source whose every byte matched its SHA-256 when opened (ShardReader): a derived shard
     never carries data nobody verified."""
     source, names = copy_from
-    with open_h5(source) as src:
-        for field in names:
-            verify_stored_chunks(source, src, field)
-            src.copy(src[field], dst, name=field)
+    if not isinstance(source, ShardReader):
+        with ShardReader(source) as reader:
+            return _copy_verified((reader, names), dst)
+    source.copy_fields(names, dst)
 
 
 def write_shard(path, arrays: dict, attrs: dict, copy_from=None) -> Path:

@@ -109,3 +109,39 @@ def test_an_old_shard_without_a_header_is_refused_with_what_to_do(tmp_path):
         f.attrs["schema_version"] = 2
     with pytest.raises(ShardError, match="without spm's whole-file checksum .* make it again with this spm"):
         read_attrs(tmp_path / "old.h5")
+
+
+def test_image_fields_decoded_by_spm_equal_hdf5s_own_decoding(tmp_path):
+    """read (whole fields, slices) and read_runs decode the stored chunks on threads: the same
+    arrays as HDF5's filter pipeline gives."""
+    arrays = make_arrays(n=70, h=6, w=5)  # more than one run of chunks.RUN frames
+    path = write_shard(tmp_path / "a.h5", arrays, {"seed": 0, "renderer": "x"})
+    with h5py.File(path, "r") as f:
+        by_hdf5 = {name: f[name][...] for name in ("rgb", "depth", "mask")}
+    with ShardReader(path) as reader:
+        for name, value in by_hdf5.items():
+            np.testing.assert_array_equal(reader.read([name])[name], value)
+            np.testing.assert_array_equal(reader.read([name], frames=slice(3, 67, 2))[name], value[3:67:2])
+            got = reader.read_runs(name)
+            assert [(run.start, run.stop) for run, _ in got] == [(0, 64), (64, 70)]
+            np.testing.assert_array_equal(np.concatenate([get() for _, get in got]), value)
+        assert reader.layout()["depth"] == ((70, 6, 5), "float32")
+
+
+def test_attributes_are_checked_once_per_content(tmp_path, monkeypatch):
+    """Opening a shard hashes it (once per process while unchanged) and checks its attributes
+    and layout once per content digest."""
+    import spm_data.io.shards.reader as reader_module
+    from spm_data.io.shards import forget_checks
+
+    path = write_shard(tmp_path / "a.h5", make_arrays(), {"seed": 0, "renderer": "x"})
+    forget_checks()
+    calls = []
+    real = reader_module.checksum_mismatch
+    monkeypatch.setattr(reader_module, "checksum_mismatch", lambda f: calls.append(1) or real(f))
+    for _ in range(3):
+        assert read_attrs(path)["seed"] == 0
+    assert len(calls) == 1
+    forget_checks()
+    read_attrs(path)
+    assert len(calls) == 2
