@@ -38,13 +38,6 @@ class FrameMaker:
         table = {**FIELDS, **OPTIONAL_FIELDS}
         return sum(np.dtype(table[f][0]).itemsize * (3 if table[f][1][-1] == 3 else 1) for f in self.image_fields)
 
-    def buffers(self, frames: int) -> dict:
-        """Zeroed image arrays for a block of ``frames`` frames."""
-        h, w = self.spec.image.height, self.spec.image.width
-        table = {**FIELDS, **OPTIONAL_FIELDS}
-        return {f: np.zeros((frames, h, w) + ((3,) if table[f][1][-1] == 3 else ()), table[f][0])
-                for f in self.image_fields}
-
     def make(self, mesh, instance: int, path_index: int, R, t) -> tuple[dict, dict]:
         """(images {field: one frame's array}, labels {field: one frame's value}) of frame
         (``instance``, ``path_index``), the target ``mesh`` posed by ``R``, ``t``."""

@@ -28,11 +28,17 @@ def list_shards(folder) -> list[Path]:
                   if p.suffix == SHARD_SUFFIX and not p.name.startswith(PARTIAL_PREFIX))
 
 
-def manifest_entry(path) -> dict:
-    """One manifest row for a complete shard: counts per class and a checksum."""
+def manifest_entry(path, written=None) -> dict:
+    """One manifest row for a complete shard: counts per class and a checksum.
+
+    written: ``(attrs, class names)`` of a shard this process has just written
+    (ShardWriter.written), so the shard is hashed but not opened and verified again."""
     path = Path(path)
-    with ShardReader(path) as reader:  # one open: attributes verified once
-        attrs, names = reader.attrs, reader.read(["class_name"])["class_name"]
+    if written is None:
+        with ShardReader(path) as reader:  # one open: attributes verified once
+            written = reader.attrs, reader.read(["class_name"])["class_name"]
+    attrs, names = written
+    names = np.asarray(names, dtype=object)
     classes, counts = np.unique(names.astype(str), return_counts=True) if len(names) else ([], [])
     return {"file": path.name, "frames": int(attrs["frames"]), "bytes": path.stat().st_size,
             "sha256": file_sha256(path), "classes": {str(c): int(k) for c, k in zip(classes, counts)},

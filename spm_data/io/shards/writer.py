@@ -95,8 +95,10 @@ class ShardWriter:
         self.tmp = partial_path(self.path)
         self._written = {f: 0 for f in self.images}
         self._file = self._pool = self._ahead_pool = None
-        self._ahead = {}  # (field, frame index) -> Future of its encoded chunk (encode_ahead)
+        self._ahead = {}  # (field, frame index) -> _AheadFrame of that frame (encode_ahead)
+        self._frame = {}  # field -> (frame shape, dtype): h5py's lookups cost more than a small frame
         self._done = False
+        self.written = None  # after finish: (attrs, class names) for manifest_entry
 
     def __enter__(self):
         import h5py
@@ -106,6 +108,7 @@ class ShardWriter:
             for field in self.images:
                 dtype = {**FIELDS, **OPTIONAL_FIELDS}[field][0]
                 frame_shape = expected_shape(field, 1, self.height, self.width)[1:]
+                self._frame[field] = (tuple(frame_shape), np.dtype(dtype))
                 self._file.create_dataset(field, dtype=dtype, compression="gzip", compression_opts=GZIP_LEVEL,
                                           shuffle=np.dtype(dtype).itemsize > 1,
                                           **_chunked(self.frames, frame_shape, 1))
@@ -118,37 +121,61 @@ class ShardWriter:
         return self
 
     def encode_ahead(self, index: int, frames: dict) -> None:
-        """Start compressing frame ``index`` of some image fields ({field: one frame}) on the
-        writer's threads now, while the caller renders the next frame; the write_images call
-        that covers ``index`` stores these chunks (the same bytes, in the same order). The
-        frames must stay unchanged until then."""
+        """Start compressing frame ``index`` of some image fields ({field: one frame, cast to
+        the field's dtype}) on the writer's threads now, while the caller renders the next
+        frame; the write_images or write_ahead call that covers ``index`` stores these chunks
+        (the same bytes, in the same order). The frames must stay unchanged until then. One
+        task per frame (all its fields): fewer hand-offs between threads than one per field."""
         if self._ahead_pool is None:
             self._ahead_pool = ThreadPoolExecutor(max_workers=2, initializer=_nice_thread)
+        cast = {}
         for field, frame in frames.items():
-            self._ahead[(field, int(index))] = self._ahead_pool.submit(encode_chunk, frame)
+            shape, dtype = self._frame[field]
+            if np.shape(frame) != shape:
+                raise ShardError(f"shard field {field!r}: expected a frame of {shape}, got {np.shape(frame)}")
+            cast[field] = np.asarray(frame, dtype=dtype)
+        task = _AheadFrame(self._ahead_pool, cast)
+        for field in frames:
+            self._ahead[(field, int(index))] = task
+
+    def write_ahead(self, start: int, k: int) -> None:
+        """Store frames ``start .. start + k`` of every image field, all given to encode_ahead
+        (a block as write_images stores it, without holding the block's arrays)."""
+        where = [(field, start + i) for field in self.images for i in range(k)]
+        missing = [key for key in where if key not in self._ahead]
+        if missing:
+            raise ShardError(f"shard field {missing[0][0]!r}: frame {missing[0][1]} was not given to encode_ahead")
+        self._store(where, self._chunks(where, []), {f: k for f in self.images})
 
     def write_images(self, start: int, block: dict) -> None:
         """Frames ``start .. start + k`` of some image fields: {field: (k, ...) array}.
         Compressed on two threads (zlib releases the GIL; h5py's filters do not)
         and stored as raw chunks any HDF5 reader decodes and verifies."""
-        targets = {}  # field -> (dataset id, chunk-offset tail): h5py's lookups cost more than a small chunk
         for field, frames in block.items():
             ds = self._file[field]
             if np.shape(frames)[1:] != ds.shape[1:] or np.asarray(frames).dtype != ds.dtype:
                 raise ShardError(f"shard field {field!r}: expected frames of {ds.shape[1:]} {ds.dtype}, "
                                  f"got {np.shape(frames)[1:]} {np.asarray(frames).dtype}")
-            targets[field] = (ds.id, (0,) * (ds.ndim - 1))
         # Every (field, frame) on the pool at once, so a one-frame block keeps both threads busy;
         # chunks come back, and are stored, in field-major order.
         # Frames given to encode_ahead are compressed already (or being compressed).
         where = [(field, start + i) for field, frames in block.items() for i in range(len(frames))]
         chunks = self._chunks(where, [frame for frames in block.values() for frame in frames])
+        self._store(where, chunks, {field: len(frames) for field, frames in block.items()})
+
+    def _store(self, where: list, chunks, counts: dict) -> None:
+        """Write ``chunks`` (an iterable) at keys ``where`` [(field, frame index)], in order;
+        ``counts``: frames stored per field."""
+        targets = {}  # field -> (dataset id, chunk-offset tail): h5py's lookups cost more than a small chunk
+        for field in counts:
+            ds = self._file[field]
+            targets[field] = (ds.id, (0,) * (ds.ndim - 1))
         try:
             for (field, index), chunk in zip(where, chunks):
                 dsid, tail = targets[field]
                 dsid.write_direct_chunk((index,) + tail, chunk)
-            for field, frames in block.items():
-                self._written[field] += len(frames)
+            for field, k in counts.items():
+                self._written[field] += k
         except (OSError, RuntimeError) as exc:  # HDF5's object copy fails with a RuntimeError
             raise self._os_error(exc) from None
 
@@ -164,7 +191,7 @@ class ShardWriter:
         pending = {}
         for i, key in enumerate(where):
             if key in self._ahead:
-                yield self._ahead.pop(key).result()
+                yield self._ahead.pop(key).chunk(key[0])
                 continue
             if i not in pending:
                 run, future = done.pop(i)
@@ -200,6 +227,8 @@ class ShardWriter:
         except (OSError, RuntimeError) as exc:  # HDF5's object copy fails with a RuntimeError
             raise self._os_error(exc) from None
         self._done = True
+        names = {**copied, **labels}.get("class_name", [])
+        self.written = ({**attrs, "schema_version": SCHEMA_VERSION, "frames": n}, names)
         return self.path
 
     def _os_error(self, exc: Exception) -> ShardError:
@@ -229,6 +258,28 @@ class ShardWriter:
 
 def _encode_run(frames: list) -> list[bytes]:
     return [encode_chunk(frame) for frame in frames]
+
+
+def _encode_frame(frames: dict) -> dict:
+    return {field: encode_chunk(frame) for field, frame in frames.items()}
+
+
+class _AheadFrame:
+    """One frame's fields being compressed on the low-priority threads (encode_ahead). Its
+    caller, once it needs the chunks, compresses them itself if no thread has started yet:
+    on a busy machine a nice-19 thread may not run for long, and a caller waiting on it would
+    stall (the chunks are the same bytes whoever computes them)."""
+
+    def __init__(self, pool, frames: dict):
+        self._frames = frames
+        self._future = pool.submit(_encode_frame, frames)
+        self._chunks = None
+
+    def chunk(self, field: str) -> bytes:
+        if self._chunks is None:
+            self._chunks = _encode_frame(self._frames) if self._future.cancel() else self._future.result()
+            self._frames = None
+        return self._chunks[field]
 
 
 def write_failure(exc: Exception) -> str:
