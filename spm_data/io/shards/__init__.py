@@ -2,7 +2,8 @@
 
 ``schema`` (fields, dtypes, shapes), ``seal`` (a shard's SHA-256 in its header,
 checked on every open), ``reader`` (every read verified),
-``writer`` (streamed, checksummed, atomic), ``manifest`` (a folder's shards and
+``writer`` (streamed, checksummed, atomic), ``encoding`` (image chunks as HDF5's
+filters store them, compressed ahead on threads), ``manifest`` (a folder's shards and
 ``manifest.json``), ``checksums`` (Fletcher-32 as HDF5 computes it, CRC-32 of
 attributes and layouts). Nothing else in spm opens an HDF5 file; import from here.
 """
@@ -14,7 +15,8 @@ from spm_data.io.shards.reader import (H5_ERRORS, ShardReader, h5_is_string, rea
 from spm_data.io.shards.schema import (FIELDS, IMAGE_FIELDS, MANIFEST, MISSING, OPTIONAL_FIELDS, REQUIRED_ATTRS,
                                        SCHEMA_VERSION, SHARD_SUFFIX, SIZED_FIELDS, SOURCES,
                                        check_arrays)
-from spm_data.io.shards.writer import ShardWriter, encode_chunk, write_shard
+from spm_data.io.shards.encoding import encode_chunk
+from spm_data.io.shards.writer import ShardWriter, write_shard
 
 __all__ = ["FIELDS", "H5_ERRORS", "IMAGE_FIELDS", "MANIFEST", "MISSING", "OPTIONAL_FIELDS", "REQUIRED_ATTRS",
            "SCHEMA_VERSION", "SHARD_SUFFIX", "SIZED_FIELDS", "SOURCES", "ShardReader", "ShardWriter", "check_arrays", "encode_chunk",

@@ -3,8 +3,8 @@
 A shard is written to a hidden ``.NAME.partial`` file in the same folder,
 sealed (the SHA-256 of its bytes into its 512-byte header, seal.py) and
 ``os.replace``-d to ``NAME`` once complete, so a shard that exists is whole.
-Image chunks are compressed by our code on two threads and stored raw with
-their Fletcher-32; derived shards copy unchanged fields chunk for chunk, verified.
+Image chunks are compressed by our code (encoding.py) on two threads and stored
+raw with their Fletcher-32; derived shards copy unchanged fields chunk for chunk, verified.
 """
 
 from __future__ import annotations
@@ -12,8 +12,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import threading
-import zlib
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -21,28 +19,15 @@ import numpy as np
 
 from spm_data.errors import ShardError, one_line
 from spm_data.io.files import partial_path
-from spm_data.io.shards.checksums import CHECKSUMS_ATTR, file_checksums, with_fletcher32
+from spm_data.io.shards.checksums import CHECKSUMS_ATTR, file_checksums
+from spm_data.io.shards.encoding import GZIP_LEVEL, AheadFrame, encode_run
 from spm_data.io.shards.reader import open_h5, read_shard, verify_stored_chunks
 from spm_data.io.shards.schema import (FIELDS, IMAGE_FIELDS, OPTIONAL_FIELDS, SCHEMA_VERSION, check_arrays,
                                        expected_shape)
 from spm_data.io.shards.seal import USERBLOCK, seal
 
-GZIP_LEVEL = 1
-COMPRESS_NICE = 19  # niceness of the compression threads (_nice_thread)
-
-
 RUN = 64  # frames per compression task of write_images
 LABEL_CHUNK = 4096  # frames per chunk of a label field (read whole; verified per chunk)
-
-
-def encode_chunk(frame: np.ndarray) -> bytes:
-    """One frame as HDF5's filters store it: byte shuffle (multi-byte dtypes
-    only), deflate level 1 (zlib format), then the Fletcher-32 checksum
-    (checksums.py). Deterministic."""
-    a = np.ascontiguousarray(frame)
-    if a.dtype.itemsize > 1:
-        a = a.view(np.uint8).reshape(-1, a.dtype.itemsize).T  # HDF5 shuffle: byte planes
-    return with_fletcher32(zlib.compress(np.ascontiguousarray(a), GZIP_LEVEL))  # zlib reads the buffer: no copy
 
 
 def _chunked(n: int, shape: tuple, per: int) -> dict:
@@ -95,7 +80,7 @@ class ShardWriter:
         self.tmp = partial_path(self.path)
         self._written = {f: 0 for f in self.images}
         self._file = self._pool = self._ahead_pool = None
-        self._ahead = {}  # (field, frame index) -> _AheadFrame of that frame (encode_ahead)
+        self._ahead = {}  # (field, frame index) -> AheadFrame of that frame (encode_ahead)
         self._frame = {}  # field -> (frame shape, dtype): h5py's lookups cost more than a small frame
         self._done = False
         self.written = None  # after finish: (attrs, class names) for manifest_entry
@@ -127,14 +112,16 @@ class ShardWriter:
         (the same bytes, in the same order). The frames must stay unchanged until then. One
         task per frame (all its fields): fewer hand-offs between threads than one per field."""
         if self._ahead_pool is None:
-            self._ahead_pool = ThreadPoolExecutor(max_workers=2, initializer=_nice_thread)
+            # Normal priority: on a busy machine low-priority (nice 19) threads hardly ran, and
+            # one holding the GIL while descheduled stalled the renderer's thread.
+            self._ahead_pool = ThreadPoolExecutor(max_workers=2)
         cast = {}
         for field, frame in frames.items():
             shape, dtype = self._frame[field]
             if np.shape(frame) != shape:
                 raise ShardError(f"shard field {field!r}: expected a frame of {shape}, got {np.shape(frame)}")
             cast[field] = np.asarray(frame, dtype=dtype)
-        task = _AheadFrame(self._ahead_pool, cast)
+        task = AheadFrame(self._ahead_pool, cast)
         for field in frames:
             self._ahead[(field, int(index))] = task
 
@@ -186,7 +173,7 @@ class ShardWriter:
         todo = [i for i, key in enumerate(where) if key not in self._ahead]
         runs = [todo[a: a + RUN] for a in range(0, len(todo), RUN)] if todo else []
         done = {}
-        for run, future in zip(runs, [self._pool.submit(_encode_run, [frames[i] for i in r]) for r in runs]):
+        for run, future in zip(runs, [self._pool.submit(encode_run, [frames[i] for i in r]) for r in runs]):
             done[run[0]] = (run, future)
         pending = {}
         for i, key in enumerate(where):
@@ -256,32 +243,6 @@ class ShardWriter:
         return False
 
 
-def _encode_run(frames: list) -> list[bytes]:
-    return [encode_chunk(frame) for frame in frames]
-
-
-def _encode_frame(frames: dict) -> dict:
-    return {field: encode_chunk(frame) for field, frame in frames.items()}
-
-
-class _AheadFrame:
-    """One frame's fields being compressed on the low-priority threads (encode_ahead). Its
-    caller, once it needs the chunks, compresses them itself if no thread has started yet:
-    on a busy machine a nice-19 thread may not run for long, and a caller waiting on it would
-    stall (the chunks are the same bytes whoever computes them)."""
-
-    def __init__(self, pool, frames: dict):
-        self._frames = frames
-        self._future = pool.submit(_encode_frame, frames)
-        self._chunks = None
-
-    def chunk(self, field: str) -> bytes:
-        if self._chunks is None:
-            self._chunks = _encode_frame(self._frames) if self._future.cancel() else self._future.result()
-            self._frames = None
-        return self._chunks[field]
-
-
 def write_failure(exc: Exception) -> str:
     """Why a write failed, in a few words: the system's text for the errno HDF5 reports
     inside its message ("... errno = 28 ..." is "No space left on device"), else the
@@ -291,16 +252,6 @@ def write_failure(exc: Exception) -> str:
     if code:
         return os.strerror(code)
     return one_line(getattr(exc, "strerror", None) or exc)
-
-
-def _nice_thread() -> None:
-    """Run this compression thread at the lowest CPU priority (Linux: per thread), so that
-    frames encoded ahead (encode_ahead) take the cores the renderer leaves idle instead of
-    slowing it down; best effort, and it changes no byte."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), COMPRESS_NICE)
-    except (OSError, AttributeError):  # not Linux, or not allowed: normal priority
-        pass
 
 
 def _copy_placeholders(copy_from) -> dict:
