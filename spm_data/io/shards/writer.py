@@ -191,8 +191,8 @@ class ShardWriter:
         as stored) after verifying those chunks; for derived shards. copied: their
         stand-ins (_copy_placeholders), when the caller has them already."""
         copied = _copy_placeholders(copy_from) if copied is None else copied
-        placeholders = {f: np.broadcast_to(np.zeros((), self._file[f].dtype), self._file[f].shape)
-                        for f in self.images}
+        placeholders = {f: np.broadcast_to(np.zeros((), dtype), (self.frames,) + shape)
+                        for f, (shape, dtype) in self._frame.items()}
         n, h, w = check_arrays({**labels, **copied, **placeholders})
         short = [f for f in self.images if self._written[f] != self.frames]
         if short or (n, h, w) != (self.frames, self.height, self.width):
@@ -207,9 +207,7 @@ class ShardWriter:
             self._file.attrs.update({"schema_version": SCHEMA_VERSION, "frames": n, "height": h, "width": w})
             self._file.attrs[CHECKSUMS_ATTR] = json.dumps(file_checksums(self._file), sort_keys=True)
             self._file.close()
-            seal(self.tmp)  # the SHA-256 of every byte after the header, into the header
-            with open(self.tmp, "rb") as fh:
-                os.fsync(fh.fileno())
+            seal(self.tmp)  # the SHA-256 of every byte after the header, into the header; fsync-ed
             os.replace(self.tmp, self.path)
         except (OSError, RuntimeError) as exc:  # HDF5's object copy fails with a RuntimeError
             raise self._os_error(exc) from None

@@ -36,3 +36,22 @@ def test_check_compares_the_content_with_the_header():
     with pytest.raises(SealError, match="differ from the SHA-256 it was written with") as info:
         check(header("ab" * 32), lambda: "cd" * 32)
     assert info.value.mismatch
+
+
+def test_seal_flushes_the_file_and_says_when_the_disk_fails(tmp_path, monkeypatch):
+    import os
+
+    path = tmp_path / "f"
+    path.write_bytes(b"\0" * USERBLOCK + b"\x89HDF\r\n\x1a\n" + bytes(100))
+    synced = []
+    real = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: synced.append(fd) or real(fd))
+    digest = seal(path)
+    assert len(synced) == 2 and digest == content_digest(path)  # the content while hashed, then the header
+
+    def failing(fd):
+        raise OSError(5, "Input/output error")
+
+    monkeypatch.setattr(os, "fsync", failing)
+    with pytest.raises(OSError, match="Input/output error"):
+        seal(path)
