@@ -1,10 +1,11 @@
 """Render throughput: seconds per frame of a bare render loop and of the whole path, and their ratio.
 
 pyrender (one process, best of 3 interleaved runs, per resolution): (1) a bare loop
-of renderer.render over the frames and (2) the whole `spm-data render` path for the
-same frames (path generation, meshes, compositing, HDF5 shard writing, manifest);
+of renderer.render over the frames, with the frames' own draws and distractors (made
+before the loop) and (2) the whole `spm-data render` path for the same frames (path
+generation, meshes, draws, distractors, compositing, HDF5 shard writing, manifest);
 prints s/frame and fps for both, overhead = 1 - bare / whole and whole / bare.
-Targets: overhead <= 8% at 128x128 and <= 12% at 256x256.
+Targets (issue 26): overhead <= 10% at 128x128 and <= 15% at 256x256.
 
 Blender (--blender-frames of each shipped spec, at the spec's settings, Cycles and
 Workbench): bare = camera move + bpy.ops.render.render() and nothing else (no file
@@ -26,6 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from spm_data.core.paths import camera_path  # noqa: E402
 from spm_data.render import make_renderer  # noqa: E402
 from spm_data.core.instances import load_instance  # noqa: E402
+from spm_data.commands.render_frames import FrameMaker  # noqa: E402
 from spm_data.commands.render_jobs import RECYCLE_AFTER, plan_shards, render_dataset  # noqa: E402
 from spm_data.core.specs import all_spec_paths, find_spec, load_spec  # noqa: E402
 from spm_data.jobs.executor import LocalExecutor  # noqa: E402
@@ -47,14 +49,16 @@ def _bench_once(spec, frames: int, renderer_name: str) -> tuple[float, float]:
     for inst in sorted({int(i) for j in jobs for i in j.instances}):
         renderer.set_mesh(load_instance(spec, inst))
         renderer.render(poses[0][0][0], poses[0][1][0])
+    scenes = _scenes(spec, renderer, jobs, poses)  # outside the timed loop
     started = time.perf_counter()
-    for job, (R, t) in zip(jobs, poses):
+    for job, (R, t), scene in zip(jobs, poses, scenes):
         current = None
         for k, inst in enumerate(job.instances):
             if inst != current:
                 renderer.set_mesh(load_instance(spec, int(inst)))
                 current = inst
-            renderer.render(R[k], t[k])
+            draws, distractors = scene[k]
+            renderer.render(R[k], t[k], draws=draws, distractors=distractors)
     bare = time.perf_counter() - started
     with tempfile.TemporaryDirectory() as out:
         started = time.perf_counter()
@@ -62,6 +66,17 @@ def _bench_once(spec, frames: int, renderer_name: str) -> tuple[float, float]:
         whole = time.perf_counter() - started
     assert summary.frames == frames
     return bare, whole
+
+
+def _scenes(spec, renderer, jobs, poses) -> list:
+    """Per job, per frame: (draws, distractors) as the whole path renders that frame
+    (FrameMaker.scene), so the bare loop draws the same scenes; (None, ()) for a spec
+    without [randomize] and [distractors]."""
+    maker = FrameMaker(spec, renderer)
+    return [[(draws, placement.distractors if placement else ())
+             for draws, placement in (maker.scene(load_instance(spec, int(inst)), int(inst), int(pidx), R[k], t[k])
+                                      for k, (inst, pidx) in enumerate(zip(job.instances, job.path_indices)))]
+            for job, (R, t) in zip(jobs, poses)]
 
 
 def bench_pyrender(base, cls: str, frames: int) -> None:

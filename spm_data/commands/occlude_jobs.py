@@ -142,7 +142,7 @@ def occlude_shard(job: OccludeJob, report=lambda n: None) -> dict:
             writer.write_images(0, images)
             # Depth, mask, poses...: copied chunk for chunk, no decompressing and recompressing.
             target = writer.finish(labels, out_attrs, copy_from=(reader, unchanged))
-            entry = manifest_entry(target, written=(writer.attrs, data["class_name"]))
+            entry = manifest_entry(target, writer.written)
     return {"entry": entry, "unreachable": int((~reached).sum())}
 
 

@@ -38,20 +38,21 @@ class FrameMaker:
         table = {**FIELDS, **OPTIONAL_FIELDS}
         return sum(np.dtype(table[f][0]).itemsize * (3 if table[f][1][-1] == 3 else 1) for f in self.image_fields)
 
-    def buffers(self, frames: int) -> dict:
-        """Zeroed image arrays for a block of ``frames`` frames."""
-        h, w = self.spec.image.height, self.spec.image.width
-        table = {**FIELDS, **OPTIONAL_FIELDS}
-        return {f: np.zeros((frames, h, w) + ((3,) if table[f][1][-1] == 3 else ()), table[f][0])
-                for f in self.image_fields}
+    def scene(self, mesh, instance: int, path_index: int, R, t) -> tuple:
+        """(draws, placement) of frame (``instance``, ``path_index``): its FrameDraws (None
+        without ``[randomize]``) and its PlacedDistractors (None without ``[distractors]``);
+        the renderer draws it as ``render(R, t, draws, placement.distractors)``."""
+        draws = frame_draws(self.spec, instance, path_index, self.renderer.K) if self.randomized else None
+        K = draws.K if draws is not None else self.renderer.K
+        placement = place_distractors(self.spec, mesh, R, t, K, instance, path_index) if self.distractors else None
+        return draws, placement
 
     def make(self, mesh, instance: int, path_index: int, R, t) -> tuple[dict, dict]:
         """(images {field: one frame's array}, labels {field: one frame's value}) of frame
         (``instance``, ``path_index``), the target ``mesh`` posed by ``R``, ``t``."""
         spec = self.spec
-        draws = frame_draws(spec, instance, path_index, self.renderer.K) if self.randomized else None
+        draws, placement = self.scene(mesh, instance, path_index, R, t)
         K = draws.K if draws is not None else self.renderer.K
-        placement = place_distractors(spec, mesh, R, t, K, instance, path_index) if self.distractors else None
         out = self.renderer.render(R, t, draws=draws, distractors=placement.distractors if placement else ())
         kind = draws.background if draws is not None else spec.background.kind
         rgb = out["rgb"]

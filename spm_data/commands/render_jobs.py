@@ -188,28 +188,23 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
     R, t = points.poses()
     n, h, w = job.frames, spec.image.height, spec.image.width
     per = max(1, min(n, block_frames(h, w, maker.bytes_per_pixel())))
-    block = maker.buffers(per)
     frame_labels = []
-    with ShardWriter(Path(job.out_dir) / job.name, frames=n, height=h, width=w, images=tuple(block)) as writer:
+    with ShardWriter(Path(job.out_dir) / job.name, frames=n, height=h, width=w, images=maker.image_fields) as writer:
         current, names, records = None, {}, {}
         for start in range(0, n, per):
             k = min(per, n - start)
-            for j in range(k):
-                i = start + j
+            for i in range(start, start + k):
                 inst, pidx = instances[i], path_indices[i]
                 if inst != current:
                     mesh = load_instance(spec, int(inst))
                     renderer.set_mesh(mesh)
                     current, names[int(inst)] = inst, mesh.name
                     records[int(inst)] = mesh_record(spec, int(inst))
-                images, labels = maker.make(mesh, int(inst), int(pidx), R[i], t[i])
-                for field, image in images.items():
-                    block[field][j] = image
-                writer.encode_ahead(i, {f: a[j] for f, a in block.items()})  # compressed while the next renders
+                images, labels = maker.make(mesh, int(inst), int(pidx), R[i], t[i])  # new arrays every frame
+                writer.encode_ahead(i, images)  # compressed while the next renders
                 frame_labels.append(labels)
                 report(1)
-            writer.write_images(start, {f: a[:k] for f, a in block.items()})
-        del block
+            writer.write_ahead(start, k)  # a block of frames stored: at most one block held
         per_frame = {f: np.stack([fl[f] for fl in frame_labels]) for f in (frame_labels[0] if frame_labels else {})}
         labels = {
             "K": per_frame.pop("K", np.zeros((0, 3, 3))), "R": R, "t": t, "pose": pose_to_label(R, t).reshape(n, 6),
@@ -230,7 +225,7 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
         if maker.distractors:
             attrs["distractor_meshes"] = json.dumps(pool_names(spec))
         target = writer.finish(labels, attrs)
-    return {"entry": manifest_entry(target)}
+    return {"entry": manifest_entry(target, writer.written)}
 
 
 def render_dataset(specs: list[RenderSpec], out_dir, *, limit=None, progress=None, executor=None) -> RunSummary:

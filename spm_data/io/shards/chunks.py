@@ -4,11 +4,14 @@ code: byte shuffle (multi-byte dtypes only), deflate level 1, Fletcher-32.
 zlib releases the GIL, so a pool of threads encodes or decodes a shard's frames in
 parallel where HDF5's filter pipeline (h5py holds its lock) runs on one; each thread
 takes a run of ``RUN`` consecutive frames (one task per frame cost more than a small
-frame's codec work). The bytes are exactly HDF5's (tests/io/shards/test_chunks.py).
+frame's codec work). The bytes are exactly HDF5's (tests/io/shards/test_chunks.py),
+whichever thread computes them. While rendering, each frame is compressed ahead
+(AheadFrame) as the renderer draws the next.
 """
 
 from __future__ import annotations
 
+import sys
 import zlib
 
 import numpy as np
@@ -19,6 +22,12 @@ GZIP_LEVEL = 1
 DEFLATE, SHUFFLE = 1, 2  # HDF5 filter ids (H5Z_FILTER_DEFLATE, H5Z_FILTER_SHUFFLE)
 RUN = 64  # frames per task on a pool
 THREADS = 2  # threads of a pool (the writer's and the reader's)
+# How long a compressing thread waits for the GIL before forcing a switch (Python's default:
+# 5 ms) while frames are compressed ahead (ShardWriter.encode_ahead). The renderer's thread
+# releases the GIL at every OpenGL call, so the threads get it without forcing; a forced
+# switch makes the renderer's thread wait until the thread that asked is scheduled, which
+# on a busy machine takes milliseconds, several times a frame.
+AHEAD_SWITCH_INTERVAL = 0.05
 
 
 def encode_chunk(frame: np.ndarray) -> bytes:
@@ -74,3 +83,47 @@ def decode_run(raws, out: np.ndarray, start: int, shuffled: bool) -> int | None:
 def runs(n: int, per: int = RUN) -> list[range]:
     """0..n in consecutive runs of ``per`` (the last shorter)."""
     return [range(a, min(n, a + per)) for a in range(0, n, per)]
+
+
+def encode_frame(frames: dict) -> dict:
+    """{field: encode_chunk(frame)} of one frame's fields."""
+    return {field: encode_chunk(frame) for field, frame in frames.items()}
+
+
+class AheadFrame:
+    """One frame's fields ({field: frame}) handed to ``pool`` to compress now; ``chunk(field)``
+    gives that field's encoded chunk. A frame no thread has started when its chunks are
+    needed is compressed by the caller instead of queued behind the others (the same bytes
+    whoever computes them), so a caller at the end of a block never waits on a backlog."""
+
+    def __init__(self, pool, frames: dict):
+        self._frames = frames
+        self._future = pool.submit(encode_frame, frames)
+        self._chunks = None
+
+    def chunk(self, field: str) -> bytes:
+        if self._chunks is None:
+            self._chunks = encode_frame(self._frames) if self._future.cancel() else self._future.result()
+            self._frames = None
+        return self._chunks[field]
+
+
+class PatientSwitching:
+    """Python's switch interval set to AHEAD_SWITCH_INTERVAL while frames are compressed ahead
+    (a process-wide setting: ``start`` saves it, ``stop`` puts it back unless someone else
+    changed it since). Changes when threads run, not what they compute."""
+
+    def __init__(self):
+        self._saved = None
+
+    def start(self) -> None:
+        if self._saved is None:
+            self._saved = sys.getswitchinterval()
+            sys.setswitchinterval(max(self._saved, AHEAD_SWITCH_INTERVAL))
+            self._set = sys.getswitchinterval()
+
+    def stop(self) -> None:
+        if self._saved is not None:
+            if sys.getswitchinterval() == self._set:
+                sys.setswitchinterval(self._saved)
+            self._saved = None

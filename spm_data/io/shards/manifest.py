@@ -30,14 +30,14 @@ def list_shards(folder) -> list[Path]:
 
 def manifest_entry(path, written=None) -> dict:
     """One manifest row for a complete shard: counts per class and a checksum.
-    written: ``(attrs, class names)`` of a shard this process has just written (ShardWriter.attrs
-    and its class_name field), so it need not be opened and read back."""
+
+    written: ``(attrs, class names)`` of a shard this process has just written
+    (ShardWriter.written), so the shard is hashed but not opened and verified again."""
     path = Path(path)
     if written is None:
         with ShardReader(path) as reader:  # one open: attributes verified once
-            attrs, names = reader.attrs, reader.read(["class_name"])["class_name"]
-    else:
-        attrs, names = written
+            written = reader.attrs, reader.read(["class_name"])["class_name"]
+    attrs, names = written
     names = np.asarray(names, dtype=object)
     classes, counts = np.unique(names.astype(str), return_counts=True) if len(names) else ([], [])
     return {"file": path.name, "frames": int(attrs["frames"]), "bytes": path.stat().st_size,

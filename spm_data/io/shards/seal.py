@@ -61,10 +61,18 @@ def _header(digest: bytes) -> bytes:
 
 
 def seal(path) -> str:
-    """Write the header of a finished shard (its HDF5 file closed); returns the digest."""
-    digest = content_digest(path)
-    with open(path, "r+b") as fh:
+    """Write the header of a finished shard (its HDF5 file closed) and return the digest,
+    once every byte of the file is on disk (fsync): the content is flushed on another
+    thread while it is hashed, then the header."""
+    with open(path, "r+b") as fh, ThreadPoolExecutor(max_workers=1) as pool:
+        flushed = pool.submit(os.fsync, fh.fileno())
+        try:
+            digest = content_digest(path)
+        finally:
+            flushed.result()  # its error (a failing disk) is the caller's, as the hash's is
         fh.write(header(digest))
+        fh.flush()
+        os.fsync(fh.fileno())
     return digest
 
 

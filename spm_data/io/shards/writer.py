@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import threading
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -22,13 +21,12 @@ import numpy as np
 from spm_data.errors import ShardError, one_line
 from spm_data.io.files import partial_path
 from spm_data.io.shards.checksums import CHECKSUMS_ATTR, file_checksums
-from spm_data.io.shards.chunks import GZIP_LEVEL, RUN, THREADS, encode_chunk, encode_run
+from spm_data.io.shards.chunks import GZIP_LEVEL, RUN, THREADS, AheadFrame, PatientSwitching, encode_run
 from spm_data.io.shards.reader import ShardReader
 from spm_data.io.shards.schema import (FIELDS, IMAGE_FIELDS, OPTIONAL_FIELDS, SCHEMA_VERSION, check_arrays,
                                        expected_shape)
 from spm_data.io.shards.seal import USERBLOCK, seal
 
-COMPRESS_NICE = 19  # niceness of the compression threads (_nice_thread)
 LABEL_CHUNK = 4096  # frames per chunk of a label field (read whole; verified per chunk)
 
 
@@ -82,10 +80,13 @@ class ShardWriter:
         self.tmp = partial_path(self.path)
         self._written = {f: 0 for f in self.images}
         self._file = self._pool = self._ahead_pool = None
-        self._ahead = {}  # (field, frame index) -> (Future, position in its result): encode_ahead, prepare
+        # (field, frame index) -> AheadFrame of that frame (encode_ahead), or (Future of a run,
+        # position in it) (prepare)
+        self._ahead = {}
+        self._frame = {}  # field -> (frame shape, dtype): h5py's lookups cost more than a small frame
+        self._switching = PatientSwitching()  # while frames are compressed ahead (encoding.py)
         self._done = False
-        self.attrs = None  # the attributes written (finish)
-        self.digest = None  # the SHA-256 of the content after the header (seal.py), once finished
+        self.written = None  # after finish: (attrs, class names) for manifest_entry
 
     def __enter__(self):
         import h5py
@@ -95,6 +96,7 @@ class ShardWriter:
             for field in self.images:
                 dtype = {**FIELDS, **OPTIONAL_FIELDS}[field][0]
                 frame_shape = expected_shape(field, 1, self.height, self.width)[1:]
+                self._frame[field] = (tuple(frame_shape), np.dtype(dtype))
                 self._file.create_dataset(field, dtype=dtype, compression="gzip", compression_opts=GZIP_LEVEL,
                                           shuffle=np.dtype(dtype).itemsize > 1,
                                           **_chunked(self.frames, frame_shape, 1))
@@ -118,43 +120,70 @@ class ShardWriter:
                     self._ahead[(field, int(start) + run + k)] = (future, k)
 
     def encode_ahead(self, index: int, frames: dict) -> None:
-        """Start compressing frame ``index`` of some image fields ({field: one frame}) on the
-        writer's threads now, while the caller renders the next frame; the write_images call
-        that covers ``index`` stores these chunks (the same bytes, in the same order). The
-        frames must stay unchanged until then."""
+        """Start compressing frame ``index`` of some image fields ({field: one frame, cast to
+        the field's dtype}) on the writer's threads now, while the caller renders the next
+        frame; the write_images or write_ahead call that covers ``index`` stores these chunks
+        (the same bytes, in the same order). The frames must stay unchanged until then. One
+        task per frame (all its fields): fewer hand-offs between threads than one per field."""
         if self._ahead_pool is None:
-            self._ahead_pool = ThreadPoolExecutor(max_workers=2, initializer=_nice_thread)
+            # Normal priority: on a busy machine low-priority (nice 19) threads hardly ran, and
+            # one holding the GIL while descheduled stalled the renderer's thread.
+            self._ahead_pool = ThreadPoolExecutor(max_workers=2)
+            self._switching.start()
+        cast = {}
         for field, frame in frames.items():
-            self._ahead[(field, int(index))] = (self._ahead_pool.submit(encode_chunk, frame), None)
+            shape, dtype = self._frame[field]
+            if np.shape(frame) != shape:
+                raise ShardError(f"shard field {field!r}: expected a frame of {shape}, got {np.shape(frame)}")
+            cast[field] = np.asarray(frame, dtype=dtype)
+        task = AheadFrame(self._ahead_pool, cast)
+        for field in frames:
+            self._ahead[(field, int(index))] = task
+
+    def write_ahead(self, start: int, k: int) -> None:
+        """Store frames ``start .. start + k`` of every image field, all given to encode_ahead
+        (a block as write_images stores it, without holding the block's arrays)."""
+        where = [(field, start + i) for field in self.images for i in range(k)]
+        missing = [key for key in where if key not in self._ahead]
+        if missing:
+            raise ShardError(f"shard field {missing[0][0]!r}: frame {missing[0][1]} was not given to encode_ahead")
+        self._store(where, self._chunks(where, []), {f: k for f in self.images})
 
     def write_images(self, start: int, block: dict) -> None:
         """Frames ``start .. start + k`` of some image fields: {field: (k, ...) array}.
         Compressed on two threads (zlib releases the GIL; h5py's filters do not)
         and stored as raw chunks any HDF5 reader decodes and verifies."""
-        targets = {}  # field -> (dataset id, chunk-offset tail): h5py's lookups cost more than a small chunk
         for field, frames in block.items():
             ds = self._file[field]
             if np.shape(frames)[1:] != ds.shape[1:] or np.asarray(frames).dtype != ds.dtype:
                 raise ShardError(f"shard field {field!r}: expected frames of {ds.shape[1:]} {ds.dtype}, "
                                  f"got {np.shape(frames)[1:]} {np.asarray(frames).dtype}")
-            targets[field] = (ds.id, (0,) * (ds.ndim - 1))
         # Every (field, frame) on the pool at once, so a one-frame block keeps both threads busy;
         # chunks come back, and are stored, in field-major order.
         # Frames given to encode_ahead are compressed already (or being compressed).
         where = [(field, start + i) for field, frames in block.items() for i in range(len(frames))]
         chunks = self._chunks(where, [frame for frames in block.values() for frame in frames])
+        self._store(where, chunks, {field: len(frames) for field, frames in block.items()})
+
+    def _store(self, where: list, chunks, counts: dict) -> None:
+        """Write ``chunks`` (an iterable) at keys ``where`` [(field, frame index)], in order;
+        ``counts``: frames stored per field."""
+        targets = {}  # field -> (dataset id, chunk-offset tail): h5py's lookups cost more than a small chunk
+        for field in counts:
+            ds = self._file[field]
+            targets[field] = (ds.id, (0,) * (ds.ndim - 1))
         try:
             for (field, index), chunk in zip(where, chunks):
                 dsid, tail = targets[field]
                 dsid.write_direct_chunk((index,) + tail, chunk)
-            for field, frames in block.items():
-                self._written[field] += len(frames)
+            for field, k in counts.items():
+                self._written[field] += k
         except (OSError, RuntimeError) as exc:  # HDF5's object copy fails with a RuntimeError
             raise self._os_error(exc) from None
 
     def _chunks(self, where: list, frames: list):
-        """The encoded chunks of frames (at keys where), in order: those given to encode_ahead
-        or prepare from their futures, the others compressed on the pool in a few runs of consecutive
+        """The encoded chunks of frames (at keys where), in order: those given to encode_ahead or prepare
+        from their futures, the others compressed on the pool in a few runs of consecutive
         frames (one task per frame cost more than compressing a small frame)."""
         todo = [i for i, key in enumerate(where) if key not in self._ahead]
         runs = [todo[a: a + RUN] for a in range(0, len(todo), RUN)] if todo else []
@@ -164,8 +193,8 @@ class ShardWriter:
         pending = {}
         for i, key in enumerate(where):
             if key in self._ahead:
-                future, k = self._ahead.pop(key)
-                yield future.result() if k is None else future.result()[k]
+                ahead = self._ahead.pop(key)
+                yield ahead.chunk(key[0]) if isinstance(ahead, AheadFrame) else ahead[0].result()[ahead[1]]
                 continue
             if i not in pending:
                 run, future = done.pop(i)
@@ -174,13 +203,12 @@ class ShardWriter:
 
     def finish(self, labels: dict, attrs: dict, copy_from=None, copied=None) -> Path:
         """Write the other fields and the attributes, then move the shard into place.
-        copy_from: ``(source, fields)`` copied verbatim (chunks and checksums as
-        stored), for derived shards; source: a shard path or an open ShardReader, whose
-        every byte its SHA-256 verified. copied: their stand-ins (_copy_placeholders),
-        when the caller has them already."""
+        copy_from: ``(shard path, fields)`` copied verbatim (chunks and checksums
+        as stored) after verifying those chunks; for derived shards. copied: their
+        stand-ins (_copy_placeholders), when the caller has them already."""
         copied = _copy_placeholders(copy_from) if copied is None else copied
-        placeholders = {f: np.broadcast_to(np.zeros((), self._file[f].dtype), self._file[f].shape)
-                        for f in self.images}
+        placeholders = {f: np.broadcast_to(np.zeros((), dtype), (self.frames,) + shape)
+                        for f, (shape, dtype) in self._frame.items()}
         n, h, w = check_arrays({**labels, **copied, **placeholders})
         short = [f for f in self.images if self._written[f] != self.frames]
         if short or (n, h, w) != (self.frames, self.height, self.width):
@@ -193,16 +221,15 @@ class ShardWriter:
             for key, value in attrs.items():
                 self._file.attrs[key] = value
             self._file.attrs.update({"schema_version": SCHEMA_VERSION, "frames": n, "height": h, "width": w})
-            self.attrs = {**attrs, "schema_version": SCHEMA_VERSION, "frames": n, "height": h, "width": w}
             self._file.attrs[CHECKSUMS_ATTR] = json.dumps(file_checksums(self._file), sort_keys=True)
             self._file.close()
-            self.digest = seal(self.tmp)  # the SHA-256 of every byte after the header, into the header
-            with open(self.tmp, "rb") as fh:
-                os.fsync(fh.fileno())
+            seal(self.tmp)  # the SHA-256 of every byte after the header, into the header; fsync-ed
             os.replace(self.tmp, self.path)
         except (OSError, RuntimeError) as exc:  # HDF5's object copy fails with a RuntimeError
             raise self._os_error(exc) from None
         self._done = True
+        names = {**copied, **labels}.get("class_name", [])
+        self.written = ({**attrs, "schema_version": SCHEMA_VERSION, "frames": n}, names)
         return self.path
 
     def _os_error(self, exc: Exception) -> ShardError:
@@ -221,6 +248,7 @@ class ShardWriter:
         self.tmp.unlink(missing_ok=True)
 
     def __exit__(self, *exc):
+        self._switching.stop()
         if self._done:
             for pool in (self._pool, self._ahead_pool):
                 if pool is not None:
@@ -239,16 +267,6 @@ def write_failure(exc: Exception) -> str:
     if code:
         return os.strerror(code)
     return one_line(getattr(exc, "strerror", None) or exc)
-
-
-def _nice_thread() -> None:
-    """Run this compression thread at the lowest CPU priority (Linux: per thread), so that
-    frames encoded ahead (encode_ahead) take the cores the renderer leaves idle instead of
-    slowing it down; best effort, and it changes no byte."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), COMPRESS_NICE)
-    except (OSError, AttributeError):  # not Linux, or not allowed: normal priority
-        pass
 
 
 def _copy_placeholders(copy_from) -> dict:

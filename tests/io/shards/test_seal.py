@@ -90,3 +90,22 @@ def test_hash_ahead_leaves_each_open_its_check_done_and_failures_to_the_open(tmp
     assert hashed == []  # every open found its check done
     with pytest.raises(SealError, match="not an spm shard"):
         verified_digest(tmp_path / "bad")
+
+
+def test_seal_flushes_the_file_and_says_when_the_disk_fails(tmp_path, monkeypatch):
+    import os
+
+    path = tmp_path / "f"
+    path.write_bytes(b"\0" * USERBLOCK + b"\x89HDF\r\n\x1a\n" + bytes(100))
+    synced = []
+    real = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: synced.append(fd) or real(fd))
+    digest = seal(path)
+    assert len(synced) == 2 and digest == content_digest(path)  # the content while hashed, then the header
+
+    def failing(fd):
+        raise OSError(5, "Input/output error")
+
+    monkeypatch.setattr(os, "fsync", failing)
+    with pytest.raises(OSError, match="Input/output error"):
+        seal(path)

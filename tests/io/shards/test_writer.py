@@ -102,3 +102,77 @@ def test_a_failed_write_is_said_in_a_few_words_not_hdf5_text():
     assert write_failure(RuntimeError(hdf5)) == "No space left on device"
     assert write_failure(OSError(28, "No space left on device")) == "No space left on device"
     assert write_failure(RuntimeError("something\nelse")) == "something else"
+
+
+def test_frames_stored_by_write_ahead_are_what_write_images_stores(tmp_path):
+    """render_shard hands the renderer's arrays to encode_ahead (cast to each field's dtype
+    there: float32 normals are stored as float16) and stores them with write_ahead, a block
+    at a time: the same bytes as write_images of the same blocks (which it did before), and
+    for one block the same as write_shard."""
+    arrays = make_arrays(n=5, seed=6)
+    images = [f for f in IMAGE_FIELDS if f in arrays] + ["normals"]
+    normals = np.random.default_rng(6).normal(size=(5, 8, 10, 3)).astype(np.float32)
+    arrays["normals"] = normals.astype(np.float16)
+    labels = {f: v for f, v in arrays.items() if f not in images}
+
+    def write(path, blocks, ahead):
+        with ShardWriter(path, frames=5, height=8, width=10, images=images) as writer:
+            for start, stop in blocks:
+                if not ahead:
+                    writer.write_images(start, {f: arrays[f][start:stop] for f in images})
+                    continue
+                for i in range(start, stop):
+                    writer.encode_ahead(i, {**{f: arrays[f][i] for f in images}, "normals": normals[i]})
+                writer.write_ahead(start, stop - start)
+            return writer.finish(labels, {"seed": 1, "renderer": "x"})
+
+    blocks = ((0, 3), (3, 5))
+    assert file_sha256(write(tmp_path / "a.h5", blocks, True)) == file_sha256(write(tmp_path / "i.h5", blocks, False))
+    one = write_shard(tmp_path / "one.h5", arrays, {"seed": 1, "renderer": "x"})
+    assert file_sha256(write(tmp_path / "a1.h5", [(0, 5)], True)) == file_sha256(one)
+    np.testing.assert_array_equal(read_shard(one)["normals"], normals.astype(np.float16))
+
+
+def test_write_ahead_refuses_a_frame_not_given_and_encode_ahead_a_wrong_shape(tmp_path):
+    arrays = make_arrays(n=2)
+    images = [f for f in IMAGE_FIELDS if f in arrays]
+    with ShardWriter(tmp_path / "a.h5", frames=2, height=8, width=10, images=images) as writer:
+        with pytest.raises(ShardError, match=r"^shard field 'rgb': expected a frame of \(8, 10, 3\), got \(8, 9, 3\)$"):
+            writer.encode_ahead(0, {"rgb": arrays["rgb"][0][:, :9]})
+        writer.encode_ahead(0, {f: arrays[f][0] for f in images})
+        with pytest.raises(ShardError, match=r"^shard field 'rgb': frame 1 was not given to encode_ahead$"):
+            writer.write_ahead(0, 2)
+    assert list(tmp_path.iterdir()) == []  # nothing left behind
+
+
+def test_a_finished_writer_knows_its_manifest_entry(tmp_path):
+    from spm_data.io.shards import manifest_entry
+
+    arrays = make_arrays(n=3)
+    arrays["class_name"] = ["cup", "box", "cup"]
+    images = [f for f in IMAGE_FIELDS if f in arrays]
+    with ShardWriter(tmp_path / "a.h5", frames=3, height=8, width=10, images=images) as writer:
+        writer.write_images(0, {f: arrays[f] for f in images})
+        path = writer.finish({f: v for f, v in arrays.items() if f not in images}, {"seed": 1, "renderer": "x"})
+    entry = manifest_entry(path, writer.written)
+    assert entry == manifest_entry(path)  # the same row as reading the shard back
+    assert entry["classes"] == {"box": 1, "cup": 2} and entry["frames"] == 3 and entry["renderer"] == "x"
+
+
+def test_a_writer_puts_the_switch_interval_back_whether_it_finishes_or_fails(tmp_path):
+    import sys
+
+    before = sys.getswitchinterval()
+    arrays = make_arrays(n=1)
+    images = [f for f in IMAGE_FIELDS if f in arrays]
+    with ShardWriter(tmp_path / "a.h5", frames=1, height=8, width=10, images=images) as writer:
+        writer.encode_ahead(0, {f: arrays[f][0] for f in images})
+        assert sys.getswitchinterval() > before
+        writer.write_ahead(0, 1)
+        writer.finish({f: v for f, v in arrays.items() if f not in images}, {"seed": 1, "renderer": "x"})
+    assert sys.getswitchinterval() == before
+    with pytest.raises(RuntimeError):
+        with ShardWriter(tmp_path / "b.h5", frames=1, height=8, width=10, images=images) as writer:
+            writer.encode_ahead(0, {f: arrays[f][0] for f in images})
+            raise RuntimeError("stopped")
+    assert sys.getswitchinterval() == before and not (tmp_path / "b.h5").exists()
