@@ -84,7 +84,7 @@ class ShardWriter:
         # position in it) (prepare)
         self._ahead = {}
         self._frame = {}  # field -> (frame shape, dtype): h5py's lookups cost more than a small frame
-        self._switching = PatientSwitching()  # while frames are compressed ahead (encoding.py)
+        self._switching = PatientSwitching()  # while frames are compressed ahead (chunks.py)
         self._done = False
         self.written = None  # after finish: (attrs, class names) for manifest_entry
 
