@@ -3,6 +3,10 @@
 import os
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+# One BLAS thread per process (set before numpy loads; worker processes inherit it). The suite's
+# matrices are small and many tests run two worker processes: OpenBLAS's threads spin on the
+# 2 cores and cost 2-3x the CPU (e.g. SPMEstimator's batched simplex) for no gain.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import pytest  # noqa: E402
 
