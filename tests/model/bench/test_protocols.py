@@ -2,7 +2,6 @@
 
 import json
 import shutil
-import textwrap
 
 import numpy as np
 import pytest
@@ -77,48 +76,18 @@ def test_identical_poses_of_an_instance_are_one_view():
     assert groups[12] == groups[0] == "i#0" and len(set(groups)) == 12
 
 
-PLUGIN = '''
-import numpy as np
-
-class MeanPose:
-    """Predicts the mean training label; records what it was given."""
-    seen = {}
-
-    def __init__(self, *, shift=0.0):
-        self.shift = shift
-
-    def fit(self, frames, poses):
-        f = frames[0]
-        MeanPose.seen.update(rgb=(f["rgb"].shape, str(f["rgb"].dtype)), mask=str(f["mask"].dtype), K=f["K"].shape,
-                             n=len(frames), poses=np.asarray(poses).shape)
-        self.mean_ = np.asarray(poses).mean(axis=0) + self.shift
-        return self
-
-    def predict(self, frames):
-        return np.tile(self.mean_, (len(frames), 1))
-
-class WrongShape(MeanPose):
-    def predict(self, frames):
-        return np.zeros((len(frames), 5))
-'''
-
-
-def test_a_plugged_in_estimator_gets_frames_and_is_scored_like_the_rest(model_shards, tmp_path, monkeypatch):
-    (tmp_path / "my_pose.py").write_text(textwrap.dedent(PLUGIN))
-    monkeypatch.syspath_prepend(str(tmp_path))
-    import my_pose
-
-    table = load_features(model_shards, FAST)
-    evaluation = evaluate(table, "loco", runs=1, model_params={"features": FAST, "projection_samples": 60},
-                          estimators={"MeanPose": my_pose.MeanPose})
-    assert my_pose.MeanPose.seen == {"rgb": ((128, 128, 3), "uint8"), "mask": "bool", "K": (3, 3), "n": 96,
-                                     "poses": (96, 6)}
+def test_a_plugged_in_estimator_gets_frames_and_is_scored_like_the_rest(model_shards, loco_report, plugin_module,
+                                                                       tmp_path):
+    # loco_report (tests/conftest.py): every built-in method and MeanPose, scored together by train().
+    evaluation = loco_report[0]["evaluation"]
+    assert plugin_module.MeanPose.seen == {"rgb": ((128, 128, 3), "uint8"), "mask": "bool", "K": (3, 3), "n": 96,
+                                           "poses": (96, 6)}
     overall = evaluation["runs"][0]["overall"]
     assert set(overall) == {"spm", "knn1", "knn3", "pca", "ls", "n3m", "smm", "template", "chance", "MeanPose"}
     assert overall["MeanPose"]["frames"] == 144 and overall["MeanPose"]["estimated"] == 144
     runner = CliRunner()
     report = tmp_path / "report"
-    # Through the CLI beside one cheap built-in (evaluate above has it beside every one).
+    # Through the CLI, beside one cheap built-in.
     r = runner.invoke(model_cli, ["train", str(model_shards), "--out", str(report), "--runs", "1",
                                   "--ellipse", "direct", "--methods", "knn1", "--estimator", "my_pose:MeanPose"])
     assert r.exit_code == 0, r.output
