@@ -76,8 +76,8 @@ def test_identical_poses_of_an_instance_are_one_view():
     assert groups[12] == groups[0] == "i#0" and len(set(groups)) == 12
 
 
-def test_a_plugged_in_estimator_gets_frames_and_is_scored_like_the_rest(model_shards, loco_report, plugin_module,
-                                                                       tmp_path):
+@pytest.mark.slow  # the full benchmark (loco_report: every built-in method, 2 runs)
+def test_a_plugged_in_estimator_is_scored_beside_every_built_in_method(loco_report, plugin_module):
     # loco_report (tests/conftest.py): every built-in method and MeanPose, scored together by train().
     evaluation = loco_report[0]["evaluation"]
     assert plugin_module.MeanPose.seen == {"rgb": ((128, 128, 3), "uint8"), "mask": "bool", "K": (3, 3), "n": 96,
@@ -85,14 +85,22 @@ def test_a_plugged_in_estimator_gets_frames_and_is_scored_like_the_rest(model_sh
     overall = evaluation["runs"][0]["overall"]
     assert set(overall) == {"spm", "knn1", "knn3", "pca", "ls", "n3m", "smm", "template", "chance", "MeanPose"}
     assert overall["MeanPose"]["frames"] == 144 and overall["MeanPose"]["estimated"] == 144
+
+
+def test_a_plugged_in_estimator_gets_frames_and_is_scored_through_the_cli(model_shards, plugin_module, tmp_path):
     runner = CliRunner()
     report = tmp_path / "report"
-    # Through the CLI, beside one cheap built-in.
+    plugin_module.MeanPose.seen.clear()
+    # Beside one cheap built-in (beside every one: the test above).
     r = runner.invoke(model_cli, ["train", str(model_shards), "--out", str(report), "--runs", "1",
                                   "--ellipse", "direct", "--methods", "knn1", "--estimator", "my_pose:MeanPose"])
     assert r.exit_code == 0, r.output
+    assert plugin_module.MeanPose.seen == {"rgb": ((128, 128, 3), "uint8"), "mask": "bool", "K": (3, 3), "n": 96,
+                                           "poses": (96, 6)}
     payload = json.loads((report / "results.json").read_text())
     assert payload["schema_version"] == 3 and "MeanPose" in payload["summary"]["methods"]
+    summary = payload["summary"]["methods"]["MeanPose"]
+    assert summary["frames"] == 144 and summary["estimated"] == 144
     assert "| MeanPose |" in (report / "results.md").read_text()
     for spec, message in (("my_pose:WrongShape", "estimator WrongShape: predict(frames) must return (48, 6)"),
                           ("my_pose", "--estimator expects MODULE:CLASS"),

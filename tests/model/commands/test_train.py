@@ -5,6 +5,7 @@ import json
 import shutil
 
 import numpy as np
+import pytest
 from click.testing import CliRunner
 from PIL import Image
 
@@ -14,6 +15,7 @@ from spm_model.commands.evaluate import evaluate_model
 from spm_model.commands.predict import predict_images
 
 
+@pytest.mark.slow  # the full benchmark (loco_report: every built-in method, 2 runs)
 def test_train_loco_writes_the_report_and_model(model_shards, loco_report, tmp_path):
     result, report = loco_report  # train(model_shards, protocol="loco", runs=2) with a plug-in (tests/conftest.py)
     assert sorted(p.name for p in report.iterdir()) == ["accuracy.png", "model.npz", "occlusion.png",
