@@ -33,7 +33,8 @@ demo: install
 test: install
 	$(BIN)/python -m pytest -q
 
-# The edit loop: everything but the tests marked slow (Blender, killed or raced processes, Ray).
+# The edit loop: everything but the tests marked slow (Blender, killed or raced processes, Ray,
+# the full benchmark of every method).
 test-fast: install
 	$(BIN)/python -m pytest -q -m "not slow"
 

@@ -1,22 +1,24 @@
 """Fixtures shared by every test folder (helpers to import are in tests/helpers.py)."""
 
 import os
+import sys
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+# One BLAS thread per process (set before numpy loads; worker processes inherit it). The suite's
+# matrices are small and many tests run two worker processes: OpenBLAS's threads spin on the
+# 2 cores and cost 2-3x the CPU (e.g. SPMEstimator's batched simplex) for no gain.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import pytest  # noqa: E402
 
-from tests.helpers import OBJECTS, SMALL_SPEC, coil_image, png_bytes, write_pyrender_128_spec  # noqa: E402
+from tests.helpers import (OBJECTS, PLUGIN, coil_image, png_bytes, write_pyrender_128_spec,  # noqa: E402
+                           write_small_specs)
 
 
 @pytest.fixture
 def small_specs_dir(tmp_path):
     """A specs folder with two tiny classes (18 views x 2 instances each)."""
-    folder = tmp_path / "specs"
-    folder.mkdir()
-    for cls in ("cup", "box"):
-        (folder / f"{cls}.toml").write_text(SMALL_SPEC.format(cls=cls, seed=3))
-    return folder
+    return write_small_specs(tmp_path / "specs")
 
 
 @pytest.fixture(scope="session")
@@ -47,6 +49,35 @@ def instance_shards(tmp_path_factory):
         write_pyrender_128_spec(specs, cls, seed=2, az_stop=115, el=20, per_shard=96, instances=2)
     render_dataset(load_run_specs(all_classes=True, specs_dir=specs), root / "shards")
     return root / "shards"
+
+
+@pytest.fixture(scope="session")
+def plugin_module(tmp_path_factory):
+    """The module my_pose (tests/helpers.py PLUGIN: MeanPose, WrongShape), importable for the session."""
+    import importlib
+
+    folder = tmp_path_factory.mktemp("plugin")
+    (folder / "my_pose.py").write_text(PLUGIN)
+    sys.path.insert(0, str(folder))
+    try:
+        yield importlib.import_module("my_pose")
+    finally:
+        sys.path.remove(str(folder))
+        sys.modules.pop("my_pose", None)
+
+
+@pytest.fixture(scope="session")
+def loco_report(model_shards, plugin_module, tmp_path_factory):
+    """The full benchmark, run once for the tests that check it (test_train, the plug-in test in
+    test_protocols): train() on model_shards, loco protocol, 2 runs, every built-in method and
+    the plug-in my_pose:MeanPose. Returns (train's result, the report folder). Read-only."""
+    from spm_model.commands.train import train
+    from spm_model.spm.features import FeatureConfig
+
+    report = tmp_path_factory.mktemp("loco") / "report"
+    result = train(model_shards, report, protocol="loco", runs=2, features=FeatureConfig(ellipse="direct"),
+                   estimators=["my_pose:MeanPose"])
+    return result, report
 
 
 @pytest.fixture(scope="module")

@@ -69,6 +69,14 @@ frames_per_shard = 8
 """
 
 
+def write_small_specs(folder):
+    """``folder`` made, with SMALL_SPEC for cup and box (18 views x 2 instances each); returns it."""
+    folder.mkdir(parents=True)
+    for cls in ("cup", "box"):
+        (folder / f"{cls}.toml").write_text(SMALL_SPEC.format(cls=cls, seed=3))
+    return folder
+
+
 # One instance at 128x128 over azimuth 0..AZ_STOP x two elevations (EL, EL + 5):
 # enough keypoints for the SPM pipeline (model tests) and quick to render (executor tests).
 PYRENDER_128_SPEC = """
@@ -209,3 +217,30 @@ def frames(n, seed):
 
 
 FAST_SPM = {"projection_samples": 16, "projection": "knn", "neighbours": 8}
+
+
+# The plug-in estimators of the plugin_module fixture (tests/conftest.py), written as my_pose.py.
+PLUGIN = '''
+import numpy as np
+
+class MeanPose:
+    """Predicts the mean training label; records what it was given."""
+    seen = {}
+
+    def __init__(self, *, shift=0.0):
+        self.shift = shift
+
+    def fit(self, frames, poses):
+        f = frames[0]
+        MeanPose.seen.update(rgb=(f["rgb"].shape, str(f["rgb"].dtype)), mask=str(f["mask"].dtype), K=f["K"].shape,
+                             n=len(frames), poses=np.asarray(poses).shape)
+        self.mean_ = np.asarray(poses).mean(axis=0) + self.shift
+        return self
+
+    def predict(self, frames):
+        return np.tile(self.mean_, (len(frames), 1))
+
+class WrongShape(MeanPose):
+    def predict(self, frames):
+        return np.zeros((len(frames), 5))
+'''

@@ -47,18 +47,19 @@ frames_per_shard = 8
 """
 
 
-@pytest.fixture
-def cluttered_specs(tmp_path):
-    folder = tmp_path / "specs"
-    folder.mkdir()
+@pytest.fixture(scope="module")
+def cluttered_specs(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("specs")
     (folder / "cluttered.toml").write_text(CLUTTERED.format(cls="cluttered"))
     return load_run_specs(all_classes=True, specs_dir=folder)
 
 
-@pytest.fixture
-def cluttered(cluttered_specs, tmp_path):
-    render_dataset(cluttered_specs, tmp_path / "out", limit=16)
-    return tmp_path / "out"
+@pytest.fixture(scope="module")
+def cluttered(cluttered_specs, tmp_path_factory):
+    """16 frames of the cluttered spec, rendered once for the module. Read-only for tests."""
+    out = tmp_path_factory.mktemp("cluttered") / "out"
+    render_dataset(cluttered_specs, out, limit=16)
+    return out
 
 
 def test_the_visible_fraction_lands_within_two_percent_of_its_draw(cluttered):

@@ -19,14 +19,18 @@ from spm_data.core.poses import cv_to_gl_camera_to_world
 from spm_data.render.pyrender_backend import _offscreen
 from spm_data.commands.render_jobs import load_run_specs, render_dataset
 from spm_data.io.shards import list_shards, read_shard
+from tests.helpers import write_small_specs
 
 
-@pytest.fixture
-def exported(small_specs_dir, tmp_path):
-    """Cup and box, 8 frames each (pyrender, 64 x 64), exported as a PBR split."""
-    render_dataset(load_run_specs(["cup", "box"], specs_dir=small_specs_dir), tmp_path / "r", limit=8)
-    export_bop(tmp_path / "r", tmp_path / "bop", split="train_pbr")
-    return tmp_path / "r", tmp_path / "bop"
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    """Cup and box, 8 frames each (pyrender, 64 x 64), exported as a PBR split; made once for the
+    module. Read-only for tests."""
+    root = tmp_path_factory.mktemp("exported")
+    specs = write_small_specs(root / "specs")
+    render_dataset(load_run_specs(["cup", "box"], specs_dir=specs), root / "r", limit=8)
+    export_bop(root / "r", root / "bop", split="train_pbr")
+    return root / "r", root / "bop"
 
 
 def scenes(root, split="train_pbr"):

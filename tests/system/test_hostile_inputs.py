@@ -118,9 +118,9 @@ def test_a_full_disk_in_occludes_object_copy_is_one_line(folder, tmp_path, monke
 
 @pytest.fixture(scope="module")
 def trained(model_shards, tmp_path_factory):
-    """A copy of model_shards, trained on (features cached), and its model."""
+    """A copy of model_shards (with their cached features, keyed by content), trained on, and its model."""
     root = tmp_path_factory.mktemp("trained")
-    shards = shutil.copytree(model_shards, root / "shards", ignore=shutil.ignore_patterns(".spm-features", "report"))
+    shards = shutil.copytree(model_shards, root / "shards", ignore=shutil.ignore_patterns("report"))
     r = run(model_cli, "train", "--shards", shards, "--report", root / "report", "--runs", "1", "--protocol", "views",
             "--ellipse", "direct", "--methods", "spm")
     assert r.exit_code == 0, r.output

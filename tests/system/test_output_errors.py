@@ -383,7 +383,7 @@ def read_only_run(model_shards, tmp_path_factory):
         mp.setenv("XDG_CACHE_HOME", str(root / "xdg"))
         with read_only(folder):
             trained = run(model_cli, "train", folder, "--out", root / "report", "--runs", "1",
-                          "--protocol", "views", "--ellipse", "direct")
+                          "--protocol", "views", "--ellipse", "direct", "--methods", "spm")
             mp.setattr(feature_cache, "frames_features", lambda *a, **k: pytest.fail("features extracted again"))
             evaluated = run(model_cli, "evaluate", folder, "--model", root / "report" / "model.npz")
     return {"root": root, "shards": folder, "trained": trained, "evaluated": evaluated,
@@ -415,7 +415,7 @@ def test_report_on_a_full_disk_leaves_nothing(read_only_run):
         with unraisable() as ignored:
             with read_only(r["shards"]), disk_full(r["root"] / "new"):
                 result = run(model_cli, "train", r["shards"], "--out", report, "--runs", "1",
-                             "--protocol", "views", "--ellipse", "direct")
+                             "--protocol", "views", "--ellipse", "direct", "--methods", "spm")
             code, stderr = result.exit_code, result.stderr
             del result
     assert code == 1, stderr

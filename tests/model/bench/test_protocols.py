@@ -2,7 +2,6 @@
 
 import json
 import shutil
-import textwrap
 
 import numpy as np
 import pytest
@@ -77,59 +76,38 @@ def test_identical_poses_of_an_instance_are_one_view():
     assert groups[12] == groups[0] == "i#0" and len(set(groups)) == 12
 
 
-PLUGIN = '''
-import numpy as np
-
-class MeanPose:
-    """Predicts the mean training label; records what it was given."""
-    seen = {}
-
-    def __init__(self, *, shift=0.0):
-        self.shift = shift
-
-    def fit(self, frames, poses):
-        f = frames[0]
-        MeanPose.seen.update(rgb=(f["rgb"].shape, str(f["rgb"].dtype)), mask=str(f["mask"].dtype), K=f["K"].shape,
-                             n=len(frames), poses=np.asarray(poses).shape)
-        self.mean_ = np.asarray(poses).mean(axis=0) + self.shift
-        return self
-
-    def predict(self, frames):
-        return np.tile(self.mean_, (len(frames), 1))
-
-class WrongShape(MeanPose):
-    def predict(self, frames):
-        return np.zeros((len(frames), 5))
-'''
-
-
-def test_a_plugged_in_estimator_gets_frames_and_is_scored_like_the_rest(model_shards, tmp_path, monkeypatch):
-    (tmp_path / "my_pose.py").write_text(textwrap.dedent(PLUGIN))
-    monkeypatch.syspath_prepend(str(tmp_path))
-    import my_pose
-
-    table = load_features(model_shards, FAST)
-    evaluation = evaluate(table, "loco", runs=1, model_params={"features": FAST, "projection_samples": 60},
-                          estimators={"MeanPose": my_pose.MeanPose})
-    assert my_pose.MeanPose.seen == {"rgb": ((128, 128, 3), "uint8"), "mask": "bool", "K": (3, 3), "n": 96,
-                                     "poses": (96, 6)}
+@pytest.mark.slow  # the full benchmark (loco_report: every built-in method, 2 runs)
+def test_a_plugged_in_estimator_is_scored_beside_every_built_in_method(loco_report, plugin_module):
+    # loco_report (tests/conftest.py): every built-in method and MeanPose, scored together by train().
+    evaluation = loco_report[0]["evaluation"]
+    assert plugin_module.MeanPose.seen == {"rgb": ((128, 128, 3), "uint8"), "mask": "bool", "K": (3, 3), "n": 96,
+                                           "poses": (96, 6)}
     overall = evaluation["runs"][0]["overall"]
     assert set(overall) == {"spm", "knn1", "knn3", "pca", "ls", "n3m", "smm", "template", "chance", "MeanPose"}
     assert overall["MeanPose"]["frames"] == 144 and overall["MeanPose"]["estimated"] == 144
+
+
+def test_a_plugged_in_estimator_gets_frames_and_is_scored_through_the_cli(model_shards, plugin_module, tmp_path):
     runner = CliRunner()
     report = tmp_path / "report"
+    plugin_module.MeanPose.seen.clear()
+    # Beside one cheap built-in (beside every one: the test above).
     r = runner.invoke(model_cli, ["train", str(model_shards), "--out", str(report), "--runs", "1",
-                                  "--ellipse", "direct", "--estimator", "my_pose:MeanPose"])
+                                  "--ellipse", "direct", "--methods", "knn1", "--estimator", "my_pose:MeanPose"])
     assert r.exit_code == 0, r.output
+    assert plugin_module.MeanPose.seen == {"rgb": ((128, 128, 3), "uint8"), "mask": "bool", "K": (3, 3), "n": 96,
+                                           "poses": (96, 6)}
     payload = json.loads((report / "results.json").read_text())
     assert payload["schema_version"] == 3 and "MeanPose" in payload["summary"]["methods"]
+    summary = payload["summary"]["methods"]["MeanPose"]
+    assert summary["frames"] == 144 and summary["estimated"] == 144
     assert "| MeanPose |" in (report / "results.md").read_text()
     for spec, message in (("my_pose:WrongShape", "estimator WrongShape: predict(frames) must return (48, 6)"),
                           ("my_pose", "--estimator expects MODULE:CLASS"),
                           ("no_such_module:X", "cannot import no_such_module"),
                           ("my_pose:Nope", "Nope is not a class in my_pose")):
         r = runner.invoke(model_cli, ["train", str(model_shards), "--out", str(tmp_path / "r2"),
-                                      "--runs", "1", "--ellipse", "direct", "--estimator", spec])
+                                      "--runs", "1", "--ellipse", "direct", "--methods", "knn1", "--estimator", spec])
         assert r.exit_code == 1 and message in r.output and "Traceback" not in r.output, (spec, r.output)
         assert sum(line.startswith("error:") for line in r.output.splitlines()) == 1
 
@@ -137,7 +115,8 @@ def test_a_plugged_in_estimator_gets_frames_and_is_scored_like_the_rest(model_sh
 def test_the_reference_estimator_beats_chance_on_new_views_and_instances(instance_shards):
     table = load_features(instance_shards, FAST)
     params = {"features": FAST, "projection_samples": 60}
-    views = evaluate(table, "views", runs=1, model_params=params)["runs"][0]["overall"]
+    only = ["template", "chance"]  # the methods asserted on (the others would only cost time)
+    views = evaluate(table, "views", runs=1, model_params=params, builtins=only)["runs"][0]["overall"]
     ref, chance = views["template"], views["chance"]
     # New views of seen objects: the adjacent 5-degree view is found almost always. (Chance is
     # about 10% here: 48 views per instance, of which a +-5 degree box holds up to 9.)
@@ -145,7 +124,7 @@ def test_the_reference_estimator_beats_chance_on_new_views_and_instances(instanc
         (ref["success_tol5"], chance["success_tol5"])
     assert ref["geodesic_median_deg"] <= 6 and ref["median_error"]["distance_mm"] <= 1
     assert ref["auc_45"] >= chance["auc_45"] + 40
-    instances = evaluate(table, "instances", runs=1, model_params=params)["runs"][0]["overall"]
+    instances = evaluate(table, "instances", runs=1, model_params=params, builtins=only)["runs"][0]["overall"]
     # New instances of a class: still far above a random training pose.
     assert instances["template"]["success_tol5"] >= instances["chance"]["success_tol5"] + 20, instances["template"]
     assert instances["template"]["surface"]["add_s_recall"] > instances["chance"]["surface"]["add_s_recall"]

@@ -16,7 +16,7 @@ def test_cli_train_predict_evaluate_and_bad_input(model_shards, tmp_path):
     shards = tmp_path / "s"
     shutil.copytree(model_shards, shards)
     r = runner.invoke(model_cli, ["train", str(shards), "--runs", "1", "--ellipse", "direct",
-                                  "--protocol", "views"])
+                                  "--protocol", "views", "--methods", "spm,template"])
     assert r.exit_code == 0, r.output
     assert "Best method, views protocol" in r.output and (shards / "report" / "model.npz").is_file()
     model = str(shards / "report" / "model.npz")

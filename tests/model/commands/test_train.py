@@ -5,29 +5,26 @@ import json
 import shutil
 
 import numpy as np
+import pytest
 from click.testing import CliRunner
 from PIL import Image
 
 from cli import model_cli
 from spm_data.io.shards import read_shard
-from spm_model.spm.features import FeatureConfig
 from spm_model.commands.evaluate import evaluate_model
 from spm_model.commands.predict import predict_images
-from spm_model.commands.train import train
-
-FAST = FeatureConfig(ellipse="direct")
 
 
-def test_train_loco_writes_the_report_and_model(model_shards, tmp_path):
-    report = tmp_path / "report"
-    result = train(model_shards, report, protocol="loco", runs=2, features=FAST)
+@pytest.mark.slow  # the full benchmark (loco_report: every built-in method, 2 runs)
+def test_train_loco_writes_the_report_and_model(model_shards, loco_report, tmp_path):
+    result, report = loco_report  # train(model_shards, protocol="loco", runs=2) with a plug-in (tests/conftest.py)
     assert sorted(p.name for p in report.iterdir()) == ["accuracy.png", "model.npz", "occlusion.png",
                                                         "reference-model.npz", "results.json", "results.md"]
     payload = json.loads((report / "results.json").read_text())
     assert payload["schema"] == "spm-results" and payload["schema_version"] == 3
     assert payload["context"]["frames"] == 144 and len(payload["evaluation"]["runs"]) == 2
     summary = payload["summary"]
-    assert set(summary["methods"]) == {"spm", "knn1", "knn3", "pca", "ls", "n3m", "smm", "template"}
+    assert set(summary["methods"]) == {"spm", "knn1", "knn3", "pca", "ls", "n3m", "smm", "template", "MeanPose"}
     assert set(summary["classes"]) == {"box", "car", "cup"}
     for entry in [*summary["methods"].values(), summary["chance"]]:
         assert 0 <= entry["success_tol5"] <= 100 and entry["success_sum3"] <= entry["success_sum5"] <= entry["success_tol5"]
