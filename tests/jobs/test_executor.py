@@ -78,3 +78,16 @@ def test_the_parent_works_too_and_results_stay_in_job_order():
     assert len({o.result["pid"] for o in outcomes}) <= 2  # the parent and at most one worker
     outcomes = run_jobs(crashing_job, [(2, None, "error"), (3, None, "")], workers=2, parent_works=True)
     assert outcomes[0].error == "bad job 2" and outcomes[1].result == 6
+
+
+def blas_environment(job, report):
+    return os.environ.get(job)
+
+
+def test_spawned_workers_share_the_cores_among_their_blas_threads_unless_the_user_said(monkeypatch):
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    monkeypatch.setenv("MKL_NUM_THREADS", "3")
+    expected = str(max(1, (os.cpu_count() or 1) // 2))
+    got = run_jobs(blas_environment, ["OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"] * 2, workers=2)
+    assert [o.result for o in got] == [expected, "3"] * 2
+    assert "OPENBLAS_NUM_THREADS" not in os.environ  # the parent's environment as it was
