@@ -18,6 +18,9 @@ from spm_data.errors import SpecError
 from spm_data.core.poses import camera_poses
 
 
+MAX_VALUES = 10**9  # values per angle axis: frame indices stay exact in int64 and float64
+
+
 @dataclass(frozen=True)
 class AngleRange:
     """Inclusive ``start..stop`` in ``step`` degrees (``stop == start`` is one value)."""
@@ -35,6 +38,9 @@ class AngleRange:
         if span < 0:
             raise SpecError(f"{name}: empty grid, start {self.start} is above stop {self.stop}")
         count = span / self.step
+        if count >= MAX_VALUES:
+            raise SpecError(f"{name}: step {self.step} gives over {MAX_VALUES:,} values over "
+                            f"{self.start}..{self.stop}; use a step of at least {span / (MAX_VALUES - 1):.3g} degrees")
         if abs(count - round(count)) > 1e-6:
             raise SpecError(f"{name}: step {self.step} does not divide the range "
                             f"{self.start}..{self.stop} (span {span}); pick a step that divides it")

@@ -83,3 +83,11 @@ def test_a_grid_that_repeats_a_view_is_refused(grid, message):
     with pytest.raises(SpecError, match=message):
         camera_path(grid)
     assert len(camera_path(CameraGrid(azimuth=AngleRange(0, 355, 5)))) == 72 * 13   # the default walk: no repeat
+
+
+def test_a_step_too_small_to_index_is_a_spec_error():
+    # hypothesis found this one: 4.5e110 elevations overflowed int64 in value_at
+    grid = CameraGrid(elevation=AngleRange(0.0, 1.0, 2.2273467270518148e-111))
+    with pytest.raises(SpecError, match=r"camera.elevation: step .* gives over 1,000,000,000 values"):
+        camera_path(grid)
+    assert AngleRange(0.0, 360.0, 360 / (10**9 - 1)).count() == 10**9
