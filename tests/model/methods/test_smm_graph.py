@@ -130,3 +130,30 @@ def test_alignment_partner_is_the_most_similar_sequence():
     assert np.all(from_0[:, 1] == from_0[:, 0] + 2 * len(az))
     rotation_only, _ = training_pairs(q, sequences, bins, tolerance=2.0, max_pairs=1000)
     assert np.all(sequences[rotation_only[sequences[rotation_only[:, 0]] == 0, 1]] == 1)
+
+
+def _distance_by_definition(pa, la, pb, lb):
+    """d_S^2 of the module docstring, vertex by vertex and edge by edge."""
+    out = np.zeros((len(pa), len(pb)))
+    s = pa.shape[1]
+    for i in range(len(pa)):
+        for j in range(len(pb)):
+            total = 0.0
+            for k in range(s):
+                total += (pa[i, k] - pb[j, k]) ** 2 + pa[i, k] * pb[j, k] * np.sum((la[i, k] - lb[j, k]) ** 2)
+                for m in range(k + 1, s):
+                    w = pa[i, k] * pa[i, m] * pb[j, k] * pb[j, m]
+                    total += w * np.sum(((la[i, m] - la[i, k]) - (lb[j, m] - lb[j, k])) ** 2)
+            out[i, j] = total
+    return out
+
+
+def test_manifold_distances_equal_the_definition_edge_by_edge():
+    rng = np.random.default_rng(3)
+    for s in (1, 2, 9):
+        pa, pb = (rng.random((6, s)) < 0.6).astype(float), (rng.random((5, s)) < 0.6).astype(float)
+        la, lb = rng.normal(size=(6, s, 2)) * 3, rng.normal(size=(5, s, 2)) * 3
+        expected = _distance_by_definition(pa, la, pb, lb)
+        np.testing.assert_allclose(manifold_distances(pa, la, pb, lb), expected, rtol=1e-12, atol=1e-10)
+    # Identical images are at distance 0 up to rounding (distances here are 10^1-10^3).
+    np.testing.assert_allclose(np.diag(manifold_distances(pa, la, pa, la)), 0.0, atol=1e-9)
