@@ -90,11 +90,10 @@ def object_model(mesh, symmetries=NO_SYMMETRY, seed: int = 0) -> ObjectModel:
                        any_rotation=transforms is None)
 
 
-def _project(K, cam):
-    """K (n, 3, 3), cam (n, ..., P, 3) camera-frame points -> (n, ..., P, 2) pixels."""
-    uvw = np.einsum("nij,n...pj->n...pi", K, cam)
+def _pixels(uvw):
+    """(..., 3, P) homogeneous image points -> (..., 2, P) pixels."""
     with np.errstate(divide="ignore", invalid="ignore"):
-        return uvw[..., :2] / uvw[..., 2:3]
+        return uvw[..., :2, :] / uvw[..., 2:3, :]
 
 
 def surface_errors(pred_R, pred_t, true_R, true_t, K, model: ObjectModel, width: int) -> dict:
@@ -123,21 +122,25 @@ def surface_errors(pred_R, pred_t, true_R, true_t, K, model: ObjectModel, width:
 
 def _symmetric_errors(est, true_R, true_t, pred_R, K, model: ObjectModel):
     """MSSD (metres) and MSPD (pixels) of m frames: est (m, P, 3) the estimated points in the
-    camera, poses and K (m, ...); the minimum over the model's symmetries, in chunks of frames."""
-    x = model.points
+    camera, poses and K (m, ...); the minimum over the model's symmetries, in chunks of frames.
+    Points are laid out (..., 3, P) so every transform is one batched matrix product."""
+    x = model.points.T                                                              # (3, P)
     if model.any_rotation:   # the truth turned to the estimate's rotation: only the centres differ
         sym = np.einsum("nji,njk->nik", true_R, pred_R)[:, None]                      # (m, 1, 3, 3)
     else:
         sym = np.broadcast_to(model.symmetries, (len(est),) + model.symmetries.shape)  # (m, S, 3, 3)
+    est = est.transpose(0, 2, 1)                                                    # (m, 3, P)
+    est_px = _pixels(K @ est)                                                       # (m, 2, P)
     mssd, mspd = np.empty(len(est)), np.empty(len(est))
-    step = max(1, CHUNK // (sym.shape[1] * len(x)))
+    step = max(1, CHUNK // (sym.shape[1] * x.shape[1]))
     for lo in range(0, len(est), step):
         sl = slice(lo, lo + step)
-        sym_x = np.einsum("nsij,pj->nspi", sym[sl], x)
-        gt_sym = np.einsum("nij,nspj->nspi", true_R[sl], sym_x) + true_t[sl][:, None, None]
-        mssd[sl] = np.linalg.norm(est[sl][:, None] - gt_sym, axis=3).max(axis=2).min(axis=1)
-        pix = np.linalg.norm(_project(K[sl], est[sl])[:, None] - _project(K[sl], gt_sym), axis=3)
-        mspd[sl] = pix.max(axis=2).min(axis=1)
+        turned = true_R[sl][:, None] @ sym[sl]                                       # (k, S, 3, 3)
+        gt = turned @ x + true_t[sl][:, None, :, None]                               # (k, S, 3, P)
+        # sqrt after the max and min: it is monotonic, so the same value as the norms' max-min
+        mssd[sl] = np.sqrt(np.square(est[sl][:, None] - gt).sum(axis=2).max(axis=2).min(axis=1))
+        shift = np.square(est_px[sl][:, None] - _pixels(K[sl][:, None] @ gt)).sum(axis=2)
+        mspd[sl] = np.sqrt(shift.max(axis=2).min(axis=1))
     return mssd, mspd
 
 

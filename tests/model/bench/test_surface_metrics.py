@@ -85,3 +85,32 @@ def test_a_thin_plate_has_only_the_symmetries_it_declares():
     assert len(plate.symmetries) == 1 and not plate.symmetric
     quarter = Rotation.from_euler("z", 90, degrees=True).as_matrix()
     assert errors(plate, quarter, (0, 0, 1.0))["mssd"][0] > 0.02 * plate.diameter
+
+
+def test_mssd_and_mspd_equal_their_definitions_symmetry_by_symmetry():
+    from spm_data.core.symmetries import Symmetries
+
+    rng = np.random.default_rng(4)
+    sym = symmetry_transforms(Symmetries(discrete=(HALF_TURN_Z.tolist(),), continuous=((1.0, 0.0, 0.0),)))
+    model = ObjectModel(points=rng.normal(scale=0.05, size=(40, 3)), diameter=0.2, symmetries=sym)
+    n = 7
+    true_R, pred_R = Rotation.random(n, random_state=1).as_matrix(), Rotation.random(n, random_state=2).as_matrix()
+    true_t = np.column_stack([rng.normal(0, 0.05, (n, 2)), rng.uniform(0.5, 1.0, n)])
+    pred_t = true_t + rng.normal(0, 0.02, (n, 3))
+    pred_R[3] = np.nan
+    Ks = np.repeat(K, n, axis=0)
+    got = surface_errors(pred_R, pred_t, true_R, true_t, Ks, model, 640)
+
+    def pixels(points):
+        uvw = points @ K[0].T
+        return uvw[:, :2] / uvw[:, 2:]
+
+    for i in range(n):
+        if i == 3:
+            assert np.isnan(got["mssd"][i]) and np.isnan(got["mspd"][i])
+            continue
+        est = model.points @ pred_R[i].T + pred_t[i]
+        truths = [model.points @ (true_R[i] @ S).T + true_t[i] for S in sym]
+        mssd = min(np.linalg.norm(est - gt, axis=1).max() for gt in truths)
+        mspd = min(np.linalg.norm(pixels(est) - pixels(gt), axis=1).max() for gt in truths)
+        assert np.isclose(got["mssd"][i], mssd, rtol=1e-12) and np.isclose(got["mspd"][i], mspd, rtol=1e-12)
