@@ -33,7 +33,7 @@ from spm_data.errors import ModelError
 from spm_model.base.feature_memo import use_folder
 from spm_model.base.frames import Frames, camera_chunks, read_camera_frames
 from spm_model.bench.feature_cache import FeatureTable, load_features, memo_folder, offgrid_table
-from spm_model.bench.scoring import eccentricity, run_summary
+from spm_model.bench.scoring import eccentricity, frame_errors, run_summary
 from spm_model.bench.surface_metrics import mesh_keys
 from spm_model.bench.symmetry_errors import instance_symmetries
 from spm_model.methods.registry import builtin_methods, check_predictions
@@ -126,6 +126,7 @@ def fit_predict(methods: dict, table: FeatureTable, train: np.ndarray, test: np.
 
 
 _TABLES: dict = {}  # per process: the feature tables split jobs read, by source
+_MESHES: dict = {}  # per process: (mesh keys, symmetries) of the table in _TABLES, by source
 
 
 def _table(source) -> FeatureTable:
@@ -137,10 +138,21 @@ def _table(source) -> FeatureTable:
         if test is not None:
             table = offgrid_table(table, load_features(test, config, allow_partial=allow_partial))
         _TABLES.clear()  # one table per process at a time
+        _MESHES.clear()
         _TABLES[source] = table
         if len(table):  # N3M's and SMM's local features, shared by workers, runs and protocols
             use_folder(memo_folder(table.shard[0], config))
     return _TABLES[source]
+
+
+def _meshes(source) -> tuple:
+    """(mesh keys, declared symmetries) per frame of ``source``'s table, once per process."""
+    if source not in _MESHES:
+        table = _table(source)
+        keys = mesh_keys(table.shard, table.instance_id)
+        _MESHES.clear()
+        _MESHES[source] = keys, instance_symmetries(keys)
+    return _MESHES[source]
 
 
 def make_methods(seed: int, model_params: dict, builtins=None, estimators=None) -> dict:
@@ -155,7 +167,9 @@ def make_methods(seed: int, model_params: dict, builtins=None, estimators=None) 
 def split_job(job, report=lambda n: None):
     """One (run, split) on any worker: fit every method, predict the test frames.
     job = (source, protocol, run, split index, model_params, builtins, estimators, train_occluded).
-    Returns (what was tested, training frames, test index, {method: predictions})."""
+    Returns (what was tested, training frames, test index, {method: predictions},
+    {method: per-frame errors}): the errors (scoring.frame_errors) are scored here, so the
+    splits' scoring runs on the workers too."""
     source, protocol, run, index, model_params, builtins, estimators, train_occluded = job
     table = _table(source)
     tested, train, test = splits(table, protocol, seed=run)[index]
@@ -163,10 +177,12 @@ def split_job(job, report=lambda n: None):
     if len(train) == 0:
         raise ModelError(f"{protocol} protocol, run {run + 1}: nothing left to train on when testing {tested}")
     if len(test) == 0:
-        return tested, 0, test, {}
+        return tested, 0, test, {}, {}
     predictions = fit_predict(make_methods(run, model_params, builtins, estimators), table, train, test, seed=run)
+    keys, symmetries = _meshes(source)
+    errors = {name: frame_errors(table, test, pred, keys, symmetries) for name, pred in predictions.items()}
     report(len(test))
-    return tested, len(train), test, predictions
+    return tested, len(train), test, predictions, errors
 
 
 def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_params: dict | None = None,
@@ -187,19 +203,18 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
     train_occluded = (protocol != "offgrid") if train_occluded is None else bool(train_occluded)
     key = source if source is not None else ("in-process", id(table))
     _TABLES.clear()
+    _MESHES.clear()
     _TABLES[key] = table
     jobs = [(key, protocol, run, i, dict(model_params or {}), builtins, estimators, train_occluded)
             for run in range(runs) for i in range(len(splits(table, protocol, seed=run)))]
     outputs = _run_jobs(jobs, executor if source is not None else None, report)
-    keys = mesh_keys(table.shard, table.instance_id)
-    symmetries = instance_symmetries(keys)
     results = []
     for run in range(runs):
         parts = [outputs[i] for i, job in enumerate(jobs) if job[2] == run and len(outputs[i][2])]
         if not parts:
             raise ModelError(f"{protocol} protocol, run {run + 1}: no frame was held out for testing "
                              f"({len(table)} frames); add views or instances, or use another protocol")
-        results.append(run_summary(table, protocol, run, parts, keys, symmetries))
+        results.append(run_summary(table, protocol, run, parts))
     return {"protocol": protocol, "runs": results, "eccentricity": eccentricity(table),
             "classes": sorted(set(table.class_name.tolist())), "methods": list(results[0]["overall"]),
             "train_occluded": train_occluded}
