@@ -30,13 +30,15 @@ demo: install
 	$(BIN)/python benchmarks/fig5.py --quick --out $(DEMO)-fig5
 	@echo "demo output: $(DEMO)/ (shards in render/ and occluded/, contact sheets, the occlusion histogram, report/ with results.md, accuracy.png, model.npz and reference-model.npz; and $(DEMO)-fig5/report: the paper's Fig. 5 off the grid)"
 
+# -n auto: one pytest worker per core (pytest-xdist); the tests share no files and each
+# worker builds its own session fixtures.
 test: install
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto
 
 # The edit loop: everything but the tests marked slow (Blender, killed or raced processes, Ray,
 # the full benchmark of every method).
 test-fast: install
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(BIN)/python -m pytest -q -n auto -m "not slow"
 
 bench: install
 	$(BIN)/python benchmarks/render_throughput.py
