@@ -11,7 +11,6 @@ whichever thread computes them. While rendering, each frame is compressed ahead
 
 from __future__ import annotations
 
-import sys
 import zlib
 
 import numpy as np
@@ -22,12 +21,6 @@ GZIP_LEVEL = 1
 DEFLATE, SHUFFLE = 1, 2  # HDF5 filter ids (H5Z_FILTER_DEFLATE, H5Z_FILTER_SHUFFLE)
 RUN = 64  # frames per task on a pool
 THREADS = 2  # threads of a pool (the writer's and the reader's)
-# How long a compressing thread waits for the GIL before forcing a switch (Python's default:
-# 5 ms) while frames are compressed ahead (ShardWriter.encode_ahead). The renderer's thread
-# releases the GIL at every OpenGL call, so the threads get it without forcing; a forced
-# switch makes the renderer's thread wait until the thread that asked is scheduled, which
-# on a busy machine takes milliseconds, several times a frame.
-AHEAD_SWITCH_INTERVAL = 0.05
 
 
 def encode_chunk(frame: np.ndarray) -> bytes:
@@ -106,24 +99,3 @@ class AheadFrame:
             self._chunks = encode_frame(self._frames) if self._future.cancel() else self._future.result()
             self._frames = None
         return self._chunks[field]
-
-
-class PatientSwitching:
-    """Python's switch interval set to AHEAD_SWITCH_INTERVAL while frames are compressed ahead
-    (a process-wide setting: ``start`` saves it, ``stop`` puts it back unless someone else
-    changed it since). Changes when threads run, not what they compute."""
-
-    def __init__(self):
-        self._saved = None
-
-    def start(self) -> None:
-        if self._saved is None:
-            self._saved = sys.getswitchinterval()
-            sys.setswitchinterval(max(self._saved, AHEAD_SWITCH_INTERVAL))
-            self._set = sys.getswitchinterval()
-
-    def stop(self) -> None:
-        if self._saved is not None:
-            if sys.getswitchinterval() == self._set:
-                sys.setswitchinterval(self._saved)
-            self._saved = None

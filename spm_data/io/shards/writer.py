@@ -21,7 +21,7 @@ import numpy as np
 from spm_data.errors import ShardError, one_line
 from spm_data.io.files import partial_path
 from spm_data.io.shards.checksums import CHECKSUMS_ATTR, file_checksums
-from spm_data.io.shards.chunks import GZIP_LEVEL, RUN, THREADS, AheadFrame, PatientSwitching, encode_run
+from spm_data.io.shards.chunks import GZIP_LEVEL, RUN, THREADS, AheadFrame, encode_run
 from spm_data.io.shards.reader import ShardReader
 from spm_data.io.shards.schema import (FIELDS, IMAGE_FIELDS, OPTIONAL_FIELDS, SCHEMA_VERSION, check_arrays,
                                        expected_shape)
@@ -84,7 +84,6 @@ class ShardWriter:
         # position in it) (prepare)
         self._ahead = {}
         self._frame = {}  # field -> (frame shape, dtype): h5py's lookups cost more than a small frame
-        self._switching = PatientSwitching()  # while frames are compressed ahead (chunks.py)
         self._done = False
         self.written = None  # after finish: (attrs, class names) for manifest_entry
 
@@ -129,7 +128,6 @@ class ShardWriter:
             # Normal priority: on a busy machine low-priority (nice 19) threads hardly ran, and
             # one holding the GIL while descheduled stalled the renderer's thread.
             self._ahead_pool = ThreadPoolExecutor(max_workers=2)
-            self._switching.start()
         cast = {}
         for field, frame in frames.items():
             shape, dtype = self._frame[field]
@@ -248,7 +246,6 @@ class ShardWriter:
         self.tmp.unlink(missing_ok=True)
 
     def __exit__(self, *exc):
-        self._switching.stop()
         if self._done:
             for pool in (self._pool, self._ahead_pool):
                 if pool is not None:

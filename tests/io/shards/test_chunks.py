@@ -94,21 +94,3 @@ def test_a_frame_a_thread_has_compressed_gives_the_same_chunks():
         ahead._future.result()  # the thread has done it
         assert not ahead._future.cancelled()
         assert {field: ahead.chunk(field) for field in frame} == encode_frame(frame)
-
-
-def test_the_switch_interval_is_patient_while_frames_are_compressed_ahead_and_put_back_after():
-    import sys
-
-    from spm_data.io.shards.chunks import AHEAD_SWITCH_INTERVAL, PatientSwitching
-
-    before = sys.getswitchinterval()
-    switching = PatientSwitching()
-    switching.start()
-    assert sys.getswitchinterval() == pytest.approx(max(before, AHEAD_SWITCH_INTERVAL))
-    switching.stop()
-    assert sys.getswitchinterval() == before
-    switching.start()
-    sys.setswitchinterval(0.001)  # someone else changed it meanwhile: theirs stays
-    switching.stop()
-    assert sys.getswitchinterval() == pytest.approx(0.001)
-    sys.setswitchinterval(before)

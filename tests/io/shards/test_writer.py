@@ -157,22 +157,3 @@ def test_a_finished_writer_knows_its_manifest_entry(tmp_path):
     entry = manifest_entry(path, writer.written)
     assert entry == manifest_entry(path)  # the same row as reading the shard back
     assert entry["classes"] == {"box": 1, "cup": 2} and entry["frames"] == 3 and entry["renderer"] == "x"
-
-
-def test_a_writer_puts_the_switch_interval_back_whether_it_finishes_or_fails(tmp_path):
-    import sys
-
-    before = sys.getswitchinterval()
-    arrays = make_arrays(n=1)
-    images = [f for f in IMAGE_FIELDS if f in arrays]
-    with ShardWriter(tmp_path / "a.h5", frames=1, height=8, width=10, images=images) as writer:
-        writer.encode_ahead(0, {f: arrays[f][0] for f in images})
-        assert sys.getswitchinterval() > before
-        writer.write_ahead(0, 1)
-        writer.finish({f: v for f, v in arrays.items() if f not in images}, {"seed": 1, "renderer": "x"})
-    assert sys.getswitchinterval() == before
-    with pytest.raises(RuntimeError):
-        with ShardWriter(tmp_path / "b.h5", frames=1, height=8, width=10, images=images) as writer:
-            writer.encode_ahead(0, {f: arrays[f][0] for f in images})
-            raise RuntimeError("stopped")
-    assert sys.getswitchinterval() == before and not (tmp_path / "b.h5").exists()
