@@ -11,6 +11,11 @@
   :func:`check_fitted`), so an unfitted estimator fails with one ModelError.
 - ``from_state(**params_and_learned)`` builds the fitted estimator ``fit`` would
   have left (model files load through it).
+- ``DETERMINISTIC = True`` (a class attribute, default False) promises that fit and
+  predict use no seed and no random choice, and that a frame's prediction does not depend
+  on the other frames predicted with it: the benchmark then fits the method once when
+  every run has the same splits (loco, offgrid) and reuses its predictions in the other
+  runs (spm_model/bench/protocols.py).
 
 A plug-in (``spm train --estimator MODULE:CLASS``) need not subclass
 :class:`PoseEstimator`; it needs ``fit`` and ``predict`` with this contract.
@@ -57,6 +62,7 @@ class Estimator:
     read back from the signature, one fitted check, ``from_state``, a readable repr."""
 
     FITTED: tuple = ()
+    DETERMINISTIC: bool = False
 
     @classmethod
     def _param_names(cls) -> list:

@@ -22,7 +22,10 @@ training with noise): whether frames with occlusion train too; by default they
 do under loco, views and instances (as before) and do not under offgrid.
 Runs differ in their seed: the model's random choices, the views split, the
 instances order and the test order (the features are extracted once, with a
-fixed seed, and cached).
+fixed seed, and cached). Under loco and offgrid the splits are the same in every
+run, so a DETERMINISTIC method (no seed: pca, ls, template; spm_model/base/estimator.py)
+is fitted in the first run only and its predictions are reused in the others: the
+same scores as fitting it again.
 """
 
 from __future__ import annotations
@@ -37,6 +40,8 @@ from spm_model.bench.scoring import eccentricity, frame_errors, run_summary
 from spm_model.bench.surface_metrics import mesh_keys
 from spm_model.bench.symmetry_errors import instance_symmetries
 from spm_model.methods.registry import builtin_methods, check_predictions
+from spm_model.methods.template import TemplatePose
+from spm_model.spm.estimator import SPMEstimator
 
 PROTOCOLS = ("loco", "views", "instances", "offgrid")
 
@@ -187,7 +192,7 @@ def split_job(job, report=lambda n: None):
 
 def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_params: dict | None = None,
              estimators: dict | None = None, report=lambda message: None, builtins=None,
-             train_occluded: bool | None = None, executor=None, source=None) -> dict:
+             train_occluded: bool | None = None, executor=None, source=None, final: bool = False) -> dict:
     """Every run x split for the built-in methods (``builtins``: their names, default
     all) and ``estimators`` ({name: class}, instantiated fresh per split): per-class
     and overall summaries per method, the geodesic accuracy curve and the occlusion
@@ -197,7 +202,10 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
     worker reading the table from the feature cache of ``source`` = (shards, test folder or
     None, FeatureConfig, allow_partial); the results are those of one worker. Without them,
     in this process.
-    Returns {"protocol", "runs": [...], "eccentricity", "classes", "methods", "train_occluded"}."""
+    final: also fit the final models (:func:`final_models`), as the first job, so they are
+    fitted while the splits run instead of after them.
+    Returns {"protocol", "runs": [...], "eccentricity", "classes", "methods", "train_occluded"},
+    and with ``final`` "final_models": final_models' result."""
     if protocol not in PROTOCOLS:
         raise ModelError(f"protocol must be one of {PROTOCOLS}, got {protocol!r}")
     train_occluded = (protocol != "offgrid") if train_occluded is None else bool(train_occluded)
@@ -205,9 +213,16 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
     _TABLES.clear()
     _MESHES.clear()
     _TABLES[key] = table
-    jobs = [(key, protocol, run, i, dict(model_params or {}), builtins, estimators, train_occluded)
-            for run in range(runs) for i in range(len(splits(table, protocol, seed=run)))]
-    outputs = _run_jobs(jobs, executor if source is not None else None, report)
+    reused = _reused_methods(protocol, runs, model_params, builtins, estimators)
+    later = _without(builtins, estimators, model_params, reused)   # the methods of runs after the first
+    jobs = [(key, protocol, run, i, dict(model_params or {}), *(later if run else (builtins, estimators)),
+             train_occluded) for run in range(runs) for i in range(len(splits(table, protocol, seed=run)))]
+    finals = [("final", key, dict(model_params or {}), train_occluded)] if final else []
+    outputs = _run_jobs(finals + jobs, executor if source is not None else None, report)
+    models, outputs = (outputs[0], outputs[1:]) if final else (None, outputs)
+    if reused:
+        first = {job[3]: outputs[i] for i, job in enumerate(jobs) if job[2] == 0}
+        outputs = [_with_first_run(out, first[job[3]]) if job[2] else out for job, out in zip(jobs, outputs)]
     results = []
     for run in range(runs):
         parts = [outputs[i] for i, job in enumerate(jobs) if job[2] == run and len(outputs[i][2])]
@@ -217,22 +232,75 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
         results.append(run_summary(table, protocol, run, parts))
     return {"protocol": protocol, "runs": results, "eccentricity": eccentricity(table),
             "classes": sorted(set(table.class_name.tolist())), "methods": list(results[0]["overall"]),
-            "train_occluded": train_occluded}
+            "train_occluded": train_occluded, **({"final_models": models} if final else {})}
+
+
+# Protocols whose splits are the same in every run (they ignore the run's seed).
+SAME_SPLITS_EVERY_RUN = ("loco", "offgrid")
+
+
+def _reused_methods(protocol: str, runs: int, model_params, builtins, estimators) -> set:
+    """Names of the methods fitted in the first run only and reused in the others: the
+    DETERMINISTIC ones (spm_model/base/estimator.py) under a protocol whose splits are the
+    same in every run. Their predictions, and so their scores, are the same in every run."""
+    if protocol not in SAME_SPLITS_EVERY_RUN or runs < 2:
+        return set()
+    methods = make_methods(0, dict(model_params or {}), builtins, estimators)
+    return {name for name, method in methods.items() if getattr(type(method), "DETERMINISTIC", False) is True}
+
+
+def _without(builtins, estimators, model_params, reused: set) -> tuple:
+    """(builtins, estimators) but the reused methods (builtins None: every built-in one)."""
+    if not reused:
+        return builtins, estimators
+    names = builtins if builtins is not None else list(make_methods(0, dict(model_params or {})))
+    return ([name for name in names if name not in reused],
+            {name: cls for name, cls in (estimators or {}).items() if name not in reused})
+
+
+def _with_first_run(output: tuple, first: tuple) -> tuple:
+    """A later run's split_job output with the reused methods' predictions and errors taken
+    from the first run's output of the same split, in the first run's method order."""
+    tested, n_train, test, predictions, errors = output
+    if not np.array_equal(test, first[2]):
+        raise ModelError(f"internal: split {tested!r} differs between runs; cannot reuse its predictions")
+    order = list(first[3]) + [name for name in predictions if name not in first[3]]
+    pick = lambda name, mine, theirs: mine[name] if name in mine else theirs[name]  # noqa: E731
+    return (tested, n_train, test, {n: pick(n, predictions, first[3]) for n in order},
+            {n: pick(n, errors, first[4]) for n in order})
+
+
+def final_models(table: FeatureTable, model_params: dict, train_occluded: bool) -> tuple:
+    """(SPMEstimator, TemplatePose, training frames of the SPM model): the models ``spm train``
+    saves, fitted on every training frame (offgrid: every frame of the training folder),
+    without occluded ones unless ``train_occluded``; SPM on the frames with training features."""
+    rows = np.flatnonzero(~table.test) if "test" in table.arrays else np.arange(len(table))
+    rows = training_rows(table, rows, train_occluded)
+    usable = rows[np.isfinite(table.train_vector[rows]).all(axis=1)]
+    model = SPMEstimator(**model_params).fit(table.train_vector[usable], table.pose[usable])
+    return model, TemplatePose().fit(Frames(table, rows), table.pose[rows]), len(usable)
+
+
+def bench_job(job, report=lambda n: None):
+    """A split_job, or ("final", source, model_params, train_occluded): final_models of the table."""
+    if job[0] == "final":
+        return final_models(_table(job[1]), job[2], job[3])
+    return split_job(job, report)
 
 
 def _run_jobs(jobs: list, executor, report) -> list:
-    """Outputs of split_job for every job, in order; in this process without an executor."""
+    """Outputs of bench_job for every job, in order; in this process without an executor."""
     def said(job, output):
-        if len(output[2]):
+        if job[0] != "final" and len(output[2]):
             report(f"run {job[2] + 1}: {job[1]} test {output[0]} ({output[1]} train / {len(output[2])} test frames)")
 
     if executor is None:
         outputs = []
         for job in jobs:
-            outputs.append(split_job(job))
+            outputs.append(bench_job(job))
             said(job, outputs[-1])
         return outputs
-    outcomes = executor.run(split_job, jobs, on_outcome=lambda o: o.error or said(o.job, o.result))
+    outcomes = executor.run(bench_job, jobs, on_outcome=lambda o: o.error or said(o.job, o.result))
     failed = [o for o in outcomes if o.error]
     if failed:
         raise ModelError(failed[0].error if failed[0].error.count("\n") == 0 else failed[0].error.splitlines()[-1])

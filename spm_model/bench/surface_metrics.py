@@ -39,6 +39,7 @@ from spm_data.core.symmetries import NO_SYMMETRY
 POINTS = 256
 CONTINUOUS_STEP = 0.01   # bop_toolkit's max_sym_disc_step: a fraction of the diameter per step
 CHUNK = 1 << 21          # points x symmetries x frames held at once (memory bound)
+PROBE = 16               # points that rule symmetries out before all are compared (_candidates)
 ADD_THRESHOLD = 0.1
 MSSD_THRESHOLDS = np.arange(0.05, 0.51, 0.05)
 MSPD_THRESHOLDS = np.arange(5.0, 51.0, 5.0)
@@ -123,7 +124,8 @@ def surface_errors(pred_R, pred_t, true_R, true_t, K, model: ObjectModel, width:
 def _symmetric_errors(est, true_R, true_t, pred_R, K, model: ObjectModel):
     """MSSD (metres) and MSPD (pixels) of m frames: est (m, P, 3) the estimated points in the
     camera, poses and K (m, ...); the minimum over the model's symmetries, in chunks of frames.
-    Points are laid out (..., 3, P) so every transform is one batched matrix product."""
+    Points are laid out (..., 3, P) so every transform is one batched matrix product. With many
+    symmetries (a continuous axis) most are ruled out first on a few points (_candidates)."""
     x = model.points.T                                                              # (3, P)
     if model.any_rotation:   # the truth turned to the estimate's rotation: only the centres differ
         sym = np.einsum("nji,njk->nik", true_R, pred_R)[:, None]                      # (m, 1, 3, 3)
@@ -131,17 +133,57 @@ def _symmetric_errors(est, true_R, true_t, pred_R, K, model: ObjectModel):
         sym = np.broadcast_to(model.symmetries, (len(est),) + model.symmetries.shape)  # (m, S, 3, 3)
     est = est.transpose(0, 2, 1)                                                    # (m, 3, P)
     est_px = _pixels(K @ est)                                                       # (m, 2, P)
-    mssd, mspd = np.empty(len(est)), np.empty(len(est))
-    step = max(1, CHUNK // (sym.shape[1] * x.shape[1]))
-    for lo in range(0, len(est), step):
-        sl = slice(lo, lo + step)
-        turned = true_R[sl][:, None] @ sym[sl]                                       # (k, S, 3, 3)
-        gt = turned @ x + true_t[sl][:, None, :, None]                               # (k, S, 3, P)
+    turned = true_R[:, None] @ sym                                                  # (m, S, 3, 3)
+    pairs = _candidates(est, est_px, turned, true_t, K, x) if sym.shape[1] > PROBE else None
+    if pairs is None:
+        pairs = (np.repeat(np.arange(len(est)), sym.shape[1]), np.tile(np.arange(sym.shape[1]), len(est)))
+    mssd, mspd = np.full(len(est), np.inf), np.full(len(est), np.inf)
+    step = max(1, CHUNK // x.shape[1])
+    for lo in range(0, len(pairs[0]), step):
+        f, s = pairs[0][lo: lo + step], pairs[1][lo: lo + step]
+        sq_3d, sq_px = _squared_shifts(est[f], est_px[f], turned[f, s], true_t[f], K[f], x)
         # sqrt after the max and min: it is monotonic, so the same value as the norms' max-min
-        mssd[sl] = np.sqrt(np.square(est[sl][:, None] - gt).sum(axis=2).max(axis=2).min(axis=1))
-        shift = np.square(est_px[sl][:, None] - _pixels(K[sl][:, None] @ gt)).sum(axis=2)
-        mspd[sl] = np.sqrt(shift.max(axis=2).min(axis=1))
-    return mssd, mspd
+        np.minimum.at(mssd, f, sq_3d.max(axis=1))
+        np.minimum.at(mspd, f, sq_px.max(axis=1))
+    return np.sqrt(mssd), np.sqrt(mspd)
+
+
+def _squared_shifts(est, est_px, turned, true_t, K, x):
+    """Squared 3-D (metres²) and image (pixels²) shifts, (..., Q), between estimated points
+    est (..., 3, Q) / est_px (..., 2, Q) and the truth turned by a symmetry: turned (..., 3, 3)
+    (true rotation times symmetry), true_t (..., 3), K (..., 3, 3), x (3, Q) model points;
+    the leading axes broadcast."""
+    gt = turned @ x + true_t[..., :, None]                                          # (..., 3, Q)
+    sq_3d = np.square(est - gt).sum(axis=-2)
+    sq_px = np.square(est_px - _pixels(K @ gt)).sum(axis=-2)
+    return sq_3d, sq_px
+
+
+def _candidates(est, est_px, turned, true_t, K, x):
+    """(frame, symmetry) index pairs that can hold each frame's MSSD or MSPD minimum.
+    A symmetry's largest shift over PROBE of the points is a lower bound of its largest shift
+    over all of them; a symmetry whose bound is above the full value of the symmetry with the
+    smallest bound cannot be the minimum, and is left out. The bounds are one matrix product
+    each (K folded into the rotation), so they round a little differently from the full
+    values: the margin keeps every symmetry within 1e-6 (relative) or 1e-18 (m², px²) of the
+    full value, far above that rounding, so the minimum is always kept."""
+    m, S = turned.shape[:2]
+    every = max(1, x.shape[1] // PROBE)
+    probe = x[:, ::every][:, :PROBE]                                                # (3, Q)
+
+    def moved(rotation, shift):   # rotation (m, S, 3, 3) @ probe + shift (m, 3), one product
+        return (rotation.reshape(-1, 3) @ probe).reshape(m, S, 3, -1) + shift[:, None, :, None]
+
+    low_3d = np.square(est[:, None, :, ::every][..., :PROBE] - moved(turned, true_t)).sum(axis=2)
+    uvw = moved(K[:, None] @ turned, np.einsum("mij,mj->mi", K, true_t))
+    low_px = np.square(est_px[:, None, :, ::every][..., :PROBE] - _pixels(uvw)).sum(axis=2)
+    keep = np.zeros((m, S), bool)
+    for which, low in enumerate((low_3d.max(axis=2), low_px.max(axis=2))):
+        best = low.argmin(axis=1)
+        full = _squared_shifts(est, est_px, turned[np.arange(m), best], true_t, K, x)[which].max(axis=1)
+        keep |= low <= full[:, None] * (1 + 1e-6) + 1e-18
+        keep[np.arange(m), best] = True
+    return np.nonzero(keep)
 
 
 def _recall(errors, thresholds) -> float | None:

@@ -9,14 +9,11 @@ import numpy as np
 
 from spm_data.errors import ModelError
 from spm_data.io.outputs import removing_created
-from spm_model.base.frames import Frames
 from spm_model.bench.feature_cache import FeatureTable, load_features, offgrid_table
-from spm_model.bench.protocols import evaluate, training_rows
+from spm_model.bench.protocols import evaluate
 from spm_model.bench.report import check_report_folder, summary_text, write_error, write_report
 from spm_model.methods.registry import load_estimator_class
 from spm_model.methods.spm_pose import MIN_TRAIN_FRAMES
-from spm_model.methods.template import TemplatePose
-from spm_model.spm.estimator import SPMEstimator
 from spm_model.spm.features import FeatureConfig
 
 
@@ -76,14 +73,10 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
     model_params = dict(model_params or {}, features=features)
     source = (str(shards), None if test is None else str(test), features, allow_partial)
     evaluation = evaluate(table, protocol, runs, model_params, estimators=plugins, report=log, builtins=builtins,
-                          train_occluded=train_occluded, executor=executor, source=source)
-    final = np.flatnonzero(~table.test) if "test" in table.arrays else np.arange(len(table))
-    final = training_rows(table, final, evaluation["train_occluded"])
-    usable = final[np.isfinite(table.train_vector[final]).all(axis=1)]
-    model = SPMEstimator(**model_params).fit(table.train_vector[usable], table.pose[usable])
-    reference = TemplatePose().fit(Frames(table, final), table.pose[final])
+                          train_occluded=train_occluded, executor=executor, source=source, final=True)
+    model, reference, train_features = evaluation.pop("final_models")
     context = {"command": command, "shards": str(shards), **({"test": str(test)} if test is not None else {}),
-               "frames": len(table), "train_features": int(len(usable)),
+               "frames": len(table), "train_features": int(train_features),
                "query_features": int(np.isfinite(table.query_vector).all(axis=1).sum()),
                "without_path_neighbour": int((table.train_neighbours == 0).sum()),
                "frames_per_class": {c: int((table.class_name == c).sum()) for c in counts},

@@ -114,6 +114,7 @@ class RawImagePose(PoseEstimator):
     ``kind = "pca"`` (PCA + nearest neighbour) or ``"ls"`` (least squares)."""
 
     FITTED = ("model_",)
+    DETERMINISTIC = True   # no seed; each frame's code and pose are its own
 
     def __init__(self, *, kind: str = "pca", size: int = 32):
         self.kind = kind

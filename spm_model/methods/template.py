@@ -94,6 +94,7 @@ class TemplatePose(PoseEstimator):
     training focal length per image height."""
 
     FITTED = ("mean_", "basis_", "codes_", "poses_", "geometry_", "distance_", "focal_per_height_")
+    DETERMINISTIC = True   # no seed; each frame is matched on its own
 
     def __init__(self, *, components: int = 128, size_neighbours: int = 15, ray_correction: bool = False):
         self.components = components

@@ -43,3 +43,33 @@ def test_eval_resample_spreads_vertices_evenly():
     np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-9)
     spacing = np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1)
     assert spacing.max() < 25.0 and np.median(spacing) > 3.0   # neighbouring cells, at most 2.5 cells apart
+
+
+def test_an_object_exported_twice_is_resampled_once_and_written_the_same(tmp_path, monkeypatch):
+    from spm_data.core.shapes import procedural_mesh
+    from spm_data.formats import bop_models
+
+    calls = []
+    monkeypatch.setattr(bop_models, "_RESAMPLED", {})
+    monkeypatch.setattr(bop_models, "eval_resample",
+                        lambda *a: calls.append(1) or eval_resample(*a))
+    mesh = procedural_mesh("box", 3)
+    for out in ("a", "b"):
+        for sub in ("models", "models_eval"):
+            (tmp_path / out / sub).mkdir(parents=True)
+        bop_models.save_bop_model(tmp_path / out, 1, mesh)
+    assert len(calls) == 1
+    assert (tmp_path / "a/models_eval/obj_000001.ply").read_bytes() == \
+        (tmp_path / "b/models_eval/obj_000001.ply").read_bytes()
+    # Another shape (or the same one moved) is resampled afresh.
+    bop_models.save_bop_model(tmp_path / "a", 2, procedural_mesh("box", 4))
+    assert len(calls) == 2
+
+
+def test_row_keys_order_rows_as_unique_with_axis_0_does():
+    from spm_data.formats.bop_models import _row_keys
+
+    rows = np.random.default_rng(0).integers(-5, 6, size=(2000, 3))
+    _, inverse = np.unique(_row_keys(rows), return_inverse=True)
+    _, expected = np.unique(rows, axis=0, return_inverse=True)
+    np.testing.assert_array_equal(inverse, expected.ravel())

@@ -161,3 +161,38 @@ def test_split_workers_share_the_feature_memo_beside_the_feature_cache(model_sha
     finally:
         feature_memo.use_folder(None)
         protocols._TABLES.clear()
+
+
+class CountedMeanPose:
+    """A DETERMINISTIC plug-in that counts its fits (in-process evaluate only)."""
+    DETERMINISTIC = True
+    fits = 0
+
+    def fit(self, frames, poses):
+        CountedMeanPose.fits += 1
+        self.mean_ = np.asarray(poses).mean(axis=0)
+        return self
+
+    def predict(self, frames):
+        return np.tile(self.mean_, (len(frames), 1))
+
+
+def test_deterministic_methods_are_fitted_in_the_first_run_only_when_splits_repeat(model_shards, monkeypatch):
+    from spm_model.bench import protocols
+
+    table = load_features(model_shards, FAST)
+    kwargs = dict(runs=3, model_params={"features": FAST}, builtins=["pca", "template", "chance"],
+                  estimators={"counted": CountedMeanPose})
+    CountedMeanPose.fits = 0
+    reused = evaluate(table, "loco", **kwargs)
+    assert CountedMeanPose.fits == 3                       # 3 classes, once each
+    monkeypatch.setattr(protocols, "SAME_SPLITS_EVERY_RUN", ())
+    CountedMeanPose.fits = 0
+    refitted = evaluate(table, "loco", **kwargs)
+    assert CountedMeanPose.fits == 9                       # 3 classes x 3 runs
+    assert json.dumps(reused["runs"], sort_keys=True) == json.dumps(refitted["runs"], sort_keys=True)
+    assert list(reused["runs"][2]["overall"]) == ["pca", "template", "chance", "counted"]
+    # chance is seeded: it is fitted in every run and differs between runs.
+    runs = reused["runs"]
+    assert runs[0]["overall"]["template"] == runs[2]["overall"]["template"]
+    assert runs[0]["overall"]["chance"] != runs[1]["overall"]["chance"]

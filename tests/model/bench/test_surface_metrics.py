@@ -114,3 +114,25 @@ def test_mssd_and_mspd_equal_their_definitions_symmetry_by_symmetry():
         mssd = min(np.linalg.norm(est - gt, axis=1).max() for gt in truths)
         mspd = min(np.linalg.norm(pixels(est) - pixels(gt), axis=1).max() for gt in truths)
         assert np.isclose(got["mssd"][i], mssd, rtol=1e-12) and np.isclose(got["mspd"][i], mspd, rtol=1e-12)
+
+
+def test_ruling_symmetries_out_on_a_few_points_changes_no_value(monkeypatch):
+    from spm_data.core.shapes import procedural_mesh
+    from spm_model.bench import surface_metrics
+
+    ball = procedural_mesh("ball", 0)
+    model = object_model(ball.to_trimesh(), ball.symmetries)      # 630 symmetries, 256 points
+    n = 40
+    rng = np.random.default_rng(7)
+    true_R = Rotation.random(n, random_state=3).as_matrix()
+    true_t = np.column_stack([rng.normal(0, 0.05, (n, 2)), rng.uniform(0.5, 1.0, n)])
+    noise = np.radians(np.repeat([0.0, 2.0, 10.0, 180.0], n // 4))[:, None]   # exact, close, far, random
+    pred_R = (Rotation.from_rotvec(rng.normal(size=(n, 3)) * noise) * Rotation.from_matrix(true_R)).as_matrix()
+    pred_t = true_t + rng.normal(0, 0.01, (n, 3)) * (noise > 0)
+    Ks = np.repeat(K, n, axis=0)
+    pruned = surface_errors(pred_R, pred_t, true_R, true_t, Ks, model, 640)
+    monkeypatch.setattr(surface_metrics, "PROBE", len(model.symmetries))     # every symmetry, every point
+    every = surface_errors(pred_R, pred_t, true_R, true_t, Ks, model, 640)
+    for key in ("mssd", "mspd"):
+        assert np.array_equal(pruned[key], every[key])
+    assert np.all(pruned["mssd"][: n // 4] < 1e-12) and np.all(pruned["mssd"][-n // 4:] > 0.01)
