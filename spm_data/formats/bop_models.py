@@ -19,6 +19,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -46,8 +47,8 @@ def _row_keys(rows: np.ndarray) -> np.ndarray:
     keys): np.unique on them is np.unique(rows, axis=0), several times faster."""
     low = rows.min(axis=0)
     span = rows.max(axis=0) - low + 1
-    if float(np.prod(span.astype(np.float64))) >= 2.0 ** 62:
-        raise SpmError(f"models_eval: a grid of {span.tolist()} cells is too fine to index")
+    if float(np.prod(span.astype(np.float64))) >= 2.0 ** 62:   # keys would overflow: rank rows instead
+        return np.unique(rows, axis=0, return_inverse=True)[1].ravel()
     return np.ravel_multi_index((rows - low).T, span)
 
 
@@ -85,11 +86,8 @@ _RESAMPLED_MAX = 64
 def _remembered_resample(vertices: np.ndarray, faces: np.ndarray, cell: float) -> tuple:
     """eval_resample, remembered per process by the mesh's content: exports that share objects
     (several splits or folders of one dataset) resample each object once (0.2-1 s each)."""
-    import hashlib
-
-    digest = hashlib.sha256()
-    for a in (np.ascontiguousarray(vertices, np.float64), np.ascontiguousarray(faces, np.int64),
-              np.float64(cell)):
+    digest = hashlib.sha256(repr((np.shape(vertices), np.shape(faces), float(cell))).encode())
+    for a in (np.ascontiguousarray(vertices, np.float64), np.ascontiguousarray(faces, np.int64)):
         digest.update(a.tobytes())
     key = digest.hexdigest()
     if key not in _RESAMPLED:

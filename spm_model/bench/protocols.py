@@ -183,7 +183,11 @@ def split_job(job, report=lambda n: None):
         raise ModelError(f"{protocol} protocol, run {run + 1}: nothing left to train on when testing {tested}")
     if len(test) == 0:
         return tested, 0, test, {}, {}
-    predictions = fit_predict(make_methods(run, model_params, builtins, estimators), table, train, test, seed=run)
+    methods = make_methods(run, model_params, builtins, estimators)
+    if not methods:   # a later run whose methods are all reused from the first (evaluate)
+        report(len(test))
+        return tested, len(train), test, {}, {}
+    predictions = fit_predict(methods, table, train, test, seed=run)
     keys, symmetries = _meshes(source)
     errors = {name: frame_errors(table, test, pred, keys, symmetries) for name, pred in predictions.items()}
     report(len(test))
@@ -245,15 +249,19 @@ def _reused_methods(protocol: str, runs: int, model_params, builtins, estimators
     same in every run. Their predictions, and so their scores, are the same in every run."""
     if protocol not in SAME_SPLITS_EVERY_RUN or runs < 2:
         return set()
-    methods = make_methods(0, dict(model_params or {}), builtins, estimators)
-    return {name for name, method in methods.items() if getattr(type(method), "DETERMINISTIC", False) is True}
+    params = dict(model_params or {})
+    classes = {name: type(method) for name, method in builtin_methods(0, params.pop("features"), params).items()
+               if builtins is None or name in builtins}
+    classes.update(estimators or {})   # plug-ins: read on the class, not constructed here
+    return {name for name, cls in classes.items() if getattr(cls, "DETERMINISTIC", False) is True}
 
 
 def _without(builtins, estimators, model_params, reused: set) -> tuple:
     """(builtins, estimators) but the reused methods (builtins None: every built-in one)."""
     if not reused:
         return builtins, estimators
-    names = builtins if builtins is not None else list(make_methods(0, dict(model_params or {})))
+    params = dict(model_params or {})
+    names = builtins if builtins is not None else list(builtin_methods(0, params.pop("features"), params))
     return ([name for name in names if name not in reused],
             {name: cls for name, cls in (estimators or {}).items() if name not in reused})
 
@@ -265,9 +273,8 @@ def _with_first_run(output: tuple, first: tuple) -> tuple:
     if not np.array_equal(test, first[2]):
         raise ModelError(f"internal: split {tested!r} differs between runs; cannot reuse its predictions")
     order = list(first[3]) + [name for name in predictions if name not in first[3]]
-    pick = lambda name, mine, theirs: mine[name] if name in mine else theirs[name]  # noqa: E731
-    return (tested, n_train, test, {n: pick(n, predictions, first[3]) for n in order},
-            {n: pick(n, errors, first[4]) for n in order})
+    predictions, errors = {**first[3], **predictions}, {**first[4], **errors}
+    return tested, n_train, test, {n: predictions[n] for n in order}, {n: errors[n] for n in order}
 
 
 def final_models(table: FeatureTable, model_params: dict, train_occluded: bool) -> tuple:
@@ -284,7 +291,10 @@ def final_models(table: FeatureTable, model_params: dict, train_occluded: bool) 
 def bench_job(job, report=lambda n: None):
     """A split_job, or ("final", source, model_params, train_occluded): final_models of the table."""
     if job[0] == "final":
-        return final_models(_table(job[1]), job[2], job[3])
+        try:
+            return final_models(_table(job[1]), job[2], job[3])
+        except ModelError as exc:
+            raise ModelError(f"final models (on every training frame): {exc}") from None
     return split_job(job, report)
 
 

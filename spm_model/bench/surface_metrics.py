@@ -38,7 +38,7 @@ from spm_data.core.symmetries import NO_SYMMETRY
 
 POINTS = 256
 CONTINUOUS_STEP = 0.01   # bop_toolkit's max_sym_disc_step: a fraction of the diameter per step
-CHUNK = 1 << 21          # points x symmetries x frames held at once (memory bound)
+CHUNK = 1 << 21          # points x (frame, symmetry) pairs compared at once (memory bound)
 PROBE = 16               # points that rule symmetries out before all are compared (_candidates)
 ADD_THRESHOLD = 0.1
 MSSD_THRESHOLDS = np.arange(0.05, 0.51, 0.05)
@@ -123,7 +123,8 @@ def surface_errors(pred_R, pred_t, true_R, true_t, K, model: ObjectModel, width:
 
 def _symmetric_errors(est, true_R, true_t, pred_R, K, model: ObjectModel):
     """MSSD (metres) and MSPD (pixels) of m frames: est (m, P, 3) the estimated points in the
-    camera, poses and K (m, ...); the minimum over the model's symmetries, in chunks of frames.
+    camera, poses and K (m, ...); the minimum over the model's symmetries, in chunks of
+    (frame, symmetry) pairs (m is bounded by the caller: frame_surface_errors' block).
     Points are laid out (..., 3, P) so every transform is one batched matrix product. With many
     symmetries (a continuous axis) most are ruled out first on a few points (_candidates)."""
     x = model.points.T                                                              # (3, P)
@@ -160,13 +161,16 @@ def _squared_shifts(est, est_px, turned, true_t, K, x):
 
 
 def _candidates(est, est_px, turned, true_t, K, x):
-    """(frame, symmetry) index pairs that can hold each frame's MSSD or MSPD minimum.
+    """(frame, symmetry) index pairs, two (k,) int arrays, that can hold each frame's MSSD or
+    MSPD minimum. est (m, 3, P) / est_px (m, 2, P): the estimate's points in the camera and
+    in pixels; turned (m, S, 3, 3): true rotation times each symmetry; true_t (m, 3) metres;
+    K (m, 3, 3); x (3, P) model points.
     A symmetry's largest shift over PROBE of the points is a lower bound of its largest shift
     over all of them; a symmetry whose bound is above the full value of the symmetry with the
     smallest bound cannot be the minimum, and is left out. The bounds are one matrix product
     each (K folded into the rotation), so they round a little differently from the full
-    values: the margin keeps every symmetry within 1e-6 (relative) or 1e-18 (m², px²) of the
-    full value, far above that rounding, so the minimum is always kept."""
+    values: the margin keeps every symmetry within 1e-6 (relative) or 1e-12 (m², px²) of the
+    full value, far above that rounding, so the minimum is kept."""
     m, S = turned.shape[:2]
     every = max(1, x.shape[1] // PROBE)
     probe = x[:, ::every][:, :PROBE]                                                # (3, Q)
@@ -181,7 +185,7 @@ def _candidates(est, est_px, turned, true_t, K, x):
     for which, low in enumerate((low_3d.max(axis=2), low_px.max(axis=2))):
         best = low.argmin(axis=1)
         full = _squared_shifts(est, est_px, turned[np.arange(m), best], true_t, K, x)[which].max(axis=1)
-        keep |= low <= full[:, None] * (1 + 1e-6) + 1e-18
+        keep |= low <= full[:, None] * (1 + 1e-6) + 1e-12
         keep[np.arange(m), best] = True
     return np.nonzero(keep)
 

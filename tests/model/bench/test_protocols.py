@@ -186,6 +186,9 @@ def test_deterministic_methods_are_fitted_in_the_first_run_only_when_splits_repe
     CountedMeanPose.fits = 0
     reused = evaluate(table, "loco", **kwargs)
     assert CountedMeanPose.fits == 3                       # 3 classes, once each
+    # Every method reused: the later runs fit and read nothing, and still report every method.
+    only = evaluate(table, "loco", runs=2, model_params={"features": FAST}, builtins=["pca"])
+    assert only["runs"][1]["overall"] == only["runs"][0]["overall"] and list(only["runs"][1]["overall"]) == ["pca"]
     monkeypatch.setattr(protocols, "SAME_SPLITS_EVERY_RUN", ())
     CountedMeanPose.fits = 0
     refitted = evaluate(table, "loco", **kwargs)
