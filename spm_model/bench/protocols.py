@@ -249,20 +249,22 @@ def _reused_methods(protocol: str, runs: int, model_params, builtins, estimators
     same in every run. Their predictions, and so their scores, are the same in every run."""
     if protocol not in SAME_SPLITS_EVERY_RUN or runs < 2:
         return set()
-    params = dict(model_params or {})
-    classes = {name: type(method) for name, method in builtin_methods(0, params.pop("features"), params).items()
-               if builtins is None or name in builtins}
-    classes.update(estimators or {})   # plug-ins: read on the class, not constructed here
+    classes = {**_builtin_classes(model_params, builtins), **(estimators or {})}  # plug-ins: never built here
     return {name for name, cls in classes.items() if getattr(cls, "DETERMINISTIC", False) is True}
+
+
+def _builtin_classes(model_params, builtins) -> dict:
+    """{name: class} of the built-in methods ``builtins`` names (None: all), in report order."""
+    params = dict(model_params or {})
+    return {name: type(method) for name, method in builtin_methods(0, params.pop("features"), params).items()
+            if builtins is None or name in builtins}
 
 
 def _without(builtins, estimators, model_params, reused: set) -> tuple:
     """(builtins, estimators) but the reused methods (builtins None: every built-in one)."""
     if not reused:
         return builtins, estimators
-    params = dict(model_params or {})
-    names = builtins if builtins is not None else list(builtin_methods(0, params.pop("features"), params))
-    return ([name for name in names if name not in reused],
+    return ([name for name in _builtin_classes(model_params, builtins) if name not in reused],
             {name: cls for name, cls in (estimators or {}).items() if name not in reused})
 
 
