@@ -41,8 +41,13 @@ class N3MPose(PoseEstimator):
     reprojection_error: pixels, the inlier threshold of every geometric check.
     min_inliers: inliers the final pose needs (else a NaN row).
     ransac_fallback: when no N3M passes, PnP with RANSAC over all matches proposes.
-    seed: RANSAC's seed.
+
+    No seed: the FLANN kd-trees are drawn with a fixed seed (n3m_points.TREE_SEED) and
+    OpenCV's RANSAC with its own fixed one, so fit and predict repeat exactly on any
+    worker, and the benchmark fits N3M once when every run has the same splits.
     """
+
+    DETERMINISTIC = True
 
     FITTED = ("points_", "point_object_", "quality_", "descriptors_", "descriptor_point_",
               "markers_", "merge_radius_")
@@ -50,7 +55,7 @@ class N3MPose(PoseEstimator):
     def __init__(self, *, sift_side=256, max_keypoints=300, max_train_frames=1500, merge_pixels=1.5,
                  descriptors_per_point=6, ratio=0.8, marker_size=5, marker_radius=0.3, min_relief=0.1,
                  per_view=3, max_markers=150, reprojection_error=3.0, min_inliers=6,
-                 ransac_fallback=True, seed=0):
+                 ransac_fallback=True):
         self.sift_side = sift_side
         self.max_keypoints = max_keypoints
         self.max_train_frames = max_train_frames
@@ -65,7 +70,6 @@ class N3MPose(PoseEstimator):
         self.reprojection_error = reprojection_error
         self.min_inliers = min_inliers
         self.ransac_fallback = ransac_fallback
-        self.seed = seed
 
     # ------------------------------------------------------------------ fit
     def fit(self, frames, poses) -> "N3MPose":
@@ -208,7 +212,7 @@ class N3MPose(PoseEstimator):
                                 same_radius=2 * self.merge_radius_)
         return estimate(self.markers_, point, self.points_[point], uv[keypoint], frame["K"],
                         tol=float(self.reprojection_error), min_inliers=int(self.min_inliers),
-                        fallback=bool(self.ransac_fallback), seed=int(self.seed))
+                        fallback=bool(self.ransac_fallback))
 
     def _index(self):
         """The FLANN index over the stored descriptors, built once per fitted model."""

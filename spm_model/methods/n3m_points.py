@@ -18,6 +18,9 @@ DEPTH_STEP = 0.02     # a keypoint whose 3x3 depth neighbourhood spans more than
                       # of its depth sits on a silhouette or a grazing surface: not lifted
 VISIBLE_SIDE = 64     # depth maps kept for the visibility test, at most this many pixels a side
 VISIBLE_TOL = 0.05    # a point is visible in a view if its depth agrees within this fraction
+TREE_SEED = 0         # FLANN draws its kd-trees from OpenCV's per-thread generator, whose state is
+                      # whatever ran before in the process (another split, a RANSAC): seeded
+                      # before every build, the index, and so N3M, is the same on any worker
 
 
 def make_sift(max_keypoints: int):
@@ -154,7 +157,9 @@ def distinctiveness(desc, xyz, *, same_radius: float, ratio: float, checks: int 
 
 
 def build_index(database):
-    """A FLANN index (4 randomised kd-trees) over ``database`` (m, 128) float32 rows."""
+    """A FLANN index (4 randomised kd-trees, drawn with TREE_SEED) over ``database`` (m, 128)
+    float32 rows. Reseeds OpenCV's generator of the calling thread (cv2.setRNGSeed)."""
+    cv2.setRNGSeed(TREE_SEED)
     return cv2.flann_Index(np.ascontiguousarray(database, dtype=np.float32), {"algorithm": 1, "trees": 4})
 
 

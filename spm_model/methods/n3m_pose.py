@@ -83,11 +83,12 @@ def marker_hypotheses(markers, matched_point, xyz, uv, K, *, tol: float) -> list
     return out
 
 
-def ransac_hypothesis(xyz, uv, K, *, tol: float, seed: int = 0) -> list:
-    """PnP with RANSAC (AP3P on minimal samples) over all matches: [(rvec, tvec)] or []."""
+def ransac_hypothesis(xyz, uv, K, *, tol: float) -> list:
+    """PnP with RANSAC (AP3P on minimal samples) over all matches: [(rvec, tvec)] or [].
+    Repeatable: OpenCV's RANSAC draws its samples from a generator of its own with a
+    fixed seed, not from the thread's (cv2.setRNGSeed has no effect on it)."""
     if len(xyz) < MIN_MARKER:
         return []
-    cv2.setRNGSeed(int(seed))
     ok, rvec, tvec, _ = cv2.solvePnPRansac(xyz, uv, K, None, iterationsCount=RANSAC_ITERATIONS,
                                            reprojectionError=float(tol), confidence=0.999,
                                            flags=cv2.SOLVEPNP_AP3P)
@@ -125,8 +126,7 @@ def best_pose(hypotheses, xyz, uv, K, *, tol: float, min_inliers: int):
     return R, tvec.reshape(3), int(inliers.sum())
 
 
-def estimate(markers, matched_point, xyz, uv, K, *, tol: float, min_inliers: int, fallback: bool,
-             seed: int = 0):
+def estimate(markers, matched_point, xyz, uv, K, *, tol: float, min_inliers: int, fallback: bool):
     """The pose from matches ``xyz`` (m, 3) -> ``uv`` (m, 2), ``matched_point`` (m,) their
     point ids: markers first, RANSAC if none passes (``fallback``). Returns
     (R, t, inliers, source) with source "n3m" or "ransac", or None."""
@@ -139,6 +139,6 @@ def estimate(markers, matched_point, xyz, uv, K, *, tol: float, min_inliers: int
         return (*found, "n3m")
     if not fallback:
         return None
-    found = best_pose(ransac_hypothesis(xyz, uv, K, tol=tol, seed=seed), xyz, uv, K, tol=tol,
+    found = best_pose(ransac_hypothesis(xyz, uv, K, tol=tol), xyz, uv, K, tol=tol,
                       min_inliers=min_inliers)
     return None if found is None else (*found, "ransac")

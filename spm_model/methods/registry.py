@@ -38,7 +38,7 @@ def builtin_methods(seed: int, features: FeatureConfig, model_params: dict | Non
     """Fresh, unfitted instances of every built-in method, in report order."""
     spm = SPMPose(seed=seed, features=features, params=model_params)
     return {"spm": spm, "knn1": SPMNeighbours(k=1, spm=spm), "knn3": SPMNeighbours(k=3, spm=spm),
-            "pca": RawImagePose(kind="pca"), "ls": RawImagePose(kind="ls"), "n3m": N3MPose(seed=seed),
+            "pca": RawImagePose(kind="pca"), "ls": RawImagePose(kind="ls"), "n3m": N3MPose(),
             "smm": SMMPose(seed=seed),
             "template": TemplatePose(), "chance": ChancePose(seed=seed)}
 

@@ -70,6 +70,25 @@ def test_parameters_read_back():
     assert "N3MPose(sift_side=128" in repr(model)
 
 
+def test_fit_and_predict_do_not_depend_on_what_ran_before_in_the_process(model_shards):
+    import cv2
+
+    from spm_model.methods.n3m_points import build_index
+
+    train, poses, test, _ = split(model_shards)
+    runs = []
+    for state in (None, 12345):
+        if state is not None:                        # another split's index, another RANSAC, ...
+            cv2.setRNGSeed(state)
+            build_index(np.random.default_rng(0).random((500, 128), dtype=np.float32))
+            cv2.randu(np.zeros(1000), 0.0, 1.0)
+        model = N3MPose(max_train_frames=60).fit(train, poses)
+        runs.append((model.quality_, model.markers_, model.predict(test[:40])))
+    for a, b in zip(*runs):
+        np.testing.assert_array_equal(a, b)
+    assert np.isfinite(runs[0][2]).all(axis=1).sum() >= 20
+
+
 def test_remembered_features_give_the_same_model_and_poses(model_shards, monkeypatch):
     from spm_model.base.feature_memo import clear_memo, memo_stats
 

@@ -38,6 +38,22 @@ def test_ransac_recovers_the_pose_within_the_noise_bound_despite_outliers():
     assert 38 <= inliers <= 42
 
 
+def test_ransac_draws_the_same_samples_whatever_the_threads_generator_holds():
+    import cv2
+
+    xyz, uv = scene(n=40, noise=0.5)
+    rng = np.random.default_rng(3)
+    uv[:26] = rng.uniform(0, 255, (26, 2))                          # 65% outliers: samples matter
+    found = set()
+    for state in (0, 1, 12345):
+        cv2.setRNGSeed(state)
+        cv2.randu(np.zeros(16), 0.0, 1.0)
+        R, t, inliers, source = estimate(np.zeros((0, 5), int), np.arange(40), xyz, uv, K, tol=3.0,
+                                         min_inliers=8, fallback=True)
+        found.add((R.tobytes(), t.tobytes(), inliers, source))
+    assert len(found) == 1 and next(iter(found))[3] == "ransac"
+
+
 def test_markers_give_the_pose_first_and_a_wrong_marker_is_rejected():
     xyz, uv = scene(noise=0.3)
     markers = np.array([[0, 1, 2, 3, 4], [5, 6, 7, 8, 9]])
