@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 from spm_data.core.poses import label_to_pose, label_to_view, wrap_degrees
 from spm_data.errors import ModelError
 from spm_model.base.estimator import PoseEstimator
+from spm_model.base.ranking import smallest_k
 from spm_model.methods.smm_graph import manifold_distances, select_parts, selection_weights, training_pairs
 from spm_model.methods.smm_parts import fit_codebook, mask_frame, remembered_local_features
 
@@ -159,7 +160,7 @@ class SMMPose(PoseEstimator):
         for start in range(0, len(feats), 64):
             rows = np.arange(start, min(start + 64, len(feats)))
             d = manifold_distances(presence[rows], location[rows], self.presence_, self.location_)
-            nearest = np.argsort(d, axis=1, kind="stable")[:, :k]
+            nearest = smallest_k(d, k)
             for r, near in zip(rows, nearest):
                 if presence[r].any():
                     klass[r], match[r] = vote(self.bins_, near, self.n_bins)

@@ -159,10 +159,18 @@ def manifold_distances(pa, la, pb, lb) -> np.ndarray:
     return np.maximum(vertex + both * located - spread, 0.0)
 
 
-def _rotation_angles(qa, qb) -> np.ndarray:
-    """Unit quaternions (na, 4), (nb, 4) -> (na, nb) rotation angles between them, degrees."""
+def _rotation_angles(qa, qb, within: float = 180.0) -> np.ndarray:
+    """Unit quaternions (na, 4), (nb, 4) -> (na, nb) rotation angles between them, degrees;
+    inf where the angle is clearly above ``within`` (the arccos is only taken near or
+    below it: most pairs are far, and the arccos was most of the pairs' cost)."""
     dots = np.clip(np.abs(qa @ qb.T), 0.0, 1.0)
-    return np.degrees(2.0 * np.arccos(dots))
+    # cos is decreasing on [0, pi/2]: dots below this bound give angles above ``within``
+    # by far more than rounding, so skipping them changes no comparison with it.
+    half = np.radians(within) / 2.0 + 1e-6
+    near = dots >= np.cos(half) if half < np.pi / 2 else np.ones(dots.shape, dtype=bool)
+    out = np.full(dots.shape, np.inf)
+    out[near] = np.degrees(2.0 * np.arccos(dots[near]))
+    return out
 
 
 def _align_partner(i, candidates, presence, location):
@@ -196,7 +204,7 @@ def training_pairs(quaternions, sequences, bins, tolerance: float = 5.0, max_pai
     align, expand = [], []
     for start in range(0, len(chosen), 512):
         rows = chosen[start:start + 512]
-        angles = _rotation_angles(q[rows], q)
+        angles = _rotation_angles(q[rows], q, within=tolerance)
         angles[sequences[rows][:, None] == sequences[None, :]] = np.inf
         for r, i in enumerate(rows):
             candidates = np.flatnonzero(angles[r] <= tolerance)

@@ -6,7 +6,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from spm_data.core.poses import camera_poses
-from spm_model.methods.smm_graph import (exact_subgraph, local_subgraph, manifold_distances, pair_terms,
+from spm_model.methods.smm_graph import (_rotation_angles, exact_subgraph, local_subgraph, manifold_distances, pair_terms,
                                          select_parts, selection_weights, subgraph_value, training_pairs)
 
 
@@ -157,3 +157,21 @@ def test_manifold_distances_equal_the_definition_edge_by_edge():
         np.testing.assert_allclose(manifold_distances(pa, la, pb, lb), expected, rtol=1e-12, atol=1e-10)
     # Identical images are at distance 0 up to rounding (distances here are 10^1-10^3).
     np.testing.assert_allclose(np.diag(manifold_distances(pa, la, pa, la)), 0.0, atol=1e-9)
+
+
+def test_rotation_angles_skip_only_pairs_far_outside_the_tolerance():
+    rng = np.random.default_rng(0)
+    base = Rotation.random(100, random_state=1)
+    q = [Rotation.random(500, random_state=2).as_quat()]
+    for degrees in (0.0, 4.9999, 5.0, 5.0001, 30.0, 179.9):    # near the tolerances tested
+        step = rng.normal(size=(100, 3))
+        step *= np.radians(degrees) / np.linalg.norm(step, axis=1, keepdims=True)
+        q.append((base * Rotation.from_rotvec(step)).as_quat())
+    q = np.vstack(q + [base.as_quat()])
+    plain = np.degrees(2.0 * np.arccos(np.clip(np.abs(q[-100:] @ q.T), 0.0, 1.0)))
+    for tolerance in (0.0, 5.0, 30.0, 180.0):
+        angles = _rotation_angles(q[-100:], q, within=tolerance)
+        np.testing.assert_array_equal(angles <= tolerance, plain <= tolerance)
+        np.testing.assert_array_equal(angles[angles <= tolerance], plain[plain <= tolerance])
+        assert np.all(np.isinf(angles[plain > tolerance + 1e-3]) | (tolerance >= 179.9))
+    np.testing.assert_array_equal(_rotation_angles(q[-100:], q), plain)

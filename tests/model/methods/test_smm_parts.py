@@ -18,6 +18,19 @@ def test_mask_frame():
     assert mask_frame(np.zeros((5, 5), dtype=bool)) is None
 
 
+def test_mask_frame_gives_the_floats_of_the_mean_pixel_bit_for_bit():
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        h, w = rng.integers(1, 400, 2)
+        mask = rng.random((h, w)) < rng.random() ** 3
+        if not mask.any():
+            continue
+        rows, cols = np.nonzero(mask)
+        centroid, scale = mask_frame(mask.astype(np.uint8) * 255)
+        assert centroid.tobytes() == np.array([cols.mean(), rows.mean()]).tobytes()
+        assert scale == float(np.sqrt(rows.size))
+
+
 def test_root_sift_is_unit_and_hellinger():
     rng = np.random.default_rng(0)
     desc = rng.integers(0, 255, (6, 128)).astype(np.float32)
