@@ -102,3 +102,17 @@ def test_match_with_nothing_distinct_or_no_keypoint_gives_no_match():
     for q in (queries, np.zeros((0, 128), np.float32)):
         keypoint, matched = match(build_index(stored), xyz, np.arange(4), q, ratio=0.8, same_radius=0.002)
         assert len(keypoint) == 0 and len(matched) == 0
+
+
+def test_marker_rows_are_where_each_marker_point_was_matched_last():
+    from spm_model.methods.n3m_pose import _marker_rows
+
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        markers = rng.integers(0, 60, (int(rng.integers(1, 30)), 5))
+        matched = rng.integers(0, 60, int(rng.integers(1, 40)))      # repeats too
+        lookup = {int(p): i for i, p in enumerate(matched)}            # the definition: last match wins
+        rows, found = _marker_rows(markers, matched)
+        for marker, r, f in zip(markers, rows, found):
+            assert list(r[f]) == [lookup[int(p)] for p in marker if int(p) in lookup]
+            assert np.all(r[~f] == -1)
