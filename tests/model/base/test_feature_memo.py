@@ -7,7 +7,8 @@ import pytest
 import os
 import socket
 
-from spm_model.base.feature_memo import clear_memo, content_key, memo_stats, memoized, use_folder
+from spm_model.base.feature_memo import (clear_memo, content_key, load_entry, memo_stats, memoized, save_entry,
+                                         use_folder)
 
 
 @pytest.fixture(autouse=True)
@@ -71,14 +72,14 @@ def test_the_folder_serves_other_processes_and_damage_is_recomputed(tmp_path):
     img = np.random.default_rng(1).integers(0, 255, (16, 16, 3), dtype=np.uint8)
     use_folder(tmp_path / "memo")
     first = memoized(("k",), (img,), lambda: f(img))
-    files = list((tmp_path / "memo").glob("*/*.npz"))
+    files = list((tmp_path / "memo").glob("*/*.feat"))
     assert len(files) == 1 and len(calls) == 1
     clear_memo()                                                        # as a new process would start
     served = memoized(("k",), (img,), lambda: f(img))
     assert len(calls) == 1 and memo_stats()["disk_hits"] == 1
     assert all(np.array_equal(a, b) and a.dtype == b.dtype for a, b in zip(first, served))
     data = bytearray(files[0].read_bytes())
-    data[len(data) // 2] ^= 0xFF                                        # a flipped byte: the zip CRC fails
+    data[len(data) // 2] ^= 0xFF                                        # a flipped byte: the digest fails
     files[0].write_bytes(bytes(data))
     clear_memo()
     again = memoized(("k",), (img,), lambda: f(img))
@@ -112,3 +113,45 @@ def test_an_unwritable_folder_warns_once_and_memory_still_serves(tmp_path):
         memoized(("k",), (img,), lambda: f(img))
     memoized(("k",), (img,), lambda: f(img))
     assert len(calls) == 1 and memo_stats()["hits"] == 1
+
+
+@pytest.mark.parametrize("arrays", [
+    (np.zeros((0, 2)), np.zeros((0, 128), np.uint8)),                 # an image without keypoints
+    (np.arange(6.0).reshape(3, 2), np.ones((3, 128), np.uint8), np.float32(2.5) * np.ones((), np.float32)),
+    (np.arange(12.0).reshape(3, 4).T, np.arange(5, dtype=">i4")),     # not C-ordered; big-endian
+    (),
+])
+def test_entries_read_back_exactly_and_in_place(tmp_path, arrays):
+    save_entry(tmp_path / "e.feat", arrays)
+    back = load_entry(tmp_path / "e.feat")
+    assert len(back) == len(arrays)
+    for a, b in zip(arrays, back):
+        assert a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b)
+        assert not b.flags.writeable and (b.size == 0 or b.ctypes.data % 16 == 0)
+
+
+def test_entries_cut_short_or_of_another_format_are_refused(tmp_path):
+    path = tmp_path / "e.feat"
+    save_entry(path, (np.arange(10.0),))
+    data = path.read_bytes()
+    for broken in (data[:0], data[:7], data[:-1], data[:-21], b"PK" + data[2:]):
+        path.write_bytes(broken)
+        assert load_entry(path) is None
+    assert load_entry(tmp_path / "missing.feat") is None
+    with pytest.raises(ValueError, match="Python objects"):
+        save_entry(path, (np.array([None]),))
+
+
+def test_entries_of_the_earlier_format_are_served_and_rewritten(tmp_path):
+    calls = []
+    f = counting(calls)
+    img = np.random.default_rng(2).integers(0, 255, (16, 16, 3), dtype=np.uint8)
+    use_folder(tmp_path / "memo")
+    first = memoized(("k",), (img,), lambda: f(img))
+    new = next((tmp_path / "memo").glob("*/*.feat"))
+    np.savez(new.with_suffix(".npz"), *[np.asarray(a) + 1 for a in first])   # as the earlier code wrote it
+    new.unlink()
+    clear_memo()
+    served = memoized(("k",), (img,), lambda: f(img))
+    assert len(calls) == 1 and all(np.array_equal(a + 1, b) for a, b in zip(first, served))
+    assert new.exists() and not new.with_suffix(".npz").exists()
