@@ -172,9 +172,9 @@ def make_methods(seed: int, model_params: dict, builtins=None, estimators=None) 
 def split_job(job, report=lambda n: None):
     """One (run, split) on any worker: fit every method, predict the test frames.
     job = (source, protocol, run, split index, model_params, builtins, estimators, train_occluded).
-    Returns (what was tested, training frames, test index, {method: predictions},
-    {method: per-frame errors}): the errors (scoring.frame_errors) are scored here, so the
-    splits' scoring runs on the workers too."""
+    Returns (what was tested, training frames, test index, {method: per-frame errors}): the
+    errors (scoring.frame_errors) are scored here, so the splits' scoring runs on the
+    workers too, and only the errors travel back."""
     source, protocol, run, index, model_params, builtins, estimators, train_occluded = job
     table = _table(source)
     tested, train, test = splits(table, protocol, seed=run)[index]
@@ -182,16 +182,16 @@ def split_job(job, report=lambda n: None):
     if len(train) == 0:
         raise ModelError(f"{protocol} protocol, run {run + 1}: nothing left to train on when testing {tested}")
     if len(test) == 0:
-        return tested, 0, test, {}, {}
+        return tested, 0, test, {}
     methods = make_methods(run, model_params, builtins, estimators)
     if not methods:   # a later run whose methods are all reused from the first (evaluate)
         report(len(test))
-        return tested, len(train), test, {}, {}
+        return tested, len(train), test, {}
     predictions = fit_predict(methods, table, train, test, seed=run)
     keys, symmetries = _meshes(source)
     errors = {name: frame_errors(table, test, pred, keys, symmetries) for name, pred in predictions.items()}
     report(len(test))
-    return tested, len(train), test, predictions, errors
+    return tested, len(train), test, errors
 
 
 def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_params: dict | None = None,
@@ -269,14 +269,14 @@ def _without(builtins, estimators, model_params, reused: set) -> tuple:
 
 
 def _with_first_run(output: tuple, first: tuple) -> tuple:
-    """A later run's split_job output with the reused methods' predictions and errors taken
-    from the first run's output of the same split, in the first run's method order."""
-    tested, n_train, test, predictions, errors = output
+    """A later run's split_job output with the reused methods' errors taken from the first
+    run's output of the same split, in the first run's method order."""
+    tested, n_train, test, errors = output
     if not np.array_equal(test, first[2]):
         raise ModelError(f"internal: split {tested!r} differs between runs; cannot reuse its predictions")
-    order = list(first[3]) + [name for name in predictions if name not in first[3]]
-    predictions, errors = {**first[3], **predictions}, {**first[4], **errors}
-    return tested, n_train, test, {n: predictions[n] for n in order}, {n: errors[n] for n in order}
+    order = list(first[3]) + [name for name in errors if name not in first[3]]
+    errors = {**first[3], **errors}
+    return tested, n_train, test, {n: errors[n] for n in order}
 
 
 def final_models(table: FeatureTable, model_params: dict, train_occluded: bool) -> tuple:

@@ -73,14 +73,14 @@ def _occlusion_curves(table, index, errors) -> dict:
 
 def run_summary(table, protocol: str, run: int, parts: list) -> dict:
     """One run's results from its splits' outputs [(tested, training frames, test index,
-    {method: predictions}, {method: per-frame errors (frame_errors)})]: per-class and overall
+    {method: per-frame errors (frame_errors)})]: per-class and overall
     summaries, accuracy curves, occlusion bins; with offgrid, the Fig. 5 curves and the
     seen/unseen summaries."""
     index = np.concatenate([p[2] for p in parts])
     names = list(parts[0][3])
     # Each method's per-frame errors, scored per split (every error is a frame's own); the
     # tables, curves and bins slice them.
-    errors = {m: {k: np.concatenate([p[4][m][k] for p in parts]) for k in parts[0][4][m]} for m in names}
+    errors = {m: {k: np.concatenate([p[3][m][k] for p in parts]) for k in parts[0][3][m]} for m in names}
     per_class = {}
     for c in sorted(set(table.class_name.tolist())):
         sel = table.class_name[index] == c
