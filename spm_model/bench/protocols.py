@@ -291,13 +291,20 @@ def final_models(table: FeatureTable, model_params: dict, train_occluded: bool) 
 
 
 def bench_job(job, report=lambda n: None):
-    """A split_job, or ("final", source, model_params, train_occluded): final_models of the table."""
-    if job[0] == "final":
-        try:
-            return final_models(_table(job[1]), job[2], job[3])
-        except ModelError as exc:
-            raise ModelError(f"final models (on every training frame): {exc}") from None
-    return split_job(job, report)
+    """A split_job, or ("final", source, model_params, train_occluded): final_models of the table.
+    Runs on one BLAS thread wherever it runs: LAPACK's threaded solvers round differently
+    with 2 threads than with 1, and SPM's RBF system amplifies that (0.003 degrees), so the
+    BLAS threads of a worker (cores / --workers) would otherwise change results.json and
+    model.npz. The workers, not BLAS, are the benchmark's parallelism."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        if job[0] == "final":
+            try:
+                return final_models(_table(job[1]), job[2], job[3])
+            except ModelError as exc:
+                raise ModelError(f"final models (on every training frame): {exc}") from None
+        return split_job(job, report)
 
 
 def _run_jobs(jobs: list, executor, report) -> list:

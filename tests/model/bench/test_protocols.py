@@ -199,3 +199,27 @@ def test_deterministic_methods_are_fitted_in_the_first_run_only_when_splits_repe
     runs = reused["runs"]
     assert runs[0]["overall"]["template"] == runs[2]["overall"]["template"]
     assert runs[0]["overall"]["chance"] != runs[1]["overall"]["chance"]
+
+
+class BlasThreadsPose(CountedMeanPose):
+    """A plug-in that notes the BLAS threads its fit runs with (in-process evaluate only)."""
+    DETERMINISTIC = False
+    seen: list = []
+
+    def fit(self, frames, poses):
+        from threadpoolctl import threadpool_info
+
+        BlasThreadsPose.seen.append(max(i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"))
+        return super().fit(frames, poses)
+
+
+def test_benchmark_jobs_run_on_one_blas_thread_whatever_the_process_has(model_shards):
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    table = load_features(model_shards, FAST)
+    BlasThreadsPose.seen = []
+    with threadpool_limits(limits=2, user_api="blas"):
+        outside = max(i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas")
+        evaluate(table, "views", runs=1, model_params={"features": FAST}, builtins=[],
+                 estimators={"probe": BlasThreadsPose})
+    assert outside == 2 and BlasThreadsPose.seen == [1]
