@@ -92,8 +92,9 @@ def save_entry(path, arrays) -> None:
     the blake2b digest (DIGEST bytes) of everything before it. Little-endian."""
     head = [MAGIC, struct.pack("<I", len(arrays))]
     arrays = [np.asarray(a, order="C") for a in arrays]
-    if any(a.dtype.hasobject for a in arrays):
-        raise ValueError("save_entry: arrays of Python objects have no bytes to store")
+    if any(a.dtype.hasobject or a.dtype.names is not None for a in arrays):
+        raise ValueError("save_entry: arrays of Python objects or of named fields are not stored; "
+                         "give plain arrays (one per field)")
     for a in arrays:
         code = a.dtype.str.encode()
         head.append(struct.pack(f"<B{len(code)}sB{a.ndim}q", len(code), code, a.ndim, *a.shape))
@@ -156,13 +157,14 @@ def _read_earlier(key: bytes) -> tuple | None:
             value = tuple(f[f"arr_{i}"] for i in range(len(f.files)))
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         return None   # none, or damaged: recomputed
-    _write(key, value)
-    with contextlib.suppress(OSError):
-        old.unlink()
+    if _store(key, value) is None:   # a read-only folder keeps serving its .npz entries
+        with contextlib.suppress(OSError):
+            old.unlink()
     return value
 
 
-def _write(key: bytes, value: tuple) -> None:
+def _store(key: bytes, value: tuple) -> OSError | None:
+    """Write the entry under a temporary name, then rename it; the error, if any."""
     path = _path(key)
     tmp = path.with_name(f".{path.stem}.{socket.gethostname()}.{os.getpid()}.partial")
     try:
@@ -172,6 +174,13 @@ def _write(key: bytes, value: tuple) -> None:
     except OSError as exc:
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)
+        return exc
+    return None
+
+
+def _write(key: bytes, value: tuple) -> None:
+    exc = _store(key, value)
+    if exc is not None:
         warnings.warn(f"cannot write the feature memo {_folder[0]} ({exc.strerror or exc}); "
                       "features are kept in memory only")
         _folder[0] = None

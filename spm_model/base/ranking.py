@@ -13,9 +13,11 @@ def smallest_k(d, k: int) -> np.ndarray:
     A full sort costs O(m log m) a row; when k is much smaller than m, a partition finds
     each row's k-th smallest value and only the entries up to it (ties included) are
     sorted. Rows with fewer than k values that are not NaN are sorted whole."""
+    if int(k) < 0:
+        raise ValueError(f"smallest_k: k must be 0 or more, got {k}")
     d = np.asarray(d)
     n, m = d.shape
-    k = max(min(int(k), m), 0)
+    k = min(int(k), m)
     if k == 0 or 8 * k >= m:
         return np.argsort(d, axis=1, kind="stable")[:, :k].astype(np.int64, copy=False)
     kth = np.take_along_axis(d, np.argpartition(d, k - 1, axis=1)[:, k - 1:k], axis=1)

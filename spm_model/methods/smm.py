@@ -116,9 +116,10 @@ class SMMPose(PoseEstimator):
         if poses.ndim != 2 or poses.shape[1] != 6 or len(poses) != len(frames) or not np.isfinite(poses).all():
             raise ModelError(f"SMMPose.fit: expected finite poses of shape ({len(frames)}, 6), one row per frame, "
                              f"got {poses.shape}; pass the frames' labels (rx, ry, rz degrees, t metres)")
-        if not 2 <= self.n_bins <= 360 or not 1 <= self.parts <= self.candidate_parts:
-            raise ModelError(f"SMMPose: expected 2 <= n_bins <= 360 and 1 <= parts <= candidate_parts, got n_bins="
-                             f"{self.n_bins}, parts={self.parts}, candidate_parts={self.candidate_parts}; fix the parameters")
+        if not 2 <= self.n_bins <= 360 or not 1 <= self.parts <= self.candidate_parts or self.neighbours < 1:
+            raise ModelError(f"SMMPose: expected 2 <= n_bins <= 360, 1 <= parts <= candidate_parts and neighbours >= 1, "
+                             f"got n_bins={self.n_bins}, parts={self.parts}, candidate_parts={self.candidate_parts}, "
+                             f"neighbours={self.neighbours}; fix the parameters")
         feats, centroids, scales, Ks, extra = self._features(frames, "fit", ("rgb", "mask", "K", "sequence"))
         sequences = np.array([e[0] for e in extra])
         rng = np.random.default_rng(self.seed)

@@ -140,6 +140,28 @@ def test_entries_cut_short_or_of_another_format_are_refused(tmp_path):
     assert load_entry(tmp_path / "missing.feat") is None
     with pytest.raises(ValueError, match="Python objects"):
         save_entry(path, (np.array([None]),))
+    with pytest.raises(ValueError, match="named fields"):
+        save_entry(path, (np.zeros(3, dtype=[("a", "<f8"), ("b", "<i4")]),))
+
+
+def test_an_earlier_entry_in_a_folder_that_cannot_be_written_is_still_served(tmp_path, monkeypatch):
+    from spm_model.base import feature_memo
+
+    calls = []
+    f = counting(calls)
+    imgs = [np.full((8, 8, 3), v, np.uint8) for v in (1, 2)]
+    use_folder(tmp_path / "memo")
+    for img in imgs:
+        memoized(("k",), (img,), lambda img=img: f(img))
+    for new in (tmp_path / "memo").glob("*/*.feat"):                    # as the earlier code left them
+        np.savez(new.with_suffix(".npz"), *load_entry(new))
+        new.unlink()
+    clear_memo()
+    monkeypatch.setattr(feature_memo, "save_entry", lambda *a: (_ for _ in ()).throw(PermissionError("read-only")))
+    for img in imgs:
+        memoized(("k",), (img,), lambda img=img: f(img))
+    assert len(calls) == 2 and memo_stats()["disk_hits"] == 2            # both served, none recomputed
+    assert len(list((tmp_path / "memo").glob("*/*.npz"))) == 2          # and kept
 
 
 def test_entries_of_the_earlier_format_are_served_and_rewritten(tmp_path):

@@ -29,3 +29,12 @@ def test_smallest_k_of_nothing():
     assert smallest_k(np.zeros((3, 0)), 5).shape == (3, 0)
     assert smallest_k(np.zeros((0, 40)), 5).shape == smallest_k(np.zeros((0, 400)), 5).shape == (0, 5)
     np.testing.assert_array_equal(smallest_k(np.array([[3.0, 1.0, 2.0]]), 9), [[1, 2, 0]])
+    with pytest.raises(ValueError, match="k must be 0 or more, got -1"):
+        smallest_k(np.zeros((2, 100)), -1)
+
+
+def test_smallest_k_of_integers_and_booleans():
+    rng = np.random.default_rng(7)
+    for dtype in (np.int8, np.int64, np.uint8, bool):
+        d = rng.integers(0, 3, (4, 300)).astype(dtype)
+        np.testing.assert_array_equal(smallest_k(d, 5), np.argsort(d, axis=1, kind="stable")[:, :5])

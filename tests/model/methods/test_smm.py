@@ -67,6 +67,8 @@ def test_contract_and_errors():
         model.fit([frame], np.zeros((1, 6)))
     with pytest.raises(ModelError, match="parts <= candidate_parts"):
         SMMPose(parts=10, candidate_parts=4).fit([frame], np.zeros((1, 6)))
+    with pytest.raises(ModelError, match="neighbours >= 1, .*neighbours=0"):
+        SMMPose(neighbours=0).fit([frame], np.zeros((1, 6)))
 
 
 def _real_frames(shards: Path):
