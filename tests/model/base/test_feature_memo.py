@@ -66,6 +66,14 @@ def test_a_full_memo_keeps_what_it_has_and_zero_turns_it_off(monkeypatch):
     assert memo_stats()["entries"] == 0 and len(calls) == 9
 
 
+def to_earlier_format(folder, change=lambda a: a):
+    """Every .feat entry under ``folder`` rewritten as the earlier code's .npz (arrays passed
+    through ``change``), the .feat removed."""
+    for new in folder.glob("*/*.feat"):
+        np.savez(new.with_suffix(".npz"), *[change(np.asarray(a)) for a in load_entry(new)])
+        new.unlink()
+
+
 def test_the_folder_serves_other_processes_and_damage_is_recomputed(tmp_path):
     calls = []
     f = counting(calls)
@@ -153,9 +161,7 @@ def test_an_earlier_entry_in_a_folder_that_cannot_be_written_is_still_served(tmp
     use_folder(tmp_path / "memo")
     for img in imgs:
         memoized(("k",), (img,), lambda img=img: f(img))
-    for new in (tmp_path / "memo").glob("*/*.feat"):                    # as the earlier code left them
-        np.savez(new.with_suffix(".npz"), *load_entry(new))
-        new.unlink()
+    to_earlier_format(tmp_path / "memo")
     clear_memo()
     monkeypatch.setattr(feature_memo, "save_entry", lambda *a: (_ for _ in ()).throw(PermissionError("read-only")))
     for img in imgs:
@@ -171,8 +177,7 @@ def test_entries_of_the_earlier_format_are_served_and_rewritten(tmp_path):
     use_folder(tmp_path / "memo")
     first = memoized(("k",), (img,), lambda: f(img))
     new = next((tmp_path / "memo").glob("*/*.feat"))
-    np.savez(new.with_suffix(".npz"), *[np.asarray(a) + 1 for a in first])   # as the earlier code wrote it
-    new.unlink()
+    to_earlier_format(tmp_path / "memo", change=lambda a: a + 1)   # + 1: served, not recomputed
     clear_memo()
     served = memoized(("k",), (img,), lambda: f(img))
     assert len(calls) == 1 and all(np.array_equal(a + 1, b) for a, b in zip(first, served))
