@@ -13,7 +13,7 @@ from spm_data.commands.cli_data import (export_group, hist_cmd, info_cmd, merge_
                                         show_cmd, validate_cmd)
 from spm_data.commands.cli_import import import_group
 from spm_data.commands.cli_support import Group
-from spm_model.commands.cli_model import evaluate_cmd, predict_cmd, train_cmd
+from spm_model.commands.cli_model import check_estimator_cmd, evaluate_cmd, predict_cmd, train_cmd
 
 
 @click.group(cls=Group)
@@ -33,7 +33,7 @@ def model_cli():
     """spm: train and evaluate the Sparse Pose Manifolds estimator on spm-data shards."""
 
 
-for command in (train_cmd, evaluate_cmd, predict_cmd):
+for command in (train_cmd, evaluate_cmd, predict_cmd, check_estimator_cmd):
     model_cli.add_command(command)
 
 __all__ = ["data_cli", "model_cli"]

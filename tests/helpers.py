@@ -1,15 +1,17 @@
 """What tests in several files share: waiting for a state, reaping processes, small
-specs, shard arrays, a flipped stored byte, COIL-100 images, ellipse points and
-estimator inputs. Fixtures are in tests/conftest.py; import these as
+specs, shard arrays, a flipped stored byte, COIL-100 images, transforms.json captures,
+ellipse points and estimator inputs. Fixtures are in tests/conftest.py; import these as
 ``from tests.helpers import ...``."""
 
 import contextlib
+import json
 import time
 
 import cv2
 import h5py
 import numpy as np
 
+from spm_data.core.poses import K_to_corner_origin, cv_to_gl_camera_to_world
 from spm_data.io.shards import FIELDS
 
 
@@ -163,6 +165,39 @@ def ppm16(img, comment=b"# converted by a scanner tool\n"):
     """A 16-bit binary PPM with a comment and odd whitespace in its header."""
     data = (img.astype(">u2") * 257).tobytes()
     return b"P6\n" + comment + b"128  128\n\n65535\n" + data
+
+
+# --------------------------------------------------------------------------- transforms.json captures
+
+SCALE, CENTER = 0.25, np.array([0.4, -1.2, 2.0])   # metres per world unit; the object's origin in the world
+
+
+def write_capture(root, rgb, mask, K, R, t, *, per_frame=False, alpha=True, depth=None):
+    """Frames as a capture app writes them: RGBA PNGs (alpha = mask) and transforms.json with each
+    frame's OpenGL camera-to-world matrix in a world frame where X_world = X_obj / SCALE + CENTER,
+    and nerfstudio's pixel-corner intrinsics."""
+    (root / "images").mkdir(parents=True)
+    frames = []
+    for i in range(len(rgb)):
+        image = np.dstack([rgb[i], mask[i].astype(np.uint8) * 255]) if alpha else rgb[i]
+        cv2.imwrite(str(root / "images" / f"frame_{i:05d}.png"),
+                    cv2.cvtColor(image, cv2.COLOR_RGBA2BGRA if alpha else cv2.COLOR_RGB2BGR))
+        M = cv_to_gl_camera_to_world(R[i], t[i])
+        M[:3, 3] = M[:3, 3] / SCALE + CENTER
+        frame = {"file_path": f"images/frame_{i:05d}.png", "transform_matrix": M.tolist()}
+        if depth is not None:
+            cv2.imwrite(str(root / "images" / f"depth_{i:05d}.png"), np.round(depth[i] * 1000).astype(np.uint16))
+            frame["depth_file_path"] = f"images/depth_{i:05d}.png"
+        Kc = K_to_corner_origin(K[i])
+        camera = {"fl_x": Kc[0, 0], "fl_y": Kc[1, 1], "cx": Kc[0, 2], "cy": Kc[1, 2]}
+        frames.append({**frame, **camera} if per_frame else frame)
+    h, w = rgb.shape[1:3]
+    top = {"camera_model": "OPENCV", "w": w, "h": h, "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0}
+    if not per_frame:
+        Kc = K_to_corner_origin(K[0])
+        top.update(fl_x=Kc[0, 0], fl_y=Kc[1, 1], cx=Kc[0, 2], cy=Kc[1, 2])
+    (root / "transforms.json").write_text(json.dumps({**top, "frames": frames}, indent=1))
+    return root
 
 
 # --------------------------------------------------------------------------- ellipses

@@ -10,8 +10,8 @@ from click.testing import CliRunner
 from cli import data_cli, model_cli
 
 EXECUTOR = {"--workers", "--recycle-after", "--executor", "--address", "--task-cpus"}
-RUNS_JOBS = {"render", "occlude", "merge", "import coil100", "import folder", "import cvl", "import bop", "train",
-             "evaluate"}
+RUNS_JOBS = {"render", "occlude", "merge", "import coil100", "import coil20", "import folder", "import cvl",
+             "import bop", "import nerf", "train", "evaluate"}
 
 
 def commands(group, prefix=""):
@@ -51,8 +51,9 @@ def test_every_option_has_help_and_outputs_are_out(name, cmd):
 def test_every_command_takes_its_input_first():
     takes_input = {n: [p.human_readable_name for p in c.params if isinstance(p, click.Argument)] for n, c in ALL}
     assert takes_input == {
-        "evaluate": ["SHARDS"], "export bop": ["FOLDER"], "hist": ["FOLDER"], "import bop": ["PATH"],
-        "import coil100": ["PATH"], "import cvl": ["PATH"], "import folder": ["PATH"], "info": ["SHARD_OR_FOLDER"],
+        "check-estimator": ["MODULE:CLASS"], "evaluate": ["SHARDS"], "export bop": ["FOLDER"], "hist": ["FOLDER"],
+        "import bop": ["PATH"], "import coil100": ["PATH"], "import coil20": ["PATH"], "import cvl": ["PATH"],
+        "import folder": ["PATH"], "import nerf": ["PATH"], "info": ["SHARD_OR_FOLDER"],
         "merge": ["FOLDER..."], "occlude": ["FOLDER"], "predict": ["IMAGE..."], "render": [], "show": ["SHARD"],
         "train": ["SHARDS"], "validate": ["FOLDER"]}
 

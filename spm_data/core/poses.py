@@ -219,3 +219,20 @@ def gl_camera_to_world_to_cv(M):
     R = (M[:3, :3] @ CV_TO_GL).T
     t = -R @ M[:3, 3]
     return R, t
+
+
+def gl_camera_to_world_to_object(M, scale: float = 1.0, center=(0.0, 0.0, 0.0), where: str = "the pose"):
+    """A capture's camera: (4, 4) camera->world ``M`` in the OpenGL camera convention (what
+    instant-ngp's and nerfstudio's ``transform_matrix`` hold), world in the capture's units ->
+    ``R`` (3, 3), ``t`` (3,) metres, object -> OpenCV camera, where the object frame is the world
+    frame moved to ``center`` (3,) (world units) and scaled by ``scale`` (metres per world unit):
+    ``X_obj = scale * (X_world - center)``. SpmError naming ``where`` when ``M``'s rotation part
+    is not a rotation (a scaled or mirrored matrix) or its last row is not (0, 0, 0, 1)."""
+    M = np.array(M, dtype=np.float64).reshape(4, 4)
+    if not np.allclose(M[3], [0.0, 0.0, 0.0, 1.0]):
+        raise SpmError(f"{where}: transform_matrix's last row is {M[3].tolist()}; expected [0, 0, 0, 1]")
+    if not is_rotation(M[:3, :3], atol=1e-4):
+        raise SpmError(f"{where}: transform_matrix's 3x3 part is not a rotation (orthonormal, determinant +1); "
+                       "rescale the capture with --scale instead of inside the matrices")
+    M[:3, 3] = scale * (M[:3, 3] - np.asarray(center, dtype=np.float64))
+    return gl_camera_to_world_to_cv(M)

@@ -1,10 +1,15 @@
-"""COIL-100 (Nayar et al. 1996) -> shards. See docs/datasets.md for what is measured and assumed.
+"""COIL-100 and COIL-20 (Nayar et al., Columbia, 1996) -> shards. See docs/datasets.md for what is
+measured and assumed.
 
-Accepted: the extracted folder, ``coil-100.zip`` (``obj{1..100}__{angle}.png``,
-128 x 128 RGB), or ``coil-100.tar.gz`` (the same names as ``.ppm``, reportedly
-16-bit). A turntable: only the rotation about the vertical axis is measured, as
-the path's azimuth; elevation and distance are fixed but unpublished, so the
-label uses ``--elevation`` and ``--distance`` and flags those parts as assumed.
+COIL-100: the extracted folder, ``coil-100.zip`` (``obj{1..100}__{angle}.png``, angle
+0, 5, ..., 355) or ``coil-100.tar.gz`` (the same names as ``.ppm``, reportedly 16-bit).
+COIL-20: the extracted folder or zip of ``coil-20-proc`` / ``coil-20-unproc``
+(``obj{1..20}__{view}.png``, view 0..71, five degrees apart). Both are turntables shot
+the same way: only the rotation about the vertical axis is measured, as the path's
+azimuth; elevation and distance are fixed but unpublished, so the label uses
+``--elevation`` and ``--distance`` and flags those parts as assumed. Images may be any
+size, grey or colour (grey becomes RGB); K is made from each image's own size and the
+assumed ``--fov``.
 """
 
 from __future__ import annotations
@@ -18,9 +23,13 @@ from pathlib import Path
 from spm_data.errors import SpmError
 from spm_data.formats.importing import FrameRecord, check_fov_option, import_records
 from spm_data.core.poses import camera_pose, intrinsics_from_fov
+from spm_data.io.images import ImageError, image_size
 
 NAME = re.compile(r"(?:^|/)obj(\d+)__(\d+)\.(png|ppm)$", re.IGNORECASE)
 ANGLES = tuple(range(0, 360, 5))
+# How each layout numbers its views: COIL-100 by the turntable angle, COIL-20 by the view's index.
+LAYOUTS = {"coil100": {"name": "COIL-100", "number": "angle", "pattern": "objN__ANGLE.png/.ppm"},
+           "coil20": {"name": "COIL-20", "number": "view", "pattern": "objN__VIEW.png (VIEW 0..71)"}}
 # rx (= 90 + elevation) and ry (roll) come from the assumed elevation, rz from the
 # measured turntable angle, t from the assumed distance: only rz is measured.
 MEASURED = (False, False, True, False, False, False)
@@ -32,7 +41,7 @@ def list_members(path) -> list[str]:
     if path.is_dir():
         return sorted(str(p) for p in path.rglob("*") if p.is_file())
     if not path.is_file():
-        raise SpmError(f"COIL-100 not found at {path}")
+        raise SpmError(f"no COIL images at {path}: give the extracted folder or the archive")
     if zipfile.is_zipfile(path):
         with zipfile.ZipFile(path) as zf:
             return sorted(f"zip:{path}::{n}" for n in zf.namelist() if not n.endswith("/"))
@@ -71,45 +80,95 @@ def check_assumed_camera(elevation, distance, fov) -> None:
     check_fov_option(fov)
 
 
-def coil100_records(path, *, elevation=0.0, distance=1.0, fov=30.0, classes=None):
-    """(records, problems): one record per view found; problems lists foreign files and missing views.
-    The assumed camera (``elevation``, ``distance``, ``fov``) is checked first: SpmError naming the option."""
+def _angle(number: int, layout: str) -> int | None:
+    """The turntable angle (degrees) of a file's number in ``layout``; None when it names no view."""
+    if LAYOUTS[layout]["number"] == "angle":
+        return number if number in ANGLES else None
+    return 5 * number if 0 <= number < len(ANGLES) else None
+
+
+def _intrinsics(ref: str, fov: float, known: dict):
+    """K of the image ``ref`` (3, 3) as a tuple, from its own size and the vertical ``fov``; the
+    size comes from the header (ImageError when it cannot be read). ``known``: K per size."""
+    size = image_size(ref)
+    if size not in known:
+        known[size] = tuple(intrinsics_from_fov(fov, *size).ravel())
+    return known[size]
+
+
+def coil_records(path, *, layout="coil100", elevation=0.0, distance=1.0, fov=30.0, classes=None):
+    """(records, problems) of a COIL-100 (``layout`` "coil100") or COIL-20 ("coil20") set: one
+    record per view found, K from each image's size; problems lists foreign files, numbers that
+    name no view, missing views and images whose header cannot be read. The assumed camera
+    (``elevation``, ``distance``, ``fov``) is checked first: SpmError naming the option."""
     check_assumed_camera(elevation, distance, fov)
     refs = list_members(path)
-    K = tuple(intrinsics_from_fov(fov, 128, 128).ravel())
     found: dict[int, dict[int, str]] = {}
     problems = []
+    what = LAYOUTS[layout]
+    numbers = []
     for ref in refs:
         m = NAME.search(ref.split("::")[-1])
         if not m:
-            problems.append((ref, "foreign file (not objN__ANGLE.png/.ppm)"))
+            problems.append((ref, f"foreign file (not {what['pattern']})"))
             continue
-        obj, angle = int(m.group(1)), int(m.group(2))
-        if angle not in ANGLES:
-            problems.append((ref, f"angle {angle} is not a multiple of 5 in 0..355"))
+        numbers.append(int(m.group(2)))
+        obj, angle = int(m.group(1)), _angle(int(m.group(2)), layout)
+        if angle is None:
+            expected = "a multiple of 5 in 0..355" if what["number"] == "angle" else "a view number in 0..71"
+            problems.append((ref, f"{what['number']} {int(m.group(2))} is not {expected}"))
             continue
         found.setdefault(obj, {})[angle] = ref
-    records = []
+    if layout == "coil100" and numbers and max(numbers) < len(ANGLES) and any(n % 5 for n in numbers):
+        raise SpmError(f"{path}: the files are numbered by view (0..71), not by angle: this is the COIL-20 "
+                       "layout; use spm-data import coil20")
+    records, known = [], {}
     for obj in sorted(found):
         missing = [a for a in ANGLES if a not in found[obj]]
-        problems += [(f"obj{obj}__{a}", "missing view") for a in missing]
+        problems += [(f"obj{obj}__{a if what['number'] == 'angle' else a // 5}", "missing view") for a in missing]
         for angle in (a for a in ANGLES if a in found[obj]):
+            try:
+                K = _intrinsics(found[obj][angle], fov, known)
+            except ImageError as exc:
+                problems.append((found[obj][angle], str(exc).removeprefix(found[obj][angle] + ": ")))
+                continue
             R, t = camera_pose(angle, elevation, 0.0, distance)
             records.append(FrameRecord(
-                image=found[obj][angle], class_name=(classes or {}).get(obj, f"coil100-obj{obj}"),
-                instance_name=f"coil100-obj{obj}", instance_id=obj, R=tuple(R.ravel()), t=tuple(t),
+                image=found[obj][angle], class_name=(classes or {}).get(obj, f"{layout}-obj{obj}"),
+                instance_name=f"{layout}-obj{obj}", instance_id=obj, R=tuple(R.ravel()), t=tuple(t),
                 K=K, label_measured=MEASURED, azimuth=float(angle), elevation=float(elevation), roll=0.0,
                 distance=float(distance), path_index=angle // 5))
     return records, problems
 
 
+def coil100_records(path, *, elevation=0.0, distance=1.0, fov=30.0, classes=None):
+    """coil_records of a COIL-100 set."""
+    return coil_records(path, layout="coil100", elevation=elevation, distance=distance, fov=fov, classes=classes)
+
+
+def _import(layout, path, out_dir, *, elevation, distance, fov, classes_csv, threshold, frames_per_shard,
+            progress, executor):
+    classes = read_class_map(classes_csv) if classes_csv else None
+    records, problems = coil_records(path, layout=layout, elevation=elevation, distance=distance, fov=fov,
+                                     classes=classes)
+    attrs = {"import": layout, "assumed_elevation": elevation, "assumed_distance": distance,
+             "assumed_fov": fov, "mask_source": f"threshold: brightest channel > {threshold}"}
+    summary = import_records(records, out_dir, source=layout, prefix=layout, threshold=threshold,
+                             frames_per_shard=frames_per_shard, attrs=attrs, progress=progress, executor=executor)
+    return summary, problems
+
+
 def import_coil100(path, out_dir, *, elevation=0.0, distance=1.0, fov=30.0, classes_csv=None, threshold=10,
                    frames_per_shard=256, progress=None, executor=None):
     """Import COIL-100 into ``out_dir``; returns (RunSummary, problems)."""
-    classes = read_class_map(classes_csv) if classes_csv else None
-    records, problems = coil100_records(path, elevation=elevation, distance=distance, fov=fov, classes=classes)
-    attrs = {"import": "coil100", "assumed_elevation": elevation, "assumed_distance": distance,
-             "assumed_fov": fov, "mask_source": f"threshold: brightest channel > {threshold}"}
-    summary = import_records(records, out_dir, source="coil100", prefix="coil100", threshold=threshold,
-                             frames_per_shard=frames_per_shard, attrs=attrs, progress=progress, executor=executor)
-    return summary, problems
+    return _import("coil100", path, out_dir, elevation=elevation, distance=distance, fov=fov,
+                   classes_csv=classes_csv, threshold=threshold, frames_per_shard=frames_per_shard,
+                   progress=progress, executor=executor)
+
+
+def import_coil20(path, out_dir, *, elevation=0.0, distance=1.0, fov=30.0, classes_csv=None, threshold=10,
+                  frames_per_shard=256, progress=None, executor=None):
+    """Import COIL-20 (views numbered 0..71) into ``out_dir``; returns (RunSummary, problems)."""
+    return _import("coil20", path, out_dir, elevation=elevation, distance=distance, fov=fov,
+                   classes_csv=classes_csv, threshold=threshold, frames_per_shard=frames_per_shard,
+                   progress=progress, executor=executor)

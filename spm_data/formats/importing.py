@@ -20,7 +20,7 @@ from spm_data import __version__
 from spm_data.errors import SpmError
 from spm_data.core.poses import is_rotation, pose_to_label
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
-from spm_data.io.images import ImageError, decode_image, read_bytes
+from spm_data.io.images import ImageError, decode_alpha, decode_image, read_bytes
 from spm_data.io.shards import SCHEMA_VERSION, manifest_entry, write_shard
 
 NAN3 = (float("nan"),) * 3
@@ -50,6 +50,9 @@ class FrameRecord:
     depth: str | None = None           # a uint16 depth image; None: no depth (zeros)
     depth_scale_m: float = 0.001       # metres per depth unit
     crop: str | None = None            # "mask": a square around the object's mask, resized to --size
+    mask_alpha: bool = False           # the mask is ``mask``'s opacity (alpha at least 128 of 255)
+    distortion: tuple = ()             # OpenCV's k1, k2, p1, p2[, k3] (or k1..k4 with fisheye): undistorted to K
+    fisheye: bool = False              # ``distortion`` is OpenCV's fisheye model (cv2.fisheye)
 
 
 def threshold_mask(rgb: np.ndarray, threshold: int) -> np.ndarray:
@@ -75,6 +78,22 @@ class ImportJob:
         return len(self.records)
 
 
+def undistort(image: np.ndarray, K: np.ndarray, distortion: tuple, fisheye: bool, nearest: bool) -> np.ndarray:
+    """``image`` (H, W[, C]) seen through the lens ``distortion`` (OpenCV's coefficients, or its
+    fisheye model's k1..k4) as the pinhole camera ``K`` (3, 3) would see it: OpenCV's undistortion
+    map, sampled bilinearly (``nearest``: nearest neighbour, for masks and depth)."""
+    import cv2
+
+    h, w = image.shape[:2]
+    dist = np.asarray(distortion, dtype=np.float64)
+    if fisheye:
+        maps = cv2.fisheye.initUndistortRectifyMap(K, dist, np.eye(3), K, (w, h), cv2.CV_32FC1)
+    else:
+        maps = cv2.initUndistortRectifyMap(K, dist, None, K, (w, h), cv2.CV_32FC1)
+    flag = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
+    return cv2.remap(image, maps[0], maps[1], flag, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
 def _load_frame(rec: FrameRecord, job: ImportJob):
     import cv2
 
@@ -82,8 +101,11 @@ def _load_frame(rec: FrameRecord, job: ImportJob):
     h, w = rgb.shape[:2]
     mask = None
     if rec.mask is not None:
-        m = decode_image(read_bytes(rec.mask), rec.mask, mode="raw")
-        mask = (m.max(axis=2) if m.ndim == 3 else m) > 0
+        if rec.mask_alpha:  # the object: at least half opaque
+            mask = decode_alpha(read_bytes(rec.mask), rec.mask) >= 128
+        else:
+            m = decode_image(read_bytes(rec.mask), rec.mask, mode="raw")
+            mask = (m.max(axis=2) if m.ndim == 3 else m) > 0
         if mask.shape != (h, w):
             raise ImageError(f"{rec.mask}: mask is {mask.shape[1]}x{mask.shape[0]}, image is {w}x{h}")
         mask = mask.astype(np.uint8)
@@ -102,6 +124,10 @@ def _load_frame(rec: FrameRecord, job: ImportJob):
     if visible is None:
         visible = mask
     K = np.array(rec.K, dtype=np.float64).reshape(3, 3)
+    if any(rec.distortion):
+        rgb = undistort(rgb, K, rec.distortion, rec.fisheye, nearest=False)
+        mask, visible, depth = (undistort(a, K, rec.distortion, rec.fisheye, nearest=True)
+                                for a in (mask, visible, depth))
     if rec.crop == "mask":
         ys, xs = np.nonzero(mask)
         if len(ys) == 0:

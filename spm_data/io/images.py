@@ -213,3 +213,38 @@ def image_size(ref: str) -> tuple[int, int]:
             return img.size
     except ImageError as exc:
         raise ImageError(f"{ref}: {exc}") from None
+
+
+def _has_alpha(img) -> bool:
+    return img.mode in ("RGBA", "LA", "PA", "RGBa", "La") or "transparency" in img.info
+
+
+def image_header(ref: str) -> tuple[int, int, bool]:
+    """(width, height, whether the image has an alpha channel or a transparent colour), from the
+    header only; ImageError ("REF: reason") for what is not a readable image."""
+    data = read_bytes(ref)
+    try:
+        if data[:2] in (b"P5", b"P6"):
+            img = parse_pnm(data)
+            return img.shape[1], img.shape[0], False
+        if not data:
+            raise ImageError("empty file")
+        with _open_image(data) as img:
+            return img.size[0], img.size[1], _has_alpha(img)
+    except ImageError as exc:
+        raise ImageError(f"{ref}: {exc}") from None
+
+
+def decode_alpha(data: bytes, name: str = "") -> np.ndarray:
+    """(H, W) uint8: the image's opacity (its alpha channel, or its transparent colour, through
+    Pillow's RGBA conversion); ImageError ("NAME: reason") when it has neither."""
+    try:
+        if not data:
+            raise ImageError("empty file")
+        with _open_image(data) as img:
+            if not _has_alpha(img):
+                raise ImageError("no alpha channel (or transparent colour) to take the mask from")
+            img.load()
+            return np.asarray(img.convert("RGBA"), dtype=np.uint8)[..., 3]
+    except ImageError as exc:
+        raise ImageError(f"{name}: {exc}") from None

@@ -17,16 +17,62 @@
   every run has the same splits (loco, offgrid) and reuses its predictions in the other
   runs (spm_model/bench/protocols.py).
 
+- ``NEEDS`` (a class attribute, a :class:`Needs`, default ``Needs()``) declares what the method
+  needs of its training frames: the benchmark checks it before ``fit`` and reports the method as
+  *declined*, with the reason, where the data does not have it (spm_model/bench/protocols.py);
+  a ``fit`` that raises is declined the same way, and the other methods run on.
+- ``features_found(frames)`` (optional) returns (n,) bool: the frames the method found its
+  features on (keypoints, a descriptor); every report counts them per method.
+
 A plug-in (``spm train --estimator MODULE:CLASS``) need not subclass
-:class:`PoseEstimator`; it needs ``fit`` and ``predict`` with this contract.
+:class:`PoseEstimator`; it needs ``fit`` and ``predict`` with this contract
+(``spm check-estimator MODULE:CLASS`` checks it).
 """
 
 from __future__ import annotations
 
 import inspect
 from abc import ABC, abstractmethod
+from dataclasses import dataclass, fields
 
 from spm_data.errors import ModelError
+
+
+@dataclass(frozen=True)
+class Needs:
+    """What a method needs of its training frames (class attribute ``NEEDS``).
+
+    frames: training frames, at least. depth: training frames with a measured depth under the
+    object (renders, BOP, captures with depth images; not COIL or plain photos). spm_features:
+    training frames with SPM's training features (keypoints enough for its ellipse), at least.
+    sequences: camera paths (a shard's instance: frames of one object along one walk or capture)
+    among the training frames, at least."""
+
+    frames: int = 1
+    depth: bool = False
+    spm_features: int = 0
+    sequences: int = 1
+
+    def __post_init__(self):
+        for f in fields(self):
+            value, flag = getattr(self, f.name), f.type in (bool, "bool")
+            ok = isinstance(value, bool) if flag else (type(value) is int and value >= 0)
+            if not ok:
+                want = "True or False" if flag else "a whole number >= 0"
+                raise ModelError(f"Needs.{f.name} must be {want}, got {value!r}")
+
+
+def needs_of(cls) -> Needs:
+    """The :class:`Needs` a method class (or instance) declares (``Needs()`` when it declares
+    none); ModelError when ``NEEDS`` is something else."""
+    needs = getattr(cls, "NEEDS", None)
+    if needs is None:
+        return Needs()
+    if not isinstance(needs, Needs):
+        name = getattr(cls, "__name__", type(cls).__name__)
+        raise ModelError(f"{name}.NEEDS must be a spm_model.base.estimator.Needs, got {type(needs).__name__}; "
+                         "declare NEEDS = Needs(depth=True, ...) or leave it out")
+    return needs
 
 
 def is_fitted(estimator, attributes) -> bool:
@@ -63,6 +109,7 @@ class Estimator:
 
     FITTED: tuple = ()
     DETERMINISTIC: bool = False
+    NEEDS: Needs = Needs()
 
     @classmethod
     def _param_names(cls) -> list:

@@ -22,7 +22,7 @@ def path_neighbours(instance_id: np.ndarray, path_index: np.ndarray) -> list[lis
 
 def frames_features(rgb: np.ndarray, mask: np.ndarray, instance_id: np.ndarray, path_index: np.ndarray,
                     config: FeatureConfig, report=lambda n: None, K: np.ndarray | None = None,
-                    path_steps: bool = True) -> dict:
+                    path_steps: bool = True, depth: np.ndarray | None = None) -> dict:
     """Features of a run of frames (one shard): rgb (n, H, W, 3) uint8, mask (n, H, W),
     K (n, 3, 3) (for the template descriptors; omitted: none are computed).
     path_steps: whether consecutive path indices are views a 5-degree step apart (a grid
@@ -34,14 +34,15 @@ def frames_features(rgb: np.ndarray, mask: np.ndarray, instance_id: np.ndarray, 
     float64 (NaN where the frame has too few keypoints), train_eccentricity /
     query_eccentricity (n,), train_keypoints / query_keypoints (n,) int32, raw
     (n, raw_size^2) uint8, train_neighbours (n,) int8 (path neighbours matched;
-    0: the training feature used the query rule), and with K, template (n, 3535)
-    float64 (spm_model/methods/template.py's descriptor)."""
+    0: the training feature used the query rule), with K, template (n, 3535)
+    float64 (spm_model/methods/template.py's descriptor), and with depth (n, H, W) metres,
+    has_depth (n,) bool: a measured depth under the frame's mask (what N3M needs)."""
     hog = hog_descriptor()
     n = len(rgb)
     neighbours = path_neighbours(instance_id, path_index) if path_steps else [[] for _ in range(n)]
     sift = []
     for i in range(n):  # descriptors only where a path neighbour is matched (neighbours are mutual)
-        small, small_mask = working_image(rgb[i], mask[i], config.max_side)
+        small, small_mask = working_image(rgb[i], mask[i], config.max_side, config.min_side)
         sift.append(sift_keypoints(small, small_mask) if neighbours[i] else (sift_locations(small, small_mask), None))
     out = {f"{kind}_{name}": np.full((n, config.dims) if name == "vector" else n,
                                      np.nan if name != "keypoints" else 0,
@@ -49,6 +50,8 @@ def frames_features(rgb: np.ndarray, mask: np.ndarray, instance_id: np.ndarray, 
            for kind in ("train", "query") for name in ("vector", "eccentricity", "keypoints")}
     out["raw"] = np.zeros((n, config.raw_size ** 2), np.uint8)
     out["train_neighbours"] = np.array([len(nb) for nb in neighbours], dtype=np.int8)
+    if depth is not None:
+        out["has_depth"] = np.array([bool((depth[i][mask[i] > 0] > 0).any()) for i in range(n)])
     if K is not None:
         out["template"] = np.stack([template_descriptor(rgb[i], mask[i] > 0, K[i], hog) for i in range(n)])
     for i in range(n):

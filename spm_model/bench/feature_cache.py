@@ -137,10 +137,10 @@ def extract_shard(job, report=lambda n: None) -> str:
     # Path neighbours are looked up within a block of READ_BLOCK frames (a default shard is one block).
     for start in range(0, n, READ_BLOCK):
         block = slice(start, min(n, start + READ_BLOCK))
-        images = read_shard(shard, ("rgb", visible), frames=block)
+        images = read_shard(shard, ("rgb", visible, "depth"), frames=block)
         parts.append(frames_features(images["rgb"], images[visible], labels["instance_id"][block],
                                      labels["path_index"][block], config, report, K=labels["K"][block],
-                                     path_steps=walks_in_steps(attrs)))
+                                     path_steps=walks_in_steps(attrs), depth=images["depth"]))
         parts[-1]["width"] = np.full(block.stop - block.start, images["rgb"].shape[2], dtype=np.int64)
     features = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
     out = cache_path(shard, config, identity)
@@ -185,8 +185,9 @@ class FeatureTable:
     class_name, instance (n,) str (instance: source:class/name, unique per
     object); instance_id (n,) int64 (within its shard's spec); path_index (n,)
     int64; occlusion_fraction (n,) float32; occluder (n,) str (occluder_kind); shard (n,)
-    str; frame (n,) int64. Features are computed from what a camera sees: the visible mask
-    where the shard has one. offgrid_table adds ``test`` and ``seen`` (n,) bool."""
+    str; frame (n,) int64; has_depth (n,) bool (a measured depth under the mask). Features are
+    computed from what a camera sees: the visible mask where the shard has one. offgrid_table
+    adds ``test`` and ``seen`` (n,) bool."""
 
     arrays: dict
 

@@ -162,7 +162,16 @@ def _sym(name, fn):
     return lambda e: fn(e[name]) if name in e else None
 
 
+def coverage(rotation_max: np.ndarray) -> float | None:
+    """% of the scored frames (a measured angle: not NaN) with an estimate (finite)."""
+    scored = rotation_max[~np.isnan(rotation_max)]
+    return 100.0 * float(np.isfinite(scored).sum()) / len(scored) if len(scored) else None
+
+
 METRICS = (
+    Metric("coverage", lambda e: coverage(e["rotation_max"]), "Coverage %",
+           "% of the scored frames the method gave an estimate for (`estimated` / `frames`); every other "
+           "figure counts a frame without one as a failure (medians: over the frames with one)", "cov %"),
     Metric("success_tol5", lambda e: tolerance_rate(e["rotation_max"]), "±5° %",
            "% with every measured rotation angle (rx, ry, rz of the label, wrapped) within 5°, inclusive: the "
            "paper's Table 2 \"error tolerance of ±5 degrees\"", "±5° %"),

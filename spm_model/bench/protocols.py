@@ -13,6 +13,16 @@
   folder (a camera grid), test on every frame of another (views at random
   poses, occluded by rectangles or 3-D distractors); test frames whose
   instance is in the training folder are "seen", the others "unseen".
+- ``interleaved``: train on every other view of each camera path (even path
+  index), test on the views between (odd): on a turntable in 5-degree steps,
+  train on the 10-degree views and test on the 5-degree views between them.
+  Occluded copies of a view share its path index, so they fall on its side.
+
+Every method stands alone: before ``fit`` the benchmark checks what the method declares it
+needs (``NEEDS``: depth, SPM features, camera paths, frames; spm_model/base/estimator.py), and
+a method whose needs the training frames do not meet, or whose ``fit`` or ``predict`` raises,
+is *declined* in that split with its one-line reason; the others run and are scored. The
+test frames of a split a method declined count as frames without its estimate.
 
 Methods get training frames (spm_model/base/frames.py) with their poses, then
 test frames that hold only what a camera sees (image, visible mask, K), in a
@@ -23,27 +33,29 @@ do under loco, views and instances (as before) and do not under offgrid.
 Runs differ in their seed: the model's random choices, the views split, the
 instances order and the test order (the features are extracted once, with a
 fixed seed, and cached). Under loco and offgrid the splits are the same in every
-run, so a DETERMINISTIC method (no seed: pca, ls, n3m, template; spm_model/base/estimator.py)
-is fitted in the first run only and its predictions are reused in the others: the
-same scores as fitting it again.
+run (and under interleaved), so a DETERMINISTIC method (no seed: pca, ls, n3m, template;
+spm_model/base/estimator.py) is fitted in the first run only and its predictions are reused
+in the others: the same scores as fitting it again.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from spm_data.errors import ModelError
+from spm_data.errors import ModelError, SpmError
 from spm_model.base.feature_memo import use_folder
-from spm_model.base.frames import Frames, camera_chunks, read_camera_frames
+from spm_model.base.frames import Frames
+from spm_model.bench.fitting import failure, fit_predict, unmet_needs
 from spm_model.bench.feature_cache import FeatureTable, load_features, memo_folder, offgrid_table
 from spm_model.bench.scoring import eccentricity, frame_errors, run_summary
 from spm_model.bench.surface_metrics import mesh_keys
 from spm_model.bench.symmetry_errors import instance_symmetries
-from spm_model.methods.registry import builtin_methods, check_predictions
+from spm_model.methods.registry import builtin_methods
+from spm_model.methods.spm_pose import SPMPose
 from spm_model.methods.template import TemplatePose
 from spm_model.spm.estimator import SPMEstimator
 
-PROTOCOLS = ("loco", "views", "instances", "offgrid")
+PROTOCOLS = ("loco", "views", "instances", "offgrid", "interleaved")
 
 
 def _instances_splits(table: FeatureTable, seed: int):
@@ -94,6 +106,9 @@ def splits(table: FeatureTable, protocol: str, seed: int, held_out: float = 0.2)
         return [("all", np.flatnonzero(~test), np.flatnonzero(test))]
     if protocol == "instances":
         return _instances_splits(table, seed)
+    if protocol == "interleaved":
+        even = np.asarray(table.path_index, dtype=np.int64) % 2 == 0
+        return [("every other view", np.flatnonzero(even), np.flatnonzero(~even))]
     if protocol == "offgrid":
         if "test" not in table.arrays:
             raise ModelError("the offgrid protocol needs a test folder: give --test FOLDER (views rendered at "
@@ -105,29 +120,6 @@ def splits(table: FeatureTable, protocol: str, seed: int, held_out: float = 0.2)
 def training_rows(table: FeatureTable, train: np.ndarray, train_occluded: bool) -> np.ndarray:
     """``train`` without its occluded frames unless ``train_occluded``."""
     return train if train_occluded else train[table.occlusion_fraction[train] <= 0]
-
-
-def fit_predict(methods: dict, table: FeatureTable, train: np.ndarray, test: np.ndarray, seed: int = 0) -> dict:
-    """{name: (len(test), 6) predictions, in ``test``'s order} of every method fitted on
-    ``train``. Methods see the test frames as a camera gives them (CameraFrames), in a
-    random order seeded by ``seed``, a bounded chunk of images at a time."""
-    fitted = {}
-    for name, method in methods.items():
-        fitted[name] = method.fit(Frames(table, train), table.pose[train].copy())
-        if fitted[name] is None:
-            raise ModelError(f"estimator {name}: fit(frames, poses) must return self, got None")
-    order = np.random.default_rng(seed).permutation(len(test))
-    parts = {name: [] for name in methods}
-    for chunk in camera_chunks(table, test[order]):
-        frames = read_camera_frames(table, chunk)
-        for name, model in fitted.items():
-            parts[name].append(check_predictions(name, model.predict(frames), len(chunk)))
-    out = {}
-    for name, chunks in parts.items():
-        pred = np.full((len(test), 6), np.nan)
-        pred[order] = np.concatenate(chunks) if chunks else np.zeros((0, 6))
-        out[name] = pred
-    return out
 
 
 _TABLES: dict = {}  # per process: the feature tables split jobs read, by source
@@ -172,9 +164,11 @@ def make_methods(seed: int, model_params: dict, builtins=None, estimators=None) 
 def split_job(job, report=lambda n: None):
     """One (run, split) on any worker: fit every method, predict the test frames.
     job = (source, protocol, run, split index, model_params, builtins, estimators, train_occluded).
-    Returns (what was tested, training frames, test index, {method: per-frame errors}): the
-    errors (scoring.frame_errors) are scored here, so the splits' scoring runs on the
-    workers too, and only the errors travel back."""
+    Returns (what was tested, training frames, test index, {method: per-frame errors}, notes):
+    the errors (scoring.frame_errors) are scored here, so the splits' scoring runs on the
+    workers too, and only the errors travel back; a declined method's errors are those of no
+    estimate. notes = {"declined": {method: why}, "featured": {method: test frames with its
+    features, or None}}."""
     source, protocol, run, index, model_params, builtins, estimators, train_occluded = job
     table = _table(source)
     tested, train, test = splits(table, protocol, seed=run)[index]
@@ -182,16 +176,18 @@ def split_job(job, report=lambda n: None):
     if len(train) == 0:
         raise ModelError(f"{protocol} protocol, run {run + 1}: nothing left to train on when testing {tested}")
     if len(test) == 0:
-        return tested, 0, test, {}
+        return tested, 0, test, {}, {"declined": {}, "featured": {}}
     methods = make_methods(run, model_params, builtins, estimators)
     if not methods:   # a later run whose methods are all reused from the first (evaluate)
         report(len(test))
-        return tested, len(train), test, {}
-    predictions = fit_predict(methods, table, train, test, seed=run)
+        return tested, len(train), test, {}, {"declined": {}, "featured": {}}
+    predictions, declined, featured = fit_predict(methods, table, train, test, seed=run)
     keys, symmetries = _meshes(source)
-    errors = {name: frame_errors(table, test, pred, keys, symmetries) for name, pred in predictions.items()}
+    none = np.full((len(test), 6), np.nan)
+    errors = {name: frame_errors(table, test, predictions.get(name, none), keys, symmetries) for name in methods}
     report(len(test))
-    return tested, len(train), test, errors
+    return tested, len(train), test, errors, {"declined": declined,
+                                               "featured": {name: featured.get(name) for name in methods}}
 
 
 def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_params: dict | None = None,
@@ -271,23 +267,37 @@ def _without(builtins, estimators, model_params, reused: set) -> tuple:
 def _with_first_run(output: tuple, first: tuple) -> tuple:
     """A later run's split_job output with the reused methods' errors taken from the first
     run's output of the same split, in the first run's method order."""
-    tested, n_train, test, errors = output
+    tested, n_train, test, errors, notes = output
     if not np.array_equal(test, first[2]):
         raise ModelError(f"internal: split {tested!r} differs between runs; cannot reuse its predictions")
     order = list(first[3]) + [name for name in errors if name not in first[3]]
     errors = {**first[3], **errors}
-    return tested, n_train, test, {n: errors[n] for n in order}
+    notes = {k: {**first[4][k], **notes[k]} for k in ("declined", "featured")}
+    return tested, n_train, test, {n: errors[n] for n in order}, notes
 
 
 def final_models(table: FeatureTable, model_params: dict, train_occluded: bool) -> tuple:
-    """(SPMEstimator, TemplatePose, training frames of the SPM model): the models ``spm train``
-    saves, fitted on every training frame (offgrid: every frame of the training folder),
-    without occluded ones unless ``train_occluded``; SPM on the frames with training features."""
+    """(SPMEstimator or None, TemplatePose or None, training frames of the SPM model, {name: why
+    it declined}): the models ``spm train`` saves, fitted on every training frame (offgrid: every
+    frame of the training folder), without occluded ones unless ``train_occluded``; SPM on the
+    frames with training features. A model that cannot be fitted is None, with its reason."""
     rows = np.flatnonzero(~table.test) if "test" in table.arrays else np.arange(len(table))
     rows = training_rows(table, rows, train_occluded)
     usable = rows[np.isfinite(table.train_vector[rows]).all(axis=1)]
-    model = SPMEstimator(**model_params).fit(table.train_vector[usable], table.pose[usable])
-    return model, TemplatePose().fit(Frames(table, rows), table.pose[rows]), len(usable)
+    declined, model, reference = {}, None, None
+    why = unmet_needs(SPMPose, table, rows)
+    if why is not None:
+        declined["spm"] = why
+    else:
+        try:
+            model = SPMEstimator(**model_params).fit(table.train_vector[usable], table.pose[usable])
+        except SpmError as exc:
+            declined["spm"] = failure(exc)
+    try:
+        reference = TemplatePose().fit(Frames(table, rows), table.pose[rows])
+    except SpmError as exc:
+        declined["template"] = failure(exc)
+    return model, reference, len(usable), declined
 
 
 def bench_job(job, report=lambda n: None):
@@ -311,7 +321,9 @@ def _run_jobs(jobs: list, executor, report) -> list:
     """Outputs of bench_job for every job, in order; in this process without an executor."""
     def said(job, output):
         if job[0] != "final" and len(output[2]):
-            report(f"run {job[2] + 1}: {job[1]} test {output[0]} ({output[1]} train / {len(output[2])} test frames)")
+            declined = output[4]["declined"]
+            report(f"run {job[2] + 1}: {job[1]} test {output[0]} ({output[1]} train / {len(output[2])} test frames)"
+                   + (f"; declined: {', '.join(declined)}" if declined else ""))
 
     if executor is None:
         outputs = []

@@ -42,22 +42,43 @@ def _std_tree(items: list):
 
 def _mean_rows(per_run: list) -> list:
     """Occlusion bins of several runs -> one list: counts of the first run, means of the rest."""
-    return [{**{k: row[k] for k in ("low", "high", "frames")},
+    return [{**{k: row[k] for k in COUNTS if k in row},
              **_mean_tree([{k: v for k, v in r[b].items() if k not in COUNTS} for r in per_run])}
             for b, row in enumerate(per_run[0])]
 
 
 def _summary(per_run: list) -> dict:
     out = _mean_tree(per_run)
-    for k in ("frames", "estimated"):
-        out[k] = per_run[0][k]
-    out["std"] = _std_tree(per_run)
+    for k in ("frames", "estimated", "featured"):
+        if k in per_run[0]:
+            out[k] = per_run[0][k]
+    out["std"] = _std_tree([{k: v for k, v in r.items() if k != "featured"} for r in per_run])
     return out
 
 
+def declined(evaluation: dict) -> dict:
+    """{method: {"reason": its first reason, "splits": splits it declined, "of": every split of
+    every run}} for each method that declined anywhere (spm_model/bench/protocols.py)."""
+    total = sum(len(r.get("splits", ())) for r in evaluation["runs"])
+    out = {}
+    for r in evaluation["runs"]:
+        for m, where in r.get("declined", {}).items():
+            entry = out.setdefault(m, {"reason": next(iter(where.values())), "splits": 0, "of": total})
+            entry["splits"] += len(where)
+    return {m: out[m] for m in evaluation["methods"] if m in out}
+
+
+def declined_everywhere(evaluation: dict) -> dict:
+    """{method: reason} of the methods that declined in every split of every run: no figures."""
+    return {m: d["reason"] for m, d in declined(evaluation).items() if d["splits"] == d["of"]}
+
+
 def aggregate(evaluation: dict) -> dict:
-    """The ``summary`` of results.json: means over runs with σ (docs/results-schema.md)."""
-    runs, names = evaluation["runs"], evaluation["methods"]
+    """The ``summary`` of results.json: means over runs with σ (docs/results-schema.md); the
+    methods that declined everywhere have no figures, only their entry in ``declined``."""
+    runs = evaluation["runs"]
+    gone = declined_everywhere(evaluation)
+    names = [m for m in evaluation["methods"] if m not in gone]
     overall = {m: _summary([r["overall"][m] for r in runs]) for m in names}
     classes = {}
     for c in evaluation["classes"]:
@@ -70,7 +91,7 @@ def aggregate(evaluation: dict) -> dict:
                     if all(r["accuracy_curve"][m] is not None for r in runs) else None) for m in names}}
     out = {"protocol": evaluation["protocol"], "runs": len(runs),
            "methods": {m: overall[m] for m in names if m != "chance"}, "chance": overall.get("chance"),
-           "classes": classes, "occlusion": occlusion, "accuracy_curve": curve}
+           "declined": declined(evaluation), "classes": classes, "occlusion": occlusion, "accuracy_curve": curve}
     if "fig5" in runs[0]:
         out["fig5"] = {g: {k: {m: _mean_rows([r["fig5"][g][k][m] for r in runs]) for m in names}
                            for k in kinds} for g, kinds in runs[0]["fig5"].items()}
@@ -96,7 +117,10 @@ def _finish(fig, ax, path, xlabel: str, ylabel: str, legend_outside: bool = Fals
     ax.set_ylabel(ylabel)
     ax.set_ylim(0, 100)
     ax.grid(alpha=0.3)
-    if legend_outside:  # beside the curves, which fill the whole plot
+    if not ax.get_legend_handles_labels()[1]:  # nothing drawn: say why instead of an empty legend
+        ax.text(0.5, 0.5, "no frame measures this (e.g. one angle only, as COIL)", ha="center", va="center",
+                transform=ax.transAxes, fontsize=9, color="0.4")
+    elif legend_outside:  # beside the curves, which fill the whole plot
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     else:
         ax.legend(fontsize=7)

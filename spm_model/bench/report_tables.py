@@ -39,16 +39,35 @@ def entry(summary: dict, m: str) -> dict:
     return summary["methods"].get(m) or summary["chance"]
 
 
+def _cov(entry_: dict) -> str:
+    """" · 80% estimated" after a figure whose frames did not all get an estimate, else ""."""
+    frames, estimated = entry_.get("frames") or 0, entry_.get("estimated")
+    return "" if estimated is None or not frames or estimated >= frames else f" · {100 * estimated / frames:.0f}% est."
+
+
+def declined_lines(summary: dict) -> list[str]:
+    """One line per method that declined (in every split: no figures; in some: its coverage says
+    how many frames that cost), with its reason."""
+    lines = []
+    for m, d in (summary.get("declined") or {}).items():
+        where = "declined" if d["splits"] == d["of"] else f"declined in {d['splits']} of {d['of']} splits"
+        lines.append(f"- {name(m)} {where}: {d['reason']}")
+    return lines
+
+
 def plain_summary(summary: dict) -> list[str]:
     """The first lines a newcomer reads: the best method, how far above chance,
-    and which degrees of freedom it recovers (median error at most half of chance's)."""
+    and which degrees of freedom it recovers (median error at most half of chance's);
+    then the methods that declined, with their reasons."""
     methods, chance = summary["methods"], summary["chance"] or {}
+    if not methods:
+        return ["- **No method but chance ran on this data**; each says why below."] + declined_lines(summary)
     best = max(methods, key=lambda m: (methods[m]["success_tol5"] or 0, methods[m]["auc_45"] or 0))
     b = methods[best]
     lines = [f"- **Best method, {summary['protocol']} protocol: {name(best)}**, {fmt(b['success_tol5'])}% within "
-             f"±5° (chance {fmt(chance.get('success_tol5'))}%), geodesic median {fmt(b['geodesic_median_deg'])}° "
-             f"(chance {fmt(chance.get('geodesic_median_deg'))}°), AUC of accuracy to 45° {fmt(b['auc_45'])} "
-             f"(chance {fmt(chance.get('auc_45'))})."]
+             f"±5° (chance {fmt(chance.get('success_tol5'))}%){_cov(b)}, geodesic median "
+             f"{fmt(b['geodesic_median_deg'])}° (chance {fmt(chance.get('geodesic_median_deg'))}°), AUC of accuracy "
+             f"to 45° {fmt(b['auc_45'])} (chance {fmt(chance.get('auc_45'))})."]
     spm = methods.get("spm")
     if spm and best != "spm":
         lines.append(f"- SPM: {fmt(spm['success_tol5'])}% within ±5°, geodesic median {fmt(spm['geodesic_median_deg'])}°.")
@@ -69,16 +88,32 @@ def plain_summary(summary: dict) -> list[str]:
     if constant:
         lines.append("- Not varied in this data (a random training pose has a median error under 0.5): "
                      + ", ".join(constant) + ".")
-    return lines
+    return lines + declined_lines(summary)
 
 
 def markdown(evaluation: dict, summary: dict, context: dict) -> str:
     names = list(summary["methods"]) + (["chance"] if summary["chance"] else [])
+    if not names:
+        return "\n".join(_intro(summary, context) + [models_sentence(context), ""])
     return "\n".join(_intro(summary, context) + _fig5_tables(summary, names) + _paper_tables(evaluation, summary)
                      + _method_tables(summary, names) + _class_and_occlusion_tables(summary, names) + [
         "", "Plots: `accuracy.png` (accuracy against geodesic threshold), `occlusion.png` (success against "
-        "occlusion). Models trained on every training frame: `model.npz` (SPM) and `reference-model.npz` "
-        "(HOG templates).", ""])
+        f"occlusion). {models_sentence(context)}", ""])
+
+
+MODEL_FILES = {"spm": ("model.npz", "SPM"), "template": ("reference-model.npz", "HOG templates")}
+
+
+def models_sentence(context: dict) -> str:
+    """What the run fitted on every training frame and wrote, and what it could not fit."""
+    models = context.get("models")
+    if models is None:
+        return ""
+    written = [f"`{MODEL_FILES[k][0]}` ({MODEL_FILES[k][1]})" for k, v in models.items() if v == "written"]
+    missing = [f"{MODEL_FILES[k][1]} declined ({v['declined']})" for k, v in models.items() if v != "written"]
+    text = ("Models trained on every training frame: " + " and ".join(written) + "." if written
+            else "No model was written.")
+    return text + (" " + "; ".join(missing) + "." if missing else "")
 
 
 def _intro(summary: dict, context: dict) -> list:
@@ -134,7 +169,7 @@ def _fig5_tables(summary: dict, names: list) -> list:
 
 def _fig5_cell(row: dict) -> str:
     return (f"{fmt(row['success_sum5'], 0)} / {fmt(row['success_sum3'], 0)} / {fmt(row['success_tol5'], 0)} "
-            f"({fmt(row.get('geodesic_median_deg'))})")
+            f"({fmt(row.get('geodesic_median_deg'))}){_cov(row)}")
 
 
 def _paper_tables(evaluation: dict, summary: dict) -> list:
@@ -167,16 +202,24 @@ def _paper_tables(evaluation: dict, summary: dict) -> list:
 
 
 def _method_tables(summary: dict, names: list) -> list:
-    """Every method over all test frames: every METRICS column, then BOP surface errors."""
-    header = ["Method", "Estimated", METRICS[0].header, "σ"] + [m.header for m in METRICS[1:]]
+    """Every method over all test frames: every METRICS column (σ after ±5°), then BOP surface errors."""
+    header = ["Method", "Estimated", "Features"]
+    for k in METRICS:
+        header += [k.header] + (["σ"] if k.key == "success_tol5" else [])
     rows = []
     for m in names:
         s = entry(summary, m)
-        rows.append([name(m), f"{s['estimated']}/{s['frames']}", fmt(metric_value(s, METRICS[0].key)),
-                     fmt((s.get("std") or {}).get("success_tol5"))]
-                    + [fmt(metric_value(s, k.key), k.digits) for k in METRICS[1:]])
+        featured = s.get("featured")
+        row = [name(m), f"{s['estimated']}/{s['frames']}", "–" if featured is None else f"{featured}/{s['frames']}"]
+        for k in METRICS:
+            row += [fmt(metric_value(s, k.key), k.digits)]
+            row += [fmt((s.get("std") or {}).get("success_tol5"))] if k.key == "success_tol5" else []
+        rows.append(row)
     lines = ["", "## Every method, all test frames", ""] + table(header, rows)
-    lines += ["", "Per DoF: median absolute errors (spm_data/core/poses.py's viewing angles and distance); "
+    lines += ["", "Estimated: test frames the method gave an estimate for; Features: test frames it found its "
+              "features on (SIFT keypoints, SPM's ellipse; – where the method does not say). Every success rate "
+              "counts a frame without an estimate as a failure; medians are over the frames with one.", "",
+              "Per DoF: median absolute errors (spm_data/core/poses.py's viewing angles and distance); "
               "tx, ty, tz: along the camera's axes (the paper's Figs. 6–7).", "",
               "## Surface errors (BOP), where the mesh is known", ""]
     rows = [[name(m)] + [fmt((entry(summary, m).get("surface") or {}).get(k), d) for k, _, d in SURFACE]
@@ -185,11 +228,13 @@ def _method_tables(summary: dict, names: list) -> list:
 
 
 def _class_and_occlusion_tables(summary: dict, names: list) -> list:
-    rows = [[c] + [f"{fmt(row[m]['success_tol5'])} ({fmt(row[m]['geodesic_median_deg'], 0)})" for m in names]
+    rows = [[c] + [f"{fmt(row[m]['success_tol5'])} ({fmt(row[m]['geodesic_median_deg'], 0)}){_cov(row[m])}"
+                   for m in names]
             for c, row in summary["classes"].items()]
-    lines = ["", "## Per class, ±5° % (geodesic median °)", ""] + table(["Class"] + [name(m) for m in names], rows)
+    lines = ["", "## Per class, ±5° % (geodesic median °; where not every frame got an estimate, the share "
+             "that did)", ""] + table(["Class"] + [name(m) for m in names], rows)
     rows = [[f"{row['low']:.0%}–{row['high']:.0%}", row["frames"]]
-            + [fmt(summary["occlusion"][m][b]["success_sum5"]) for m in names]
+            + [fmt(summary["occlusion"][m][b]["success_sum5"]) + _cov(summary["occlusion"][m][b]) for m in names]
             for b, row in enumerate(summary["occlusion"][names[0]]) if row["frames"]]
     lines += ["", "## Success (sum < 5°) against occlusion, every test frame", ""]
     return lines + table(["Occlusion", "Frames"] + [name(m) for m in names], rows)
@@ -200,6 +245,8 @@ def summary_text(summary: dict) -> str:
     column), for the terminal; with offgrid, one Fig. 5 line per method."""
     shown = [m for m in METRICS if m.terminal]
     lines = [line.replace("**", "") for line in plain_summary(summary)]
+    if not summary["methods"] and not summary["chance"]:
+        return "\n".join(lines)
     lines.append(f"{'method':<32}" + "".join(f"{m.terminal:>9}" for m in shown))
     for m in [*summary["methods"], *(["chance"] if summary["chance"] else [])]:
         s = entry(summary, m)

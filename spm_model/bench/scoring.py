@@ -33,14 +33,16 @@ def _select(errors: dict, sel) -> dict:
 
 
 def occlusion_rows(occ: np.ndarray, errors: dict) -> list:
-    """Per tenth of occlusion: frames, the paper's criteria (sum < 5°, sum < 3°, ±5°) and
-    the geodesic median, over the frames of that bin (the last bin includes 1)."""
+    """Per tenth of occlusion: frames, of those the frames with an estimate, the paper's criteria
+    (sum < 5°, sum < 3°, ±5°) and the geodesic median, over the frames of that bin (the last
+    bin includes 1)."""
     rows = []
     for lo, hi in zip(OCCLUSION_BINS[:-1], OCCLUSION_BINS[1:]):
         sel = (occ >= lo) & ((occ < hi) | (hi == 1.0)) & ~np.isnan(errors["rotation_max"])
         geo, t = errors["geodesic"][sel], errors["translation"][sel]
         geo, t = geo[np.isfinite(geo)], t[np.isfinite(t)]
         rows.append({"low": float(lo), "high": float(hi), "frames": int(sel.sum()),
+                     "estimated": int(np.isfinite(errors["rotation_max"][sel]).sum()),
                      "success_tol5": tolerance_rate(errors["rotation_max"][sel], TOLERANCE_DEG),
                      **{f"success_sum{th:g}": success_rate(errors["rotation_sum"][sel], th) for th in SUM_THRESHOLDS},
                      "geodesic_median_deg": float(np.median(geo)) if len(geo) else None,
@@ -73,9 +75,11 @@ def _occlusion_curves(table, index, errors) -> dict:
 
 def run_summary(table, protocol: str, run: int, parts: list) -> dict:
     """One run's results from its splits' outputs [(tested, training frames, test index,
-    {method: per-frame errors (frame_errors)})]: per-class and overall
-    summaries, accuracy curves, occlusion bins; with offgrid, the Fig. 5 curves and the
-    seen/unseen summaries."""
+    {method: per-frame errors (frame_errors)}, {"declined": {method: why}, "featured":
+    {method: count or None}})]: per-class and overall summaries, accuracy curves, occlusion
+    bins; with offgrid, the Fig. 5 curves and the seen/unseen summaries; ``splits`` (what each
+    split tested), ``declined`` ({method: {split: why}}) and each overall entry's ``featured``
+    (test frames the method found its features on, None where it does not say)."""
     index = np.concatenate([p[2] for p in parts])
     names = list(parts[0][3])
     # Each method's per-frame errors, scored per split (every error is a frame's own); the
@@ -89,8 +93,10 @@ def run_summary(table, protocol: str, run: int, parts: list) -> dict:
     curves = {m: accuracy_curve(e["geodesic"], int(e["rotation_measured"].sum())).tolist()
               if e["rotation_measured"].any() else None for m, e in errors.items()}
     curves_by = _occlusion_curves(table, index, errors)
-    out = {"seed": run, "classes": per_class, "overall": {m: summarise(e) for m, e in errors.items()},
-           "occlusion": curves_by["all"]["all"], "accuracy_curve": curves}
+    overall = {m: {**summarise(e), "featured": _featured(parts, m)} for m, e in errors.items()}
+    declined = {m: {p[0]: p[4]["declined"][m] for p in parts if m in p[4]["declined"]} for m in names}
+    out = {"seed": run, "splits": [p[0] for p in parts], "declined": {m: d for m, d in declined.items() if d},
+           "classes": per_class, "overall": overall, "occlusion": curves_by["all"]["all"], "accuracy_curve": curves}
     if protocol == "offgrid":
         out["fig5"] = curves_by
         out["instances"] = {g: {m: summarise(_select(e, table.seen[index] == (g == "seen")))
@@ -99,6 +105,13 @@ def run_summary(table, protocol: str, run: int, parts: list) -> dict:
     return out
 
 
+
+
+def _featured(parts: list, method: str) -> int | None:
+    """Test frames of every split that ``method`` found its features on (0 where it declined);
+    None when it does not say in a split it ran in."""
+    counts = [p[4]["featured"].get(method) if method not in p[4]["declined"] else 0 for p in parts]
+    return None if any(c is None for c in counts) else int(sum(counts))
 
 
 def eccentricity(table) -> dict:

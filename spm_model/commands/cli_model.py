@@ -38,9 +38,11 @@ def _method_names(text):
 @click.argument("shards", metavar="SHARDS", required=False, type=click.Path())
 @click.option("--out", "report_dir", default=None, type=click.Path(),
               help="Report folder: results.md/json, plots, model.npz, reference-model.npz [default: SHARDS/report].")
-@click.option("--protocol", type=click.Choice(["loco", "views", "instances", "offgrid"]), default=None,
-              help="loco (default): leave one class out; views: new views of seen objects; instances: leave one "
-                   "instance out of every class (category level); offgrid: train on SHARDS, test on --test (Fig. 5).")
+@click.option("--protocol", type=click.Choice(["loco", "views", "instances", "offgrid", "interleaved"]), default=None,
+              help="loco (default; views where the data has one class): leave one class out; views: new views of "
+                   "seen objects; instances: leave one instance out of every class (category level); offgrid: "
+                   "train on SHARDS, test on --test (Fig. 5); interleaved: train on every other view of each "
+                   "camera path, test on the views between.")
 @click.option("--test", "test", default=None, type=click.Path(),
               help="Test folder of the offgrid protocol (random views, occluded): train on SHARDS, test here.")
 @click.option("--train-occluded/--clean-training", "train_occluded", default=None,
@@ -79,8 +81,31 @@ def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs,
         sys.exit(130)
     bar.close()
     click.echo(result["text"])
-    click.echo(f"report: {result['report']}/results.md, models: {result['model']} (SPM), "
-               f"{result['reference_model']} (reference)")
+    click.echo(f"report: {result['report']}/results.md, {_models_line(result)}")
+
+
+def _models_line(result) -> str:
+    """"models: PATH (SPM), PATH (reference)" for what train wrote, and what it could not fit."""
+    written = [f"{result[key]} ({what})" for key, what in (("model", "SPM"), ("reference_model", "reference"))
+               if result[key] is not None]
+    missing = [f"{what} declined" for key, what in (("spm", "SPM"), ("template", "reference"))
+               if result["models"][key] != "written"]
+    return "models: " + (", ".join(written) or "none") + (f" ({'; '.join(missing)})" if missing else "")
+
+
+@click.command("check-estimator")
+@click.argument("spec", metavar="MODULE:CLASS")
+@handle_errors
+def check_estimator_cmd(spec):
+    """Run your estimator MODULE:CLASS through the contract `spm train --estimator` relies on, on a small
+    built-in set (rendered with pyrender): one line a check; exit status 1 if any check fails."""
+    from spm_model.commands.check_estimator import check_estimator, failed
+
+    checks = check_estimator(spec, log=click.echo)
+    bad = failed(checks)
+    click.echo(f"{len(checks)} checks, {len(bad)} failed" + ("" if bad else f"; {spec} can run in spm train"))
+    if bad:
+        sys.exit(1)
 
 
 @click.command("evaluate")

@@ -7,27 +7,56 @@ from pathlib import Path
 
 import numpy as np
 
-from spm_data.errors import ModelError
+from spm_data.errors import ModelError, SpmError
+from spm_data.io.folders import find_folders
 from spm_data.io.outputs import removing_created
+from spm_data.io.shards import MANIFEST, read_manifest
 from spm_model.bench.feature_cache import FeatureTable, load_features, offgrid_table
 from spm_model.bench.protocols import evaluate
-from spm_model.bench.report import check_report_folder, summary_text, write_error, write_report
+from spm_model.bench.report import (check_report_folder, declined_everywhere, summary_text, write_error,
+                                    write_report)
 from spm_model.methods.registry import load_estimator_class
-from spm_model.methods.spm_pose import MIN_TRAIN_FRAMES
 from spm_model.spm.features import FeatureConfig
 
 
-def check_classes(table: FeatureTable) -> dict:
-    """Frames with training features per class; ModelError for a class with too few."""
-    counts = {}
+def class_counts(table: FeatureTable) -> dict:
+    """{class: frames with SPM's training features} (the report's data line; SPM's own need is
+    checked by the benchmark, for SPM alone)."""
     usable = np.isfinite(table.train_vector).all(axis=1)
-    for c in sorted(set(table.class_name.tolist())):
-        counts[c] = int(usable[table.class_name == c].sum())
-        if counts[c] < MIN_TRAIN_FRAMES:
-            total = int((table.class_name == c).sum())
-            raise ModelError(f"class {c!r} has {counts[c]} of {total} frames with features (need at least "
-                             f"{MIN_TRAIN_FRAMES}); render more views or larger images, or leave its shards out")
-    return counts
+    return {c: int(usable[table.class_name == c].sum()) for c in sorted(set(table.class_name.tolist()))}
+
+
+def listed_classes(shards) -> set | None:
+    """The classes the manifests under ``shards`` list (read before any feature is extracted);
+    None where a folder has no manifest to tell (a single shard, an unfinished run)."""
+    classes = set()
+    for folder in find_folders(shards):
+        if not (folder / MANIFEST).is_file():
+            return None
+        try:
+            manifest = read_manifest(folder)
+        except SpmError:
+            return None
+        for entry in manifest["shards"]:
+            classes.update(entry.get("classes") or {})
+    return classes
+
+
+def choose_protocol(protocol: str | None, test, shards, log) -> str:
+    """The protocol to run: offgrid with --test; else the one asked for; else loco where the data has
+    two classes or more, and views (said in one line) where it has one. loco asked for on one class
+    is refused before any feature is extracted (where the manifests tell)."""
+    if test is not None:
+        return "offgrid"
+    classes = listed_classes(shards) if protocol in (None, "loco") else None
+    if protocol is None and classes is not None and len(classes) == 1:
+        log(f"one class ({next(iter(classes))}): leave-one-class-out cannot run, so the views protocol does "
+            "(new views of seen objects); give --protocol to choose another")
+        return "views"
+    if protocol == "loco" and classes is not None and len(classes) < 2:
+        raise ModelError(f"leave-one-class-out needs at least 2 classes, found {sorted(classes)}; add shards of "
+                         "other classes or use --protocol views (or interleaved)")
+    return protocol or "loco"
 
 
 def load_estimators(specs) -> dict:
@@ -55,17 +84,17 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
     if test is not None and protocol not in ("offgrid", None):
         raise ModelError(f"--test goes with --protocol offgrid, got --protocol {protocol}; leave --protocol out "
                          "or give offgrid")
-    protocol = "offgrid" if test is not None else (protocol or "loco")
     out = check_report_folder(report_dir if report_dir else Path(shards) / "report")  # before any work
     plugins = load_estimators(estimators)
+    protocol = choose_protocol(protocol, test, shards, log)
     table = load_features(shards, features, progress=progress, executor=executor,
                           allow_partial=allow_partial)
     if test is not None:
         table = offgrid_table(table, load_features(test, features, progress=progress, executor=executor,
                                                    allow_partial=allow_partial))
-    counts = check_classes(table)
-    log(f"{len(table)} frames, {len(counts)} classes: " + ", ".join(f"{c} {n}" for c, n in counts.items())
-        + " (frames with training features)")
+    counts = class_counts(table)
+    log(f"{len(table)} frames, {len(counts)} class{'es' if len(counts) != 1 else ''}: "
+        + ", ".join(f"{c} {n}" for c, n in counts.items()) + " (frames with SPM's training features)")
     alone = int((table.train_neighbours == 0).sum())
     if alone:
         log(f"{alone} frames have no 5-degree path neighbour in their shard; their training features "
@@ -74,7 +103,10 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
     source = (str(shards), None if test is None else str(test), features, allow_partial)
     evaluation = evaluate(table, protocol, runs, model_params, estimators=plugins, report=log, builtins=builtins,
                           train_occluded=train_occluded, executor=executor, source=source, final=True)
-    model, reference, train_features = evaluation.pop("final_models")
+    model, reference, train_features, final_declined = evaluation.pop("final_models")
+    check_some_method_ran(evaluation)
+    models = {"spm": "written" if model is not None else {"declined": final_declined.get("spm", "")},
+              "template": "written" if reference is not None else {"declined": final_declined.get("template", "")}}
     context = {"command": command, "shards": str(shards), **({"test": str(test)} if test is not None else {}),
                "frames": len(table), "train_features": int(train_features),
                "query_features": int(np.isfinite(table.query_vector).all(axis=1).sum()),
@@ -82,16 +114,35 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
                "frames_per_class": {c: int((table.class_name == c).sum()) for c in counts},
                "model_params": {k: v for k, v in model_params.items() if k != "features"},
                "features": asdict(features), "estimators": {name: f"{cls.__module__}:{cls.__qualname__}"
-                                                            for name, cls in plugins.items()}}
+                                                            for name, cls in plugins.items()},
+               "models": models}
     try:
         with removing_created(out / "model.npz"):  # a report folder this run made goes again on failure
             out.mkdir(parents=True, exist_ok=True)
-            model_path = model.save(out / "model.npz")
-            reference_path = reference.save(out / "reference-model.npz")
+            model_path = _save(model, out / "model.npz")
+            reference_path = _save(reference, out / "reference-model.npz")
             summary = write_report(evaluation, context, out)
     except OSError as exc:
         raise write_error(out, exc) from None
     return {"report": out, "model": model_path, "reference_model": reference_path, "summary": summary,
-            "evaluation": evaluation, "text": summary_text(summary)}
+            "evaluation": evaluation, "text": summary_text(summary), "models": models}
+
+
+def _save(model, path: Path):
+    """Write ``model`` to ``path`` and return the path; None (and a stale file of an earlier run at
+    ``path`` removed, so the folder never pairs this report with another run's model) without one."""
+    if model is None:
+        path.unlink(missing_ok=True)
+        return None
+    return model.save(path)
+
+
+def check_some_method_ran(evaluation: dict) -> None:
+    """ModelError (one line) when every method but chance declined in every split: nothing to report."""
+    gone = declined_everywhere(evaluation)
+    ran = [m for m in evaluation["methods"] if m != "chance" and m not in gone]
+    if not ran:
+        reasons = "; ".join(f"{m}: {why}" for m, why in gone.items() if m != "chance")
+        raise ModelError(f"no method could run on this data (chance aside): {reasons or 'none was asked for'}")
 
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from spm_data.core.poses import label_to_pose, pose_to_label
 from spm_data.errors import ModelError
-from spm_model.base.estimator import PoseEstimator
+from spm_model.base.estimator import Needs, PoseEstimator
 from spm_model.methods import n3m_points as pts
 from spm_model.methods.n3m_pose import estimate, match
 from spm_model.methods.n3m_select import select_markers
@@ -48,6 +48,7 @@ class N3MPose(PoseEstimator):
     """
 
     DETERMINISTIC = True
+    NEEDS = Needs(frames=2, depth=True)  # 3-D points are lifted from depth, seen in 2 views or more
 
     FITTED = ("points_", "point_object_", "quality_", "descriptors_", "descriptor_point_",
               "markers_", "merge_radius_")
@@ -188,6 +189,14 @@ class N3MPose(PoseEstimator):
     def predict(self, frames) -> np.ndarray:
         """(n, 6) labels of ``frames`` (keys TEST_KEYS); NaN rows where no pose passes."""
         return self.predict_details(frames)[0]
+
+    def features_found(self, frames) -> np.ndarray:
+        """(n,) bool: the frames SIFT found keypoints on (inside the mask; remembered, so after
+        predict this costs no SIFT)."""
+        sift = pts.make_sift(self.max_keypoints)
+        return np.array([len(pts.remembered_sift_features(f["rgb"], f["mask"], side=self.sift_side,
+                                                          max_keypoints=self.max_keypoints, sift=sift)[0]) > 0
+                         for f in frames], dtype=bool)
 
     def predict_details(self, frames) -> tuple[np.ndarray, list]:
         """(labels (n, 6), per frame "n3m", "ransac" or None: which level gave the pose)."""

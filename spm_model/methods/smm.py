@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from spm_data.core.poses import label_to_pose, label_to_view, wrap_degrees
 from spm_data.errors import ModelError
-from spm_model.base.estimator import PoseEstimator
+from spm_model.base.estimator import Needs, PoseEstimator
 from spm_model.base.ranking import smallest_k
 from spm_model.methods.smm_graph import manifold_distances, select_parts, selection_weights, training_pairs
 from spm_model.methods.smm_parts import fit_codebook, mask_frame, remembered_local_features
@@ -72,6 +72,8 @@ class SMMPose(PoseEstimator):
 
     FITTED = ("codebook_", "selected_", "presence_", "location_", "poses_", "bins_",
               "centroids_", "scales_", "intrinsics_", "objective_")
+    # Part selection aligns the pose manifolds of different camera paths: two at least.
+    NEEDS = Needs(frames=2, sequences=2)
 
     def __init__(self, *, n_bins: int = PAPER_BINS, candidate_parts: int = 96, parts: int = 48,
                  alignment_weight: float = 1.0, neighbours: int = 5, max_features: int = 80,
@@ -146,6 +148,11 @@ class SMMPose(PoseEstimator):
         self.poses_, self.bins_ = poses.copy(), bins
         self.centroids_, self.scales_, self.intrinsics_ = centroids, scales, Ks
         return self
+
+    def features_found(self, frames) -> np.ndarray:
+        """(n,) bool: the frames SIFT found local features on (remembered: no SIFT after predict)."""
+        return np.array([len(remembered_local_features(f["rgb"], np.asarray(f["mask"]) > 0, self.max_features)[0]) > 0
+                         for f in frames], dtype=bool)
 
     def _match(self, frames):
         """Per test frame: voted pose class (-1: no estimate), matched training row, and

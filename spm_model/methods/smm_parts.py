@@ -19,8 +19,17 @@ from scipy.cluster.vq import kmeans2
 from spm_data.errors import ModelError
 from spm_model.base.feature_memo import memoized
 
-UPSAMPLE_BELOW = 200   # images whose longest side is shorter are doubled before SIFT
+UPSAMPLE_BELOW = 200   # images whose longest side is shorter are upsampled before SIFT (upsample_factor)
 PRESENCE_QUANTILE = 0.5  # a part's radius: this quantile of its members' Mahalanobis distances
+
+
+def upsample_factor(shape) -> int:
+    """The whole factor an image of ``shape`` (H, W, ...) is upsampled by before SIFT: 1 from
+    UPSAMPLE_BELOW pixels (longest side) up, 2 from 100, and below that the least factor that
+    brings the longest side to UPSAMPLE_BELOW (a 32-pixel COIL image: 7), as SIFT finds few
+    keypoints on small objects."""
+    longest = max(int(shape[0]), int(shape[1]))
+    return 1 if longest >= UPSAMPLE_BELOW else max(2, -(-UPSAMPLE_BELOW // max(longest, 1)))
 
 
 def mask_frame(mask: np.ndarray):
@@ -41,8 +50,8 @@ def local_features(rgb: np.ndarray, mask: np.ndarray, max_features: int = 80):
     """One image's local features: ``geometry`` (N, 2) object-centred positions (pixels
     minus the mask centroid, over sqrt(mask area); dimensionless) and ``appearance``
     (N, 128) float32 RootSIFT descriptors, the ``max_features`` strongest keypoints
-    inside ``mask``. Images under 200 px are doubled first (SIFT finds few keypoints
-    on small objects). Empty arrays when the mask is empty or nothing is found."""
+    inside ``mask``. Images under 200 px are upsampled first (upsample_factor). Empty arrays
+    when the mask is empty or nothing is found."""
     geometry, sift = _local_sift(rgb, mask, max_features)
     return geometry, root_sift(sift)
 
@@ -56,7 +65,11 @@ def remembered_local_features(rgb: np.ndarray, mask: np.ndarray, max_features: i
         small = sift.astype(np.uint8)
         return geometry, small if np.array_equal(small, sift) else sift
 
-    geometry, sift = memoized(("smm-local", int(max_features)), (rgb, mask), compute)
+    factor = upsample_factor(np.shape(rgb))
+    # Images upsampled more than twice (under 100 px) name their factor: entries of larger
+    # images keep the key they had when every small image was doubled.
+    kind = ("smm-local", int(max_features)) + ((("upsample", factor),) if factor > 2 else ())
+    geometry, sift = memoized(kind, (rgb, mask), compute)
     return geometry, root_sift(sift)
 
 
@@ -69,14 +82,14 @@ def _local_sift(rgb, mask, max_features: int):
         return np.zeros((0, 2)), np.zeros((0, 128), np.float32)
     gray = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)
     cv_mask = np.asarray(mask, dtype=np.uint8) * 255
-    scale = 2.0 if max(gray.shape) < UPSAMPLE_BELOW else 1.0
+    scale = float(upsample_factor(gray.shape))
     if scale != 1.0:
         gray = cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_LINEAR)
         cv_mask = cv2.resize(cv_mask, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
     keypoints, desc = cv2.SIFT_create(nfeatures=max_features).detectAndCompute(gray, cv_mask)
     if not keypoints:
         return np.zeros((0, 2)), np.zeros((0, 128), np.float32)
-    # OpenCV centres: pixel x in the doubled image is at (x + 0.5) / 2 - 0.5 in the original.
+    # OpenCV centres: pixel x in the upsampled image is at (x + 0.5) / scale - 0.5 in the original.
     xy = (np.array([k.pt for k in keypoints]) + 0.5) / scale - 0.5
     centroid, size = frame
     return (xy - centroid) / size, desc

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from spm_data.errors import FeatureError, ModelError
-from spm_model.base.estimator import PoseEstimator, check_fitted, is_fitted
+from spm_model.base.estimator import Needs, PoseEstimator, check_fitted, is_fitted
 from spm_model.base.frames import column
 from spm_model.methods.baselines import KNNPose
 from spm_model.spm.estimator import SPMEstimator
@@ -30,6 +30,7 @@ class SPMPose(PoseEstimator):
     left out of training and get NaN."""
 
     FITTED = ("model_",)
+    NEEDS = Needs(spm_features=MIN_TRAIN_FRAMES)
 
     def __init__(self, *, seed: int = 0, features: FeatureConfig = FeatureConfig(), params: dict | None = None):
         self.seed = seed
@@ -38,6 +39,10 @@ class SPMPose(PoseEstimator):
 
     def vectors(self, frames, kind: str) -> np.ndarray:
         return column(frames, f"{kind}_vector", lambda f: _spm_vector(f, self.features))
+
+    def features_found(self, frames) -> np.ndarray:
+        """(n,) bool: the frames with SPM query features (SIFT found enough keypoints for the ellipse)."""
+        return np.isfinite(self.vectors(frames, "query")).all(axis=1)
 
     def fit(self, frames, poses) -> "SPMPose":
         X, y = self.vectors(frames, "train"), np.asarray(poses, dtype=np.float64)
@@ -63,10 +68,15 @@ class SPMNeighbours(PoseEstimator):
     here on the same frames unless it already is)."""
 
     FITTED = ("spm_", "knn_")
+    NEEDS = SPMPose.NEEDS
 
     def __init__(self, *, k: int = 1, spm: SPMPose | None = None):
         self.k = k
         self.spm = spm
+
+    def features_found(self, frames) -> np.ndarray:
+        """(n,) bool: the frames with SPM query features."""
+        return (self.spm if self.spm is not None else SPMPose()).features_found(frames)
 
     def fit(self, frames, poses) -> "SPMNeighbours":
         spm = self.spm if self.spm is not None else SPMPose()

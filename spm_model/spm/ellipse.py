@@ -69,7 +69,13 @@ def _normalise(points: np.ndarray):
     scale = math.sqrt(np.add.reduce(np.add.reduce(d * d, 1)) / n)
     if not math.isfinite(scale) or scale <= 1e-12:
         raise EllipseError("points coincide")
-    return d / scale, mean, scale
+    p = d / scale
+    # Collinear points have no ellipse; LAPACK may still return a conic with axes of 1e13 px
+    # there (seen with some BLAS builds), so the spread across the line is checked first.
+    sxx, syy, sxy = np.add.reduce(p * p, 0).tolist() + [float(np.dot(p[:, 0], p[:, 1]))]
+    if (sxx * syy - sxy * sxy) / (n * n) < 1e-12:
+        raise EllipseError("points are degenerate (collinear)")
+    return p, mean, scale
 
 
 def _design(p: np.ndarray) -> np.ndarray:

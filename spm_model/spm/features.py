@@ -27,14 +27,18 @@ from spm_model.spm.ellipse import EllipseError
 from spm_model.spm.keypoints import sift_locations
 from spm_model.spm.manifold import ORDERS, initial_manifold
 
-FEATURE_VERSION = 6  # 5: template descriptors and K in the cache; 6: from the visible mask
+# 5: template descriptors and K in the cache; 6: from the visible mask; 7: small images upsampled
+# (min_side) and which frames have depth (has_depth) in the cache.
+FEATURE_VERSION = 7
 
 
 @dataclass(frozen=True)
 class FeatureConfig:
     """gamma: EM clusters; ellipse: "pso" (Eq. 1) or "direct"; lam: Eq. 1's lambda;
     max_side: images whose longest side exceeds it are downscaled before SIFT (the
-    manifold vector is scale invariant); raw_size: side of the baselines' raw vectors.
+    manifold vector is scale invariant); min_side: images whose shorter side is below it are
+    upsampled (bicubic) to it before SIFT, which finds few keypoints on small images (a 32-pixel
+    COIL view); raw_size: side of the baselines' raw vectors.
     Opt-in variants of the manifold vector (spm_model/spm/manifold.py; the defaults are
     the pipeline of docs/method.md): order: cluster order, "sign" (canonical_order's
     rule), "angle" or "distance"; normalise: scale the vector to unit length;
@@ -45,6 +49,7 @@ class FeatureConfig:
     lam: float = 0.1
     seed: int = 0
     max_side: int = 256
+    min_side: int = 128
     raw_size: int = 32
     order: str = "sign"
     normalise: bool = True
@@ -57,6 +62,8 @@ class FeatureConfig:
             raise FeatureError(f"ellipse must be 'pso' or 'direct', got {self.ellipse!r}")
         if self.order not in ORDERS:
             raise FeatureError(f"order must be one of {ORDERS}, got {self.order!r}")
+        if not 0 < self.min_side <= self.max_side:
+            raise FeatureError(f"min_side must be in 1..max_side ({self.max_side}), got {self.min_side}")
 
     @property
     def dims(self) -> int:
@@ -68,16 +75,21 @@ class FeatureConfig:
         return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
-def working_image(rgb: np.ndarray, mask: np.ndarray | None, max_side: int):
-    """Downscale (H, W, 3) uint8 RGB and its (H, W) mask so the longest side is <= max_side."""
+def working_image(rgb: np.ndarray, mask: np.ndarray | None, max_side: int, min_side: int = 1):
+    """(H, W, 3) uint8 RGB and its (H, W) mask as SIFT sees them: downscaled (area) so the
+    longest side is <= max_side, or upsampled (bicubic) so the shorter side is >= min_side;
+    as given when both hold."""
     import cv2
 
     h, w = rgb.shape[:2]
     scale = max_side / max(h, w)
     if scale >= 1:
-        return rgb, mask
+        scale = max(1.0, min_side / min(h, w))
+        if scale == 1.0:
+            return rgb, mask
     size = (max(1, round(w * scale)), max(1, round(h * scale)))
-    small = cv2.resize(np.ascontiguousarray(rgb), size, interpolation=cv2.INTER_AREA)
+    small = cv2.resize(np.ascontiguousarray(rgb), size,
+                       interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_CUBIC)
     if mask is not None:
         mask = cv2.resize((np.asarray(mask) > 0).astype(np.uint8), size, interpolation=cv2.INTER_NEAREST)
     return small, mask
@@ -105,7 +117,7 @@ def image_features(rgb: np.ndarray, mask: np.ndarray | None = None,
     rgb = np.asarray(rgb)
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
         raise FeatureError(f"expected an (H, W, 3) uint8 RGB image, got {rgb.dtype} {rgb.shape}")
-    small, small_mask = working_image(rgb, mask, config.max_side)
+    small, small_mask = working_image(rgb, mask, config.max_side, config.min_side)
     locations = sift_locations(small, small_mask)
     if len(locations) < 2 * config.gamma:
         raise FeatureError(f"SIFT found {len(locations)} keypoints, need at least {2 * config.gamma}")

@@ -131,3 +131,28 @@ def test_gltf_to_object_is_a_rotation_taking_up_and_front():
     assert is_rotation(GLTF_TO_OBJECT)
     np.testing.assert_array_equal(GLTF_TO_OBJECT @ [0, 1, 0], [0, 0, 1])   # glTF up -> +z
     np.testing.assert_array_equal(GLTF_TO_OBJECT @ [0, 0, 1], [1, 0, 0])   # glTF front -> +x
+
+
+def test_a_capture_camera_to_world_becomes_our_pose_in_the_scaled_recentred_object_frame():
+    import pytest
+
+    from spm_data.core.poses import gl_camera_to_world_to_object
+    from spm_data.errors import SpmError
+
+    R, t = camera_pose(40, 25, 10, 0.7)
+    scale, center = 0.5, np.array([1.0, -2.0, 3.0])
+    M = cv_to_gl_camera_to_world(R, t)
+    M[:3, 3] = M[:3, 3] / scale + center          # the same camera in world units, the object at center
+    R2, t2 = gl_camera_to_world_to_object(M, scale, center)
+    np.testing.assert_allclose(R2, R, atol=1e-12)
+    np.testing.assert_allclose(t2, t, atol=1e-12)
+    # A world point and its object-frame point project to the same pixel.
+    X_obj = np.array([0.05, -0.02, 0.03])
+    cam = R @ X_obj + t
+    world = X_obj / scale + center
+    gl = np.linalg.inv(M) @ np.r_[world, 1.0]
+    np.testing.assert_allclose(np.diag([1.0, -1.0, -1.0]) @ gl[:3] * scale, cam, atol=1e-12)
+    with pytest.raises(SpmError, match="not a rotation"):
+        gl_camera_to_world_to_object(np.diag([2.0, 2.0, 2.0, 1.0]))
+    with pytest.raises(SpmError, match="last row"):
+        gl_camera_to_world_to_object(np.vstack([M[:3], [0, 0, 1, 1]]))

@@ -6,6 +6,7 @@ import tarfile
 import zipfile
 
 import numpy as np
+import pytest
 
 from spm_data.core.poses import wrap_degrees
 from spm_data.formats.coil100 import import_coil100
@@ -61,3 +62,55 @@ def test_coil100_tar_of_16_bit_ppm(tmp_path):
     np.testing.assert_array_equal(d["rgb"][0], coil_image(3, 0))   # 16 bit scaled back to 8 exactly
     assert sorted(d["azimuth"]) == [0.0, 5.0, 355.0]
     assert len([p for p in problems if p[1] == "missing view"]) == 69
+
+
+def _turntable(root, layout, size, grey, objects=(3, 8), views=range(72)):
+    """Views of ``objects`` in a COIL layout ("coil100": obj{K}__{angle}.png, "coil20": obj{K}__{view}.png)
+    at ``size`` px, grey (one channel) or colour."""
+    import cv2
+
+    root.mkdir(parents=True)
+    for obj in objects:
+        for view in views:
+            img = cv2.resize(coil_image(obj, 5 * view), (size, size), interpolation=cv2.INTER_NEAREST)
+            if grey:
+                img = img.max(axis=2)
+            number = 5 * view if layout == "coil100" else view
+            cv2.imwrite(str(root / f"obj{obj}__{number}.png"), img if grey else img[..., ::-1])
+    return root
+
+
+@pytest.mark.parametrize("size", [32, 128, 256])
+@pytest.mark.parametrize("grey", [True, False])
+@pytest.mark.parametrize("layout", ["coil100", "coil20"])
+def test_coil_layouts_at_their_real_size_grey_or_colour(tmp_path, layout, size, grey):
+    from spm_data.core.poses import intrinsics_from_fov
+    from spm_data.formats.coil100 import import_coil20
+
+    root = _turntable(tmp_path / "set", layout, size, grey, views=range(0, 72, 7))
+    run = import_coil100 if layout == "coil100" else import_coil20
+    summary, problems = run(root, tmp_path / "out", fov=30.0)
+    assert summary.frames == 2 * 11 and len([p for p in problems if p[1] == "missing view"]) == 2 * 61
+    d = read_shard(list_shards(tmp_path / "out")[0])
+    assert d["rgb"].shape == (22, size, size, 3) and d["rgb"].dtype == np.uint8
+    np.testing.assert_allclose(d["K"][0], intrinsics_from_fov(30.0, size, size))   # K of the real size
+    i = int(np.flatnonzero((d["instance_id"] == 8) & (d["azimuth"] == 35))[0])     # view 7: 35 degrees
+    assert d["class_name"][i] == f"{layout}-obj8" and d["source"][i] == layout and d["path_index"][i] == 7
+    np.testing.assert_allclose(d["pose"][i, 2], wrap_degrees(-(35 + 90)))
+    if grey:
+        assert (d["rgb"][i] == d["rgb"][i][..., :1]).all()    # grey -> RGB, the three channels equal
+    assert d["mask"][i].any() and not d["mask"][i].all()
+
+
+def test_coil20_numbers_name_views_and_coil100_says_when_it_sees_them(tmp_path):
+    from spm_data.errors import SpmError
+    from spm_data.formats.coil100 import coil_records
+
+    root = _turntable(tmp_path / "coil20", "coil20", 32, True, objects=(1,), views=(0, 1, 2, 71))
+    records, problems = coil_records(root, layout="coil20")
+    assert [r.azimuth for r in records] == [0.0, 5.0, 10.0, 355.0]
+    with pytest.raises(SpmError, match="numbered by view .* use spm-data import coil20"):
+        coil_records(root, layout="coil100")
+    (root / "obj1__72.png").write_bytes((root / "obj1__0.png").read_bytes())
+    assert (str(root / "obj1__72.png"), "view 72 is not a view number in 0..71") in coil_records(
+        root, layout="coil20")[1]

@@ -1,8 +1,9 @@
 """spm_data.formats.posed_folder: a folder of images with a poses table (matrix, quaternion or
-Euler rotations; intrinsics or --fov), and the CVL preset."""
+Euler rotations; intrinsics or --fov), and the CVL preset at 32, 128 and 256 px, grey and colour."""
 
 import cv2
 import numpy as np
+import pytest
 from click.testing import CliRunner
 
 from cli import data_cli
@@ -62,3 +63,32 @@ def test_cvl_preset(tmp_path):
     summary, problems = import_cvl(tmp_path / "cvl", tmp_path / "out", fov=40)
     assert summary.frames == 6 and not problems
     assert read_manifest(tmp_path / "out")["classes"] == {"mug": 3, "toy": 3}
+
+
+@pytest.mark.parametrize("size", [32, 128, 256])
+@pytest.mark.parametrize("grey", [True, False])
+def test_cvl_layout_at_its_real_size_grey_or_colour(tmp_path, size, grey):
+    """The CVL layout's images as they are: K from --fov and each image's own size, grey as RGB."""
+    from spm_data.core.poses import intrinsics_from_fov
+
+    R, t = camera_pose(30, 20, 0, 0.5)
+    for obj in ("mug", "toy"):
+        folder = tmp_path / "cvl" / obj
+        folder.mkdir(parents=True)
+        img = np.zeros((size, size, 3), np.uint8)
+        cv2.circle(img, (size // 2, size // 2), size // 4, (40, 160, 250), -1)
+        cv2.imwrite(str(folder / "v0.png"), img.max(axis=2) if grey else img[..., ::-1])
+        (folder / "poses.csv").write_text("image," + ",".join(f"r{i}{j}" for i in (1, 2, 3) for j in (1, 2, 3))
+                                          + ",tx,ty,tz\nv0.png," + ",".join(map(str, R.ravel()))
+                                          + "," + ",".join(map(str, t * 1000)) + "\n")
+    summary, problems = import_cvl(tmp_path / "cvl", tmp_path / "out", fov=40.0)
+    assert summary.frames == 2 and problems == []
+    d = read_shard(list_shards(tmp_path / "out")[0])
+    assert d["rgb"].shape == (2, size, size, 3) and sorted(d["class_name"]) == ["mug", "toy"]
+    np.testing.assert_allclose(d["K"][0], intrinsics_from_fov(40.0, size, size))
+    np.testing.assert_allclose(d["R"][0], R, atol=1e-9)
+    if grey:
+        assert (d["rgb"][0] == d["rgb"][0][..., :1]).all()
+    else:
+        assert tuple(d["rgb"][0][size // 2, size // 2]) == (40, 160, 250)
+    assert d["mask"][0].sum() > 0.1 * size * size

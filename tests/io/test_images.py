@@ -64,3 +64,32 @@ def test_16_bit_samples_scale_by_a_fixed_257():
     values = np.array([0, 128, 129, 257, 32896, 65535, 70000, -5])
     assert from_16_bit(values).tolist() == [0, 0, 1, 1, 128, 255, 255, 0]   # round(v / 257), clipped first
     assert from_16_bit(np.arange(256) * 257).tolist() == list(range(256))    # v * 257 -> v exactly
+
+
+def test_alpha_masks_from_rgba_grey_alpha_and_palette_transparency():
+    from PIL import Image
+
+    from spm_data.io.images import decode_alpha, image_header
+
+    def png(img, **kw):
+        buf = io.BytesIO()
+        img.save(buf, "PNG", **kw)
+        return buf.getvalue()
+
+    alpha = np.zeros((6, 5), np.uint8)
+    alpha[2:4, 1:3] = 255
+    rgba = png(Image.fromarray(np.dstack([np.full((6, 5, 3), 90, np.uint8), alpha]), "RGBA"))
+    la = png(Image.fromarray(np.dstack([np.full((6, 5), 90, np.uint8), alpha]), "LA"))
+    index = np.where(alpha > 0, 1, 0).astype(np.uint8)
+    palette = png(Image.fromarray(index, "P"), transparency=0)
+    for data in (rgba, la, palette):
+        np.testing.assert_array_equal(decode_alpha(data, "x.png") >= 128, alpha > 0)
+    opaque = png(Image.fromarray(np.zeros((6, 5, 3), np.uint8)))
+    with pytest.raises(ImageError, match=r"^x.png: no alpha channel"):
+        decode_alpha(opaque, "x.png")
+    import tempfile
+    with tempfile.TemporaryDirectory() as folder:
+        for name, data, has in (("a.png", rgba, True), ("b.png", opaque, False)):
+            with open(f"{folder}/{name}", "wb") as fh:
+                fh.write(data)
+            assert image_header(f"{folder}/{name}") == (5, 6, has)

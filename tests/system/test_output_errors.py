@@ -346,7 +346,7 @@ def test_feature_cache_on_a_full_disk_leaves_nothing(shards, tmp_path):
     with unraisable() as ignored:
         with disk_full(cache):
             result = run(model_cli, "train", shards, "--out", tmp_path / "report", "--ellipse",
-                         "direct")
+                         "direct", "--protocol", "views")
         code, stdout, stderr = result.exit_code, result.stdout, result.stderr
         del result
     assert ignored == []
@@ -363,7 +363,7 @@ def test_no_writable_feature_cache_is_one_line(shards, tmp_path, monkeypatch):
     monkeypatch.setenv("SPM_CACHE_DIR", str(user))
     before = tree(tmp_path)
     with read_only(shards, user):
-        result = run(model_cli, "train", shards, "--out", tmp_path / "report")
+        result = run(model_cli, "train", shards, "--out", tmp_path / "report", "--protocol", "views")
     assert_error(result, f"cannot cache features: neither {shards}/.spm-features (Permission denied) nor "
                          f"{user}/{cache_hash(shards)} (Permission denied) is writable; set SPM_CACHE_DIR to a "
                          "writable folder")

@@ -72,7 +72,7 @@ SIZED_FIELDS = tuple(f for f, (_, shape) in {**FIELDS, **OPTIONAL_FIELDS}.items(
 REQUIRED_ATTRS = ("schema_version", "frames", "renderer", "seed")
 
 
-SOURCES = ("synthetic", "coil100", "cvl", "folder", "bop")
+SOURCES = ("synthetic", "coil100", "coil20", "cvl", "folder", "bop", "nerf")
 
 
 def expected_shape(field: str, n: int, h: int, w: int, dims=None) -> tuple:

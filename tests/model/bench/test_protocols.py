@@ -102,8 +102,16 @@ def test_a_plugged_in_estimator_gets_frames_and_is_scored_through_the_cli(model_
     summary = payload["summary"]["methods"]["MeanPose"]
     assert summary["frames"] == 144 and summary["estimated"] == 144
     assert "| MeanPose |" in (report / "results.md").read_text()
-    for spec, message in (("my_pose:WrongShape", "estimator WrongShape: predict(frames) must return (48, 6)"),
-                          ("my_pose", "--estimator expects MODULE:CLASS"),
+    # A plug-in that breaks the contract is declined with its reason; the other methods are scored.
+    r = runner.invoke(model_cli, ["train", str(model_shards), "--out", str(tmp_path / "r1"), "--runs", "1",
+                                  "--ellipse", "direct", "--methods", "knn1", "--estimator", "my_pose:WrongShape"])
+    assert r.exit_code == 0, r.output
+    why = "predict: estimator WrongShape: predict(frames) must return (48, 6) labels"
+    assert f"- WrongShape declined: {why}" in r.output
+    payload = json.loads((tmp_path / "r1" / "results.json").read_text())["summary"]
+    assert list(payload["methods"]) == ["knn1"] and payload["declined"]["WrongShape"]["reason"].startswith(why)
+    assert payload["declined"]["WrongShape"]["splits"] == payload["declined"]["WrongShape"]["of"] == 3
+    for spec, message in (("my_pose", "--estimator expects MODULE:CLASS"),
                           ("no_such_module:X", "cannot import no_such_module"),
                           ("my_pose:Nope", "Nope is not a class in my_pose")):
         r = runner.invoke(model_cli, ["train", str(model_shards), "--out", str(tmp_path / "r2"),
@@ -223,3 +231,11 @@ def test_benchmark_jobs_run_on_one_blas_thread_whatever_the_process_has(model_sh
         evaluate(table, "views", runs=1, model_params={"features": FAST}, builtins=[],
                  estimators={"probe": BlasThreadsPose})
     assert outside == 2 and BlasThreadsPose.seen == [1]
+
+
+def test_interleaved_trains_on_every_other_view_and_tests_the_views_between():
+    t = instance_table()
+    (what, train, test), = splits(t, "interleaved", seed=0)
+    assert what == "every other view" and len(train) + len(test) == 60
+    assert set(t.path_index[train]) == {0, 2, 4, 6, 8} and set(t.path_index[test]) == {1, 3, 5, 7, 9}
+    assert [s.tolist() for s in splits(t, "interleaved", seed=5)[0][1:]] == [train.tolist(), test.tolist()]

@@ -63,10 +63,12 @@ def test_markdown_of_a_tiny_summary_has_the_expected_rows():
     assert "| cup | 100.0 | – | 50.0 | – | 82.6 | 82.8 |" in lines
     # Every method over all frames, chance last; per class; occlusion bins with frames only.
     rows = [line for line in lines if line.startswith(("| SPM |", "| KNN K=1 |", "| KNN K=3 |", "| chance"))]
-    assert [r.split(" | ")[:4] for r in rows[:4]] == [["| SPM", "4/4", "75.0", "–"],
-                                                      ["| KNN K=1", "4/4", "100.0", "–"],
-                                                      ["| KNN K=3", "4/4", "50.0", "–"],
-                                                      ["| chance (random training pose)", "4/4", "0.0", "–"]]
+    # Method, Estimated, Features (– where the method does not say), Coverage %, ±5° %, σ
+    assert [r.split(" | ")[:6] for r in rows[:4]] == [["| SPM", "4/4", "–", "100.0", "75.0", "–"],
+                                                      ["| KNN K=1", "4/4", "–", "100.0", "100.0", "–"],
+                                                      ["| KNN K=3", "4/4", "–", "100.0", "50.0", "–"],
+                                                      ["| chance (random training pose)", "4/4", "–", "100.0", "0.0",
+                                                       "–"]]
     assert "| cup | 75.0 (0) | 100.0 (0) | 50.0 (15) | 0.0 (90) |" in lines
     assert "| 0%–10% | 4 | 75.0 | 100.0 | 50.0 | 0.0 |" in lines and not any(r.startswith("| 10%–20%") for r in lines)
 
@@ -102,3 +104,39 @@ def test_report_folder_problems_are_one_line(tmp_path):
         f"could not write the report in {tmp_path}: No space left on device; free space there or give another "
         "folder with --out")
     assert not (tmp_path / "new").exists()
+
+
+def test_a_method_declined_everywhere_has_no_figures_and_its_reason_in_every_report(tmp_path):
+    evaluation = tiny_evaluation()
+    evaluation["runs"][0].update(splits=["all"], declined={"knn3": {"all": "needs depth: none of the 4 frames has it"}})
+    summary = aggregate(evaluation)
+    assert list(summary["methods"]) == ["spm", "knn1"] and "knn3" not in summary["classes"]["cup"]
+    assert summary["declined"] == {"knn3": {"reason": "needs depth: none of the 4 frames has it", "splits": 1, "of": 1}}
+    lines = markdown(evaluation, summary, CONTEXT).splitlines()
+    assert "- KNN K=3 declined: needs depth: none of the 4 frames has it" in lines
+    assert not any(line.startswith("| KNN K=3 |") for line in lines)
+    assert "- KNN K=3 declined: needs depth: none of the 4 frames has it" in summary_text(summary).splitlines()
+    write_report(evaluation, CONTEXT, tmp_path)
+    assert json.loads((tmp_path / "results.json").read_text())["summary"]["declined"]["knn3"]["of"] == 1
+
+
+def test_frames_without_an_estimate_show_as_coverage_beside_the_scores():
+    evaluation = tiny_evaluation()
+    pred = TRUE.copy()
+    pred[3] = np.nan                      # spm: no estimate for the last frame, the three others exact
+    errors = pose_errors(pred, TRUE)
+    run = evaluation["runs"][0]
+    run["overall"]["spm"] = {**summarise(errors), "featured": 3}
+    run["classes"]["cup"]["spm"] = summarise(errors)
+    run["occlusion"]["spm"][0].update(estimated=3)
+    evaluation["runs"][0].update(splits=["a", "b"], declined={"spm": {"b": "predict: ValueError: boom"}})
+    summary = aggregate(evaluation)
+    spm = summary["methods"]["spm"]
+    assert (spm["estimated"], spm["frames"], spm["coverage"], spm["featured"]) == (3, 4, 75.0, 3)
+    assert summary["declined"]["spm"] == {"reason": "predict: ValueError: boom", "splits": 1, "of": 2}
+    lines = markdown(evaluation, summary, CONTEXT).splitlines()
+    assert [line.split(" | ")[:6] for line in lines if line.startswith("| SPM |")][0] == [
+        "| SPM", "3/4", "3/4", "75.0", "75.0", "–"]
+    assert "| cup | 75.0 (0) · 75% est. | 100.0 (0) | 50.0 (15) | 0.0 (90) |" in lines
+    assert "| 0%–10% | 4 | 75.0 · 75% est. | 100.0 | 50.0 | 0.0 |" in lines
+    assert "- SPM declined in 1 of 2 splits: predict: ValueError: boom" in lines

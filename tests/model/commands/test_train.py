@@ -1,5 +1,6 @@
 """spm_model.commands.train: a loco run writes the report and both models, which predict from images and
-evaluate shards; a class with too few frames is named."""
+evaluate shards; every method gets its row on any data (a class with few frames, a small render, 32-pixel
+turntable images, a transforms.json capture): figures, or declined with its reason."""
 
 import json
 import shutil
@@ -11,6 +12,7 @@ from PIL import Image
 
 from cli import model_cli
 from spm_data.io.shards import read_shard
+from spm_model.commands.check_estimator import CHECK_SPEC
 from spm_model.commands.evaluate import evaluate_model
 from spm_model.commands.predict import predict_images
 
@@ -51,7 +53,9 @@ def test_train_loco_writes_the_report_and_model(model_shards, loco_report, tmp_p
     assert np.allclose([out[0]["pose"][k] for k in ("rx", "ry", "rz")], d["pose"][0][:3], atol=5.01)
 
 
-def test_a_class_with_too_few_frames_is_named(model_shards, tmp_path):
+def test_a_class_with_too_few_frames_no_longer_stops_the_other_methods(model_shards, tmp_path):
+    """SPM's feature gate is SPM's alone: a class of 4 frames trains nothing for SPM when it is the
+    only training class, and every method still gets its row (figures, or declined with why)."""
     shards = tmp_path / "s"
     shutil.copytree(model_shards, shards)
     from spm_data.io.shards import write_manifest, write_shard
@@ -61,5 +65,120 @@ def test_a_class_with_too_few_frames_is_named(model_shards, tmp_path):
     cup.unlink()
     write_shard(cup, arrays, {"renderer": "pyrender", "seed": 1})
     write_manifest(shards)
-    r = CliRunner().invoke(model_cli, ["train", str(shards), "--ellipse", "direct", "--runs", "1"])
-    assert r.exit_code == 1 and "class 'cup' has" in r.output and "need at least 10" in r.output, r.output
+    r = CliRunner().invoke(model_cli, ["train", str(shards), "--ellipse", "direct", "--runs", "1",
+                                       "--methods", "spm,pca,chance"])
+    assert r.exit_code == 0, r.output
+    summary = json.loads((shards / "report" / "results.json").read_text())["summary"]
+    assert summary["classes"]["cup"]["pca"]["frames"] == 4 and summary["methods"]["spm"]["frames"] == 100
+
+
+# --------------------------------------------------------------------------- every method out, on any data
+
+# check-estimator's set with one instance a class: 24 views (azimuth 0-55, elevations 10 and 15) at 64 px.
+TWO_CLASS_SPEC = CHECK_SPEC.replace("instances = 2", "instances = 1")
+
+
+def _rows(report) -> dict:
+    """{built-in method: "figures" or its decline reason} from a report's results.json."""
+    from spm_model.methods.registry import METHOD_NAMES
+
+    summary = json.loads((report / "results.json").read_text())["summary"]
+    scored = {**summary["methods"], **({"chance": summary["chance"]} if summary["chance"] else {})}
+    return {m: "figures" if m in scored else summary["declined"][m]["reason"] for m in METHOD_NAMES}
+
+
+def test_default_methods_on_a_two_class_24_frame_render_each_have_a_row(tmp_path):
+    """The issue's small render: SMM cannot pair sequences (one camera path per training class
+    under loco) and is declined with why; every other method is scored; exit 0."""
+    from spm_data.commands.render_jobs import load_run_specs, render_dataset
+
+    (tmp_path / "specs").mkdir()
+    for cls in ("cup", "box"):
+        (tmp_path / "specs" / f"{cls}.toml").write_text(TWO_CLASS_SPEC.format(cls=cls))
+    render_dataset(load_run_specs(all_classes=True, specs_dir=tmp_path / "specs"), tmp_path / "out")
+    r = CliRunner().invoke(model_cli, ["train", str(tmp_path / "out"), "--runs", "1", "--ellipse", "direct"])
+    assert r.exit_code == 0, r.output
+    rows = _rows(tmp_path / "out" / "report")
+    assert rows["smm"].startswith("needs 2 camera paths (sequences) among the training frames, got 1"), rows
+    assert all(v == "figures" for m, v in rows.items() if m != "smm"), rows
+    assert "- SMM (Mei et al. 2011) declined: needs 2 camera paths" in r.output
+
+
+def test_default_methods_on_a_32_px_coil_layout_set_each_have_a_row(tmp_path):
+    """Grey 32-pixel turntable images (COIL-20's layout, as its public copies circulate): N3M has
+    no depth to lift points with and says so; the rest run, each with its coverage."""
+    import cv2
+
+    from spm_data.formats.coil100 import import_coil20
+    from tests.helpers import coil_image
+
+    root = tmp_path / "coil20"
+    root.mkdir()
+    for obj in (1, 2, 3):
+        for view in range(24):
+            img = cv2.resize(coil_image(obj * 3, 15 * view), (32, 32), interpolation=cv2.INTER_AREA)
+            cv2.putText(img, str(obj), (8 + view % 8, 20), cv2.FONT_HERSHEY_PLAIN, 0.8, (255, 255, 255))
+            cv2.imwrite(str(root / f"obj{obj}__{view}.png"), img.max(axis=2))
+    import_coil20(root, tmp_path / "imported")
+    r = CliRunner().invoke(model_cli, ["train", str(tmp_path / "imported"), "--runs", "1", "--ellipse", "direct"])
+    assert r.exit_code == 0, r.output
+    rows = _rows(tmp_path / "imported" / "report")
+    assert rows["n3m"].startswith("needs depth: none of the 48 training frames has a measured depth"), rows
+    assert {m for m, v in rows.items() if v == "figures"} >= {"pca", "ls", "template", "chance"}
+    summary = json.loads((tmp_path / "imported" / "report" / "results.json").read_text())["summary"]
+    for m, entry in summary["methods"].items():
+        assert entry["coverage"] == 100.0 * entry["estimated"] / entry["frames"], m
+
+
+def test_a_transforms_json_capture_trains_under_views_with_every_method(tmp_path):
+    """One captured object: leave-one-class-out cannot run, so the views protocol does (said in one
+    line), and every method has a row."""
+    from spm_data.commands.render_jobs import load_run_specs, render_dataset
+    from spm_data.formats.nerf import import_nerf
+    from spm_data.io.shards import list_shards
+    from tests.helpers import CENTER, SCALE, write_capture
+
+    (tmp_path / "specs").mkdir()
+    (tmp_path / "specs" / "cup.toml").write_text(TWO_CLASS_SPEC.format(cls="cup"))
+    render_dataset(load_run_specs(all_classes=True, specs_dir=tmp_path / "specs"), tmp_path / "render")
+    d = read_shard(list_shards(tmp_path / "render")[0])
+    write_capture(tmp_path / "scan", d["rgb"], d["mask"] > 0, d["K"], d["R"], d["t"], depth=d["depth"])
+    import_nerf(tmp_path / "scan", tmp_path / "imported", scale=SCALE, center=CENTER)
+    r = CliRunner().invoke(model_cli, ["train", str(tmp_path / "imported"), "--runs", "1", "--ellipse", "direct"])
+    assert r.exit_code == 0, r.output
+    assert "one class (scan): leave-one-class-out cannot run, so the views protocol does" in r.output
+    rows = _rows(tmp_path / "imported" / "report")
+    assert json.loads((tmp_path / "imported" / "report" / "results.json").read_text())["summary"]["protocol"] == "views"
+    assert set(rows) == {"spm", "knn1", "knn3", "pca", "ls", "n3m", "smm", "template", "chance"}
+    assert rows["smm"].startswith("needs 2 camera paths"), rows
+
+
+def test_loco_on_one_class_is_refused_before_any_feature_is_extracted(tmp_path, small_specs_dir):
+    from spm_data.commands.render_jobs import load_run_specs, render_dataset
+
+    render_dataset(load_run_specs(classes=["cup"], specs_dir=small_specs_dir), tmp_path / "out", limit=4)
+    r = CliRunner().invoke(model_cli, ["train", str(tmp_path / "out"), "--protocol", "loco"])
+    assert r.exit_code == 1 and r.output.startswith("error: leave-one-class-out needs at least 2 classes, found "
+                                                    "['cup']"), r.output
+    assert not (tmp_path / "out" / ".spm-features").exists()
+
+
+def test_when_no_method_but_chance_can_run_train_exits_1_with_one_line(tmp_path):
+    """Only methods that need what the data lacks: one line naming each and why, no report."""
+    import cv2
+
+    from spm_data.formats.coil100 import import_coil20
+    from tests.helpers import coil_image
+
+    root = tmp_path / "coil20"
+    root.mkdir()
+    for obj in (1, 2):
+        for view in range(12):
+            cv2.imwrite(str(root / f"obj{obj}__{view}.png"), coil_image(obj, 5 * view))
+    import_coil20(root, tmp_path / "imported")
+    r = CliRunner().invoke(model_cli, ["train", str(tmp_path / "imported"), "--methods", "n3m,chance"])
+    assert r.exit_code == 1, r.output
+    errors = [line for line in r.output.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and errors[0].startswith("error: no method could run on this data (chance aside): n3m: "
+                                                     "needs depth"), r.output
+    assert not (tmp_path / "imported" / "report").exists()

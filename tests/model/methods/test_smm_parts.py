@@ -2,6 +2,7 @@
 not move with the object's image position, and parts learned from and detected in
 features whose clusters are known."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -109,3 +110,15 @@ def test_codebook_refuses_too_few_features():
     geometry, appearance, _ = _clusters(per=2)
     with pytest.raises(ModelError, match="at least 20 local features"):
         fit_codebook(geometry, appearance, parts=10)
+
+
+def test_small_images_are_upsampled_enough_for_sift():
+    from spm_model.methods.smm_parts import upsample_factor
+
+    assert [upsample_factor((s, s, 3)) for s in (32, 64, 99, 100, 128, 199, 200, 640)] == [7, 4, 3, 2, 2, 2, 1, 1]
+    rgb, mask = _textured()
+    small = cv2.resize(rgb, (32, 32), interpolation=cv2.INTER_AREA)
+    small_mask = cv2.resize(mask.astype(np.uint8), (32, 32), interpolation=cv2.INTER_NEAREST) > 0
+    geometry, _ = local_features(small, small_mask)
+    assert len(geometry) >= 30                         # 36 here; doubling alone (64 px) found 21
+    assert np.abs(geometry).max() <= 0.6               # still object-centred, in units of sqrt(area)

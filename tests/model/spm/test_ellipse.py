@@ -122,15 +122,16 @@ def _plain_geometry(conic):
 def test_fits_equal_the_plain_formulation():
     """The in-place swarm and the LAPACK calls give the plain formulation's numbers: the
     same random draws and floating-point operations in the same order (bit for bit on
-    this machine; 1e-12 allows numpy's and scipy's LAPACK builds to round differently)."""
+    one machine; 1e-10 allows numpy's and scipy's LAPACK builds, and OpenBLAS's kernels for
+    other processors, to round differently: 1.4e-12 was seen on a Xeon where it was 0 elsewhere)."""
     rng = np.random.default_rng(7)
     cases = [ellipse_points(n=8)[0] + rng.normal(0, 1.0, (8, 2))]
     cases += [rng.normal(0, 1, (8, 2)) * rng.uniform(5, 200) + rng.uniform(0, 640, 2) for _ in range(8)]
     for points in cases:
         p, mean, scale = _normalise(points)
-        np.testing.assert_allclose(direct_conic(p), _plain_direct(p), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(direct_conic(p), _plain_direct(p), rtol=0, atol=1e-10)
         conic = pso_conic(p)
-        np.testing.assert_allclose(conic, _plain_pso(p), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(conic, _plain_pso(p), rtol=0, atol=1e-10)
         centre, a, b, u = _plain_geometry(conic)
         e = fit_ellipse(points)
         np.testing.assert_allclose(e.centre, centre * scale + mean, rtol=1e-12)

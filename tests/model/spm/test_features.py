@@ -37,3 +37,40 @@ def test_feature_config_vector_options():
     np.testing.assert_allclose(np.sort(by_angle), np.sort(v))  # the same values, another order
     extra, _ = manifold_from_keypoints(pts, FeatureConfig(ellipse="direct", append_ellipse=True))
     assert extra.shape == (19,) and np.array_equal(extra[:16], v)
+
+
+def test_small_images_are_upsampled_for_sift_and_large_ones_downscaled():
+    from spm_model.spm.features import working_image
+
+    rgb, mask = np.zeros((32, 48, 3), np.uint8), np.zeros((32, 48), np.uint8)
+    rgb[8:24, 10:30], mask[8:24, 10:30] = 200, 1
+    up, up_mask = working_image(rgb, mask, max_side=256, min_side=128)
+    assert up.shape == (128, 192, 3) and up_mask.shape == (128, 192) and set(np.unique(up_mask)) == {0, 1}
+    same, _ = working_image(np.zeros((128, 128, 3), np.uint8), None, 256, 128)
+    assert same.shape == (128, 128, 3)                          # the default renders: untouched
+    down, _ = working_image(np.zeros((512, 256, 3), np.uint8), None, 256, 128)
+    assert down.shape == (256, 128, 3)
+    with pytest.raises(FeatureError, match="min_side must be in 1..max_side"):
+        FeatureConfig(min_side=512)
+
+
+def test_a_32_pixel_image_gets_spm_features_once_upsampled(model_shards):
+    """A render downscaled to 32 px: SIFT on it as it is finds too few keypoints for the
+    ellipse; upsampled to 128 px (the default min_side) it finds enough."""
+    import cv2
+
+    d = read_shard(find_shards(model_shards)[0], frames=slice(0, 6))
+    got = []
+    for side in (1, 128):
+        config = FeatureConfig(ellipse="direct", min_side=side)
+        found = 0
+        for rgb, mask in zip(d["rgb"], d["mask"]):
+            small = cv2.resize(rgb, (32, 32), interpolation=cv2.INTER_AREA)
+            small_mask = cv2.resize(mask, (32, 32), interpolation=cv2.INTER_NEAREST)
+            try:
+                image_features(small, small_mask, config)
+                found += 1
+            except FeatureError:
+                pass
+        got.append(found)
+    assert got[0] < got[1] and got[1] >= 4, got

@@ -1,0 +1,177 @@
+"""spm_data.formats.nerf: transforms.json captures (instant-ngp / nerfstudio) imported with the
+exact pose, intrinsics and mask they describe; every malformed capture one line, nothing written."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from cli import data_cli
+from spm_data.core.poses import K_to_corner_origin
+from spm_data.errors import SpmError
+from spm_data.formats.nerf import import_nerf, nerf_records
+from spm_data.io.shards import list_shards, read_shard
+from tests.helpers import CENTER, SCALE, write_capture
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    """A pyrender render of one cup instance (18 views at 64 x 64): rgb, mask, depth, K, R, t."""
+    from spm_data.commands.render_jobs import load_run_specs, render_dataset
+    from tests.helpers import SMALL_SPEC
+
+    root = tmp_path_factory.mktemp("nerf-render")
+    (root / "specs").mkdir()
+    (root / "specs" / "cup.toml").write_text(SMALL_SPEC.format(cls="cup", seed=5).replace("instances = 2",
+                                                                                          "instances = 1"))
+    render_dataset(load_run_specs(all_classes=True, specs_dir=root / "specs"), root / "shards")
+    parts = [read_shard(p) for p in list_shards(root / "shards")]
+    return {k: np.concatenate([p[k] for p in parts]) for k in ("rgb", "mask", "depth", "K", "R", "t")}
+
+
+def _imported(out):
+    parts = [read_shard(p) for p in list_shards(out)]
+    return {k: np.concatenate([p[k] for p in parts]) for k in ("rgb", "mask", "depth", "K", "R", "t", "source",
+                                                               "class_name", "label_measured")}
+
+
+def test_a_rendered_class_written_as_a_capture_comes_back_with_the_same_pose_k_and_mask(rendered, tmp_path):
+    d = rendered
+    capture = write_capture(tmp_path / "cup-scan", d["rgb"], d["mask"], d["K"], d["R"], d["t"], depth=d["depth"])
+    summary, problems = import_nerf(capture, tmp_path / "out", scale=SCALE, center=",".join(map(str, CENTER)))
+    assert summary.frames == len(d["rgb"]) == 18 and problems == []
+    got = _imported(tmp_path / "out")
+    np.testing.assert_allclose(got["R"], d["R"], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(got["t"], d["t"], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(got["K"], d["K"], rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(got["mask"] > 0, d["mask"] > 0)
+    np.testing.assert_array_equal(got["rgb"], d["rgb"])
+    np.testing.assert_allclose(got["depth"], np.round(d["depth"] * 1000) / 1000, atol=1e-6)  # mm steps
+    assert set(got["source"]) == {"nerf"} and set(got["class_name"]) == {"cup-scan"}
+    assert got["label_measured"].all()
+
+
+def test_per_frame_intrinsics_a_single_json_file_and_masks_from_a_folder(rendered, tmp_path):
+    d = rendered
+    capture = write_capture(tmp_path / "c", d["rgb"][:4], d["mask"][:4], d["K"][:4], d["R"][:4], d["t"][:4],
+                            per_frame=True, alpha=False)
+    (tmp_path / "masks").mkdir()
+    for i in range(4):
+        cv2.imwrite(str(tmp_path / "masks" / f"frame_{i:05d}.bmp"), d["mask"][i].astype(np.uint8) * 255)
+    with pytest.raises(SpmError, match=r"frame 0 .*no mask: the image has no alpha channel.*--mask-dir"):
+        nerf_records(capture)
+    import_nerf(capture / "transforms.json", tmp_path / "out", scale=SCALE, center=CENTER, mask_dir=tmp_path / "masks",
+                class_name="mug")
+    got = _imported(tmp_path / "out")
+    np.testing.assert_allclose(got["R"], d["R"][:4], atol=1e-9)
+    np.testing.assert_allclose(got["K"], d["K"][:4], atol=1e-9)
+    assert set(got["class_name"]) == {"mug"}
+    np.testing.assert_array_equal(got["mask"] > 0, d["mask"][:4] > 0)   # a mask file of another suffix
+
+
+def test_camera_angle_x_and_the_nerf_synthetic_split_files(tmp_path):
+    (tmp_path / "lego" / "train").mkdir(parents=True)
+    image = np.zeros((20, 30, 4), np.uint8)
+    image[5:15, 10:20] = (90, 120, 150, 255)
+    cv2.imwrite(str(tmp_path / "lego" / "train" / "r_0.png"), image)
+    M = np.eye(4)
+    M[:3, 3] = (0.0, 0.0, 4.0)   # 4 units in front of the object along +z, looking down -z at it
+    for split in ("train", "test"):
+        (tmp_path / "lego" / f"transforms_{split}.json").write_text(json.dumps(
+            {"camera_angle_x": 0.6911112070083618, "frames": [{"file_path": "./train/r_0", "transform_matrix":
+                                                               M.tolist()}]}))
+    records, _ = nerf_records(tmp_path / "lego", scale=2.0)
+    assert len(records) == 2
+    K = np.array(records[0].K).reshape(3, 3)
+    f = 15.0 / np.tan(0.6911112070083618 / 2)
+    np.testing.assert_allclose(K, [[f, 0, 14.5], [0, f, 9.5], [0, 0, 1]])
+    np.testing.assert_allclose(np.array(records[0].R).reshape(3, 3), np.diag([1.0, -1.0, -1.0]), atol=1e-12)
+    np.testing.assert_allclose(records[0].t, [0.0, 0.0, 8.0], atol=1e-12)   # 4 units x 2 m
+
+
+def test_lens_distortion_is_removed_to_the_pinhole_k(tmp_path):
+    """An image taken through OpenCV's lens model, undistorted on import: straight back to the pinhole
+    image (within interpolation) and exactly the pinhole K."""
+    from spm_data.formats.importing import undistort
+
+    h, w = 120, 160
+    K = np.array([[140.0, 0, 79.5], [0, 140, 59.5], [0, 0, 1]])
+    pinhole = np.zeros((h, w, 3), np.uint8)
+    cv2.rectangle(pinhole, (40, 30), (120, 90), (255, 255, 255), -1)
+    dist = np.array([-0.12, 0.03, 0.001, -0.002, 0.0])
+    # Distort: for each distorted pixel, where it comes from in the pinhole image.
+    u, v = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    points = cv2.undistortPoints(np.stack([u.ravel(), v.ravel()], 1)[:, None], K, dist, P=K)[:, 0]
+    distorted = cv2.remap(pinhole, points[:, 0].reshape(h, w), points[:, 1].reshape(h, w), cv2.INTER_LINEAR)
+    back = undistort(distorted, K, tuple(dist), fisheye=False, nearest=False)
+    inner = (slice(10, h - 10), slice(10, w - 10))
+    assert np.mean(np.abs(back[inner].astype(int) - pinhole[inner].astype(int)) > 64) < 0.01
+
+    root = tmp_path / "lens"
+    (root / "images").mkdir(parents=True)
+    cv2.imwrite(str(root / "images" / "a.png"), np.dstack([distorted, np.full((h, w), 255, np.uint8)]))
+    Kc = K_to_corner_origin(K)
+    (root / "transforms.json").write_text(json.dumps({
+        "fl_x": Kc[0, 0], "fl_y": Kc[1, 1], "cx": Kc[0, 2], "cy": Kc[1, 2], "w": w, "h": h,
+        "k1": -0.12, "k2": 0.03, "p1": 0.001, "p2": -0.002,
+        "frames": [{"file_path": "images/a.png", "transform_matrix": np.eye(4).tolist()}]}))
+    import_nerf(root, tmp_path / "out")
+    got = read_shard(list_shards(tmp_path / "out")[0])
+    np.testing.assert_allclose(got["K"][0], K, atol=1e-12)
+    np.testing.assert_array_equal(got["rgb"][0], back)
+
+
+def _broken(tmp_path, edit, name="transforms.json"):
+    root = tmp_path / "cap"
+    (root / "images").mkdir(parents=True)
+    cv2.imwrite(str(root / "images" / "a.png"), np.full((8, 8, 4), 255, np.uint8))
+    data = {"fl_x": 10.0, "frames": [{"file_path": "images/a.png", "transform_matrix": np.eye(4).tolist()}]}
+    edit(root, data)
+    (root / name).write_text(json.dumps(data) if isinstance(data, dict) else data)
+    return root
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda root, d: d["frames"][0].pop("transform_matrix"),
+     r"frame 0 \(images/a.png\): no transform_matrix; every frame needs its 4x4 camera-to-world matrix"),
+    (lambda root, d: (root / "images" / "a.png").write_text("not a png"),
+     r"frame 0 \(images/a.png\): image .*a.png: not a readable image"),
+    (lambda root, d: d.update(camera_model="EQUIRECTANGULAR"),
+     r"camera_model 'EQUIRECTANGULAR' is not one this importer can undistort"),
+    (lambda root, d: d["frames"][0].update(transform_matrix=(2 * np.eye(4)).tolist()),
+     r"last row is \[0.0, 0.0, 0.0, 2.0\]"),
+    (lambda root, d: d["frames"][0]["transform_matrix"][0].__setitem__(0, 3.0),
+     r"3x3 part is not a rotation"),
+    (lambda root, d: d.pop("fl_x"), r"no intrinsics; expected fl_x"),
+    (lambda root, d: d.update(w=9), r"the image is 8x8, the file says w = 9"),
+    (lambda root, d: d["frames"][0].update(file_path="images/missing.png"), r"image .*missing.png is missing"),
+    (lambda root, d: d.update(frames=[]), r"\"frames\" is empty"),
+])
+def test_every_malformed_capture_is_one_line_and_writes_nothing(tmp_path, edit, message):
+    root = _broken(tmp_path, edit)
+    out = tmp_path / "out"
+    r = CliRunner().invoke(data_cli, ["import", "nerf", str(root), "--out", str(out)])
+    assert r.exit_code == 1, r.output
+    lines = r.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and "Traceback" not in r.output
+    import re
+
+    assert re.search(message, lines[0]), lines[0]
+    assert not out.exists()
+
+
+def test_paths_that_are_not_a_capture_are_one_line(tmp_path):
+    png = tmp_path / "photo.png"
+    cv2.imwrite(str(png), np.zeros((4, 4, 3), np.uint8))
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "bad.json").write_text("{not json")
+    for path, message in ((png, "not a transforms.json"), (tmp_path / "empty", "no transforms.json"),
+                          (tmp_path / "bad.json", "not a JSON file"), (tmp_path / "nowhere", "no capture at")):
+        r = CliRunner().invoke(data_cli, ["import", "nerf", str(path), "--out", str(tmp_path / "out")])
+        assert r.exit_code == 1 and message in r.output and len(r.output.strip().splitlines()) == 1, r.output
+    for option, value, message in (("--scale", "0", "--scale 0.0: expected"), ("--center", "1,2", "--center expects")):
+        root = _broken(tmp_path / option.strip("-"), lambda root, d: None)
+        r = CliRunner().invoke(data_cli, ["import", "nerf", str(root), "--out", str(tmp_path / "o"), option, value])
+        assert r.exit_code == 1 and message in r.output, r.output
+    assert not (tmp_path / "out").exists() and not (tmp_path / "o").exists()
