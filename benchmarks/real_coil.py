@@ -33,7 +33,9 @@ from pathlib import Path
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from spm_data.errors import SpmError  # noqa: E402
 from spm_data.formats.coil100 import NAME, import_coil20, import_coil100, list_members  # noqa: E402
+from spm_data.io.files import atomic_file  # noqa: E402
 from spm_data.jobs import make_executor  # noqa: E402
 from spm_model.commands.train import train  # noqa: E402
 from spm_model.methods.registry import METHOD_NAMES  # noqa: E402
@@ -64,11 +66,14 @@ def method_rows(report: Path) -> tuple[list, dict]:
     for m, s in entries.items():
         per_run = [r["overall"][m]["success_tol5"] for r in runs]
         featured = s.get("featured")
-        rows.append([METHOD_NAMES.get(m, m), f"{s['coverage']:.1f}",
-                     "–" if featured is None else f"{featured}/{s['frames']}", f"{s['success_tol5']:.1f}",
-                     "–" if s["std"]["success_tol5"] is None else f"{s['std']['success_tol5']:.1f}",
-                     f"{min(per_run):.1f}–{max(per_run):.1f}"])
+        rows.append([METHOD_NAMES.get(m, m), _fmt(s["coverage"]),
+                     "–" if featured is None else f"{featured}/{s['frames']}", _fmt(s["success_tol5"]),
+                     _fmt(s["std"]["success_tol5"]), f"{_fmt(min(per_run))}–{_fmt(max(per_run))}"])
     return rows, summary.get("declined", {})
+
+
+def _fmt(value) -> str:
+    return "–" if value is None else f"{value:.1f}"
 
 
 def markdown_table(rows: list) -> list[str]:
@@ -78,6 +83,14 @@ def markdown_table(rows: list) -> list[str]:
 
 
 def main(argv=None) -> int:
+    try:
+        return run(argv)
+    except SpmError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+
+
+def run(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("folder", help="a COIL-20 or COIL-100 folder (or zip) in the original layout")
     parser.add_argument("--out", default="out/real-coil", help="where the shards, reports and tables go")
@@ -104,12 +117,14 @@ def main(argv=None) -> int:
               log=lambda m: stamp(m, start), command=f"spm train {shards} --protocol {protocol} --runs {args.runs} "
                                                      f"--workers {args.workers} --out {report}")
         rows, declined = method_rows(report)
-        lines += [f"## {protocol}", "", f"Command: `spm train {shards} --protocol {protocol} --runs {args.runs} "
-                  f"--out {report}`", ""] + markdown_table(rows) + [""]
-        lines += [f"- {METHOD_NAMES.get(m, m)} declined ({d['splits']} of {d['of']} splits): {d['reason']}"
-                  for m, d in declined.items()] + [""]
-        print("\n".join(lines[-len(rows) - 4 - len(declined):]), flush=True)
-    (out / "real_coil.md").write_text("\n".join(lines))
+        section = [f"## {protocol}", "", f"Command: `spm train {shards} --protocol {protocol} --runs {args.runs} "
+                   f"--out {report}`", ""] + markdown_table(rows) + [""]
+        section += [f"- {METHOD_NAMES.get(m, m)} declined ({d['splits']} of {d['of']} splits): {d['reason']}"
+                    for m, d in declined.items()] + [""]
+        print("\n".join(section), flush=True)
+        lines += section
+    with atomic_file(out / "real_coil.md") as tmp:
+        tmp.write_text("\n".join(lines))
     stamp(f"tables: {out / 'real_coil.md'}", start)
     return 0
 

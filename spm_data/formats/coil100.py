@@ -23,7 +23,7 @@ from pathlib import Path
 from spm_data.errors import SpmError
 from spm_data.formats.importing import FrameRecord, check_fov_option, import_records
 from spm_data.core.poses import camera_pose, intrinsics_from_fov
-from spm_data.io.images import ImageError, image_size
+from spm_data.io.images import ImageError, image_sizes
 
 NAME = re.compile(r"(?:^|/)obj(\d+)__(\d+)\.(png|ppm)$", re.IGNORECASE)
 ANGLES = tuple(range(0, 360, 5))
@@ -87,10 +87,11 @@ def _angle(number: int, layout: str) -> int | None:
     return 5 * number if 0 <= number < len(ANGLES) else None
 
 
-def _intrinsics(ref: str, fov: float, known: dict):
-    """K of the image ``ref`` (3, 3) as a tuple, from its own size and the vertical ``fov``; the
-    size comes from the header (ImageError when it cannot be read). ``known``: K per size."""
-    size = image_size(ref)
+def _intrinsics(size, fov: float, known: dict):
+    """K (3, 3) as a tuple of an image of ``size`` (width, height) and the vertical ``fov``; the
+    ImageError of an image whose header could not be read is raised. ``known``: K per size."""
+    if isinstance(size, ImageError):
+        raise size
     if size not in known:
         known[size] = tuple(intrinsics_from_fov(fov, *size).ravel())
     return known[size]
@@ -118,17 +119,24 @@ def coil_records(path, *, layout="coil100", elevation=0.0, distance=1.0, fov=30.
             expected = "a multiple of 5 in 0..355" if what["number"] == "angle" else "a view number in 0..71"
             problems.append((ref, f"{what['number']} {int(m.group(2))} is not {expected}"))
             continue
-        found.setdefault(obj, {})[angle] = ref
+        if angle in found.setdefault(obj, {}):
+            problems.append((ref, f"the same view as {found[obj][angle]} (kept)"))
+            continue
+        found[obj][angle] = ref
     if layout == "coil100" and numbers and max(numbers) < len(ANGLES) and any(n % 5 for n in numbers):
         raise SpmError(f"{path}: the files are numbered by view (0..71), not by angle: this is the COIL-20 "
                        "layout; use spm-data import coil20")
+    if layout == "coil20" and numbers and max(numbers) >= len(ANGLES) and not any(n % 5 for n in numbers):
+        raise SpmError(f"{path}: the files are numbered by angle (0..355), not by view: this is the COIL-100 "
+                       "layout; use spm-data import coil100")
     records, known = [], {}
+    sizes = image_sizes([ref for views in found.values() for ref in views.values()])
     for obj in sorted(found):
         missing = [a for a in ANGLES if a not in found[obj]]
         problems += [(f"obj{obj}__{a if what['number'] == 'angle' else a // 5}", "missing view") for a in missing]
         for angle in (a for a in ANGLES if a in found[obj]):
             try:
-                K = _intrinsics(found[obj][angle], fov, known)
+                K = _intrinsics(sizes[found[obj][angle]], fov, known)
             except ImageError as exc:
                 problems.append((found[obj][angle], str(exc).removeprefix(found[obj][angle] + ": ")))
                 continue

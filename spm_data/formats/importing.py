@@ -103,6 +103,9 @@ def _load_frame(rec: FrameRecord, job: ImportJob):
     if rec.mask is not None:
         if rec.mask_alpha:  # the object: at least half opaque
             mask = decode_alpha(read_bytes(rec.mask), rec.mask) >= 128
+            if mask.all():
+                raise ImageError(f"{rec.mask}: its alpha channel is opaque everywhere, so it holds no mask; give "
+                                 "masks with --mask-dir")
         else:
             m = decode_image(read_bytes(rec.mask), rec.mask, mode="raw")
             mask = (m.max(axis=2) if m.ndim == 3 else m) > 0

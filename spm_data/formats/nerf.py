@@ -16,9 +16,11 @@ shard's images are those of the pinhole K.
 The object frame is the capture's world frame moved to ``--center`` and scaled by ``--scale``
 (metres per world unit): ``X_obj = scale * (X_world - center)``; conventions (OpenGL camera,
 OpenCV camera, K's pixel origin) are converted by spm_data/core/poses.py. The mask of a frame is
-its image's alpha channel (a pixel at least half opaque is the object), else its ``mask_path``,
-else a file of the same name in ``--mask-dir``; a frame with none of them is refused. Depth
-images (uint16) are metric, one step being ``--depth-unit``.
+its ``mask_path``, else a file of the same name in ``--mask-dir``, else its image's alpha channel
+(a pixel at least half opaque is the object; an image opaque everywhere is skipped, listed); a
+frame with none of them is refused. Depth images (uint16) are metric, one step being
+``--depth-unit``. Frames are not taken as a walk of neighbouring views (``path_steps`` 0): SPM's
+training rule uses each frame alone, as for views drawn at random.
 
 Everything is checked before anything is written: a frame without a matrix, a file that is
 not an image, an unknown camera model, a missing mask are one error line each.
@@ -144,7 +146,8 @@ def lens(camera: dict, where: str) -> tuple[tuple, bool]:
         raise SpmError(f"{where}: camera_model {model} has no {', '.join(unknown)}, yet the file gives them; fix "
                        "camera_model or the coefficients")
     coefficients = tuple(_number(camera, k, where) if k in camera else 0.0 for k in keys)
-    return (coefficients if any(coefficients) else ()), fisheye
+    # Zero coefficients are a pinhole in OpenCV's model, but an equidistant lens in its fisheye one.
+    return (coefficients if any(coefficients) or fisheye else ()), fisheye
 
 
 def _image_path(base: Path, name, where: str) -> Path:
@@ -226,17 +229,17 @@ def _record(frame, camera, image, base, where, *, name, scale, center, mask_dir,
     width, height, alpha = _header(image, "image", where)
     K = intrinsics(camera, width, height, where)
     distortion, fisheye = lens(camera, where)
-    if alpha:
-        mask = image
-    elif isinstance(frame.get("mask_path"), str):
+    # The masks a user names win over the image's alpha (apps write opaque RGBA PNGs too).
+    if isinstance(frame.get("mask_path"), str):
         mask = _image_path(base, frame["mask_path"], where)
         _header(mask, "mask", where)
     else:
-        mask = _mask_in(mask_dir, image)
+        mask = _mask_in(mask_dir, image) or (image if alpha else None)
         if mask is None:
             hint = f"no {image.name} (any image suffix) in --mask-dir {mask_dir}" if mask_dir else \
                 "give --mask-dir DIR with a mask of the same name per image"
             raise SpmError(f"{where}: no mask: the image has no alpha channel and the frame no mask_path; {hint}")
+        alpha = mask == image
     depth = None
     if isinstance(frame.get("depth_file_path"), str):
         depth = _image_path(base, frame["depth_file_path"], where)
@@ -254,7 +257,7 @@ def import_nerf(path, out_dir, *, class_name=None, scale=1.0, center="0,0,0", ma
                                      depth_unit=depth_unit)
     attrs = {"import": "nerf", "transforms": json.dumps([str(f) for f in transforms_files(path)]),
              "scale": float(scale), "center": json.dumps(_center(center).tolist()),
-             "mask_source": "alpha >= 128, mask_path or --mask-dir"}
+             "mask_source": "mask_path, --mask-dir, or alpha >= 128", "path_steps": 0}
     summary = import_records(records, out_dir, source="nerf", prefix="nerf", frames_per_shard=frames_per_shard,
                              attrs=attrs, progress=progress, executor=executor)
     return summary, problems

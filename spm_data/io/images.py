@@ -219,10 +219,11 @@ def _has_alpha(img) -> bool:
     return img.mode in ("RGBA", "LA", "PA", "RGBa", "La") or "transparency" in img.info
 
 
-def image_header(ref: str) -> tuple[int, int, bool]:
+def image_header(ref: str, data: bytes | None = None) -> tuple[int, int, bool]:
     """(width, height, whether the image has an alpha channel or a transparent colour), from the
-    header only; ImageError ("REF: reason") for what is not a readable image."""
-    data = read_bytes(ref)
+    header only; ImageError ("REF: reason") for what is not a readable image. ``data``: the
+    reference's bytes, when the caller has them."""
+    data = read_bytes(ref) if data is None else data
     try:
         if data[:2] in (b"P5", b"P6"):
             img = parse_pnm(data)
@@ -248,3 +249,44 @@ def decode_alpha(data: bytes, name: str = "") -> np.ndarray:
             return np.asarray(img.convert("RGBA"), dtype=np.uint8)[..., 3]
     except ImageError as exc:
         raise ImageError(f"{name}: {exc}") from None
+
+
+def image_sizes(refs) -> dict:
+    """{ref: (width, height)} of image references, or the ImageError of each that cannot be read;
+    every archive is opened once (a member at a time would decompress a .tar.gz again per image)."""
+    out, by_archive = {}, {}
+    for ref in refs:
+        if ref.startswith(("zip:", "tar:")):
+            archive, member = ref[4:].split("::", 1)
+            by_archive.setdefault((ref[:3], archive), []).append((ref, member))
+        else:
+            out[ref] = _size_or_error(ref, None)
+    for (kind, archive), members in by_archive.items():
+        try:
+            with (zipfile.ZipFile(archive) if kind == "zip" else tarfile.open(archive)) as handle:
+                wanted = dict((member, ref) for ref, member in members)
+                if kind == "zip":
+                    for member, ref in wanted.items():
+                        out[ref] = _size_or_error(ref, lambda m=member: handle.read(m))
+                else:
+                    for info in handle:  # one pass over the stream
+                        if info.name in wanted:
+                            out[wanted[info.name]] = _size_or_error(
+                                wanted[info.name], lambda i=info: handle.extractfile(i).read())
+        except (OSError, KeyError, zipfile.BadZipFile, tarfile.TarError) as exc:
+            for ref, _ in members:
+                out.setdefault(ref, ImageError(f"{ref}: cannot read ({exc})"))
+        for ref, _ in members:
+            out.setdefault(ref, ImageError(f"{ref}: not a file in the archive"))
+    return out
+
+
+def _size_or_error(ref: str, read):
+    try:
+        data = read() if read is not None else None
+    except (OSError, KeyError, AttributeError, zipfile.BadZipFile, tarfile.TarError) as exc:
+        return ImageError(f"{ref}: cannot read ({exc})")
+    try:
+        return image_header(ref, data)[:2]
+    except ImageError as exc:
+        return exc

@@ -115,9 +115,10 @@ def cached(shard: Path, config: FeatureConfig) -> Path | None:
 
 def walks_in_steps(attrs: dict) -> bool:
     """Whether a shard's consecutive path indices are neighbouring views (a rendered grid walk,
-    or an import); False for views a sampler drew at random (camera.sampler "sphere", "so3")."""
+    or a turntable import); False for views a sampler drew at random (camera.sampler "sphere",
+    "so3") and imports that say they are not a walk (attribute ``path_steps`` 0: captures)."""
     if not attrs.get("spec"):
-        return True
+        return bool(int(attrs.get("path_steps", 1)))
     from spm_data.core.specs import parse_spec
 
     return parse_spec(str(attrs["spec"])).camera.sampler == "grid"

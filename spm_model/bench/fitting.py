@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from spm_data.errors import SpmError, one_line
+from spm_data.errors import ModelError, SpmError, one_line
 from spm_model.base.estimator import needs_of
 from spm_model.base.frames import Frames, camera_chunks, read_camera_frames
 from spm_model.bench.feature_cache import FeatureTable
@@ -44,8 +44,26 @@ def failure(exc: Exception, stage: str = "") -> str:
     return f"{stage}{text}"[:500]
 
 
-def _found(model, frames) -> int | None:
-    """How many of ``frames`` the fitted ``model`` found its features on (its optional
+class Unbuilt:
+    """Stands in for a plug-in whose constructor raised: it declines in every split, with why."""
+
+    def __init__(self, why: str):
+        self.why = why
+
+    def fit(self, frames, poses):
+        raise ModelError(self.why)
+
+
+def construct(cls):
+    """``cls()``, or an :class:`Unbuilt` saying why it could not be made."""
+    try:
+        return cls()
+    except Exception as exc:  # noqa: BLE001 - a plug-in can fail in any way; it is declined, not fatal
+        return Unbuilt(failure(exc, f"{getattr(cls, '__name__', cls)}(): "))
+
+
+def _found(model, frames) -> np.ndarray | None:
+    """(len(frames),) bool: the frames the fitted ``model`` found its features on (its optional
     ``features_found``), or None when it does not say (or fails to)."""
     found = getattr(model, "features_found", None)
     if not callable(found):
@@ -54,7 +72,7 @@ def _found(model, frames) -> int | None:
         flags = np.asarray(found(frames), dtype=bool)
     except Exception:  # noqa: BLE001 - a count for the report; the method's estimates stand
         return None
-    return int(flags.sum()) if flags.shape == (len(frames),) else None
+    return flags if flags.shape == (len(frames),) else None
 
 
 def _fit(method, table: FeatureTable, train: np.ndarray):
@@ -73,8 +91,8 @@ def _fit(method, table: FeatureTable, train: np.ndarray):
 
 def fit_predict(methods: dict, table: FeatureTable, train: np.ndarray, test: np.ndarray, seed: int = 0):
     """Every method fitted on ``train``, then asked for the test frames: ({name: (len(test), 6)
-    predictions, in ``test``'s order}, {name: why it declined}, {name: test frames it found
-    features on, or None}). A method declined (unmet needs, fit or predict raising, output of
+    predictions, in ``test``'s order}, {name: why it declined}, {name: (len(test),) bool, the
+    test frames it found features on, or None}). A method declined (unmet needs, fit or predict raising, output of
     the wrong shape) has no predictions; the others are unaffected. Methods see the test frames
     as a camera gives them (CameraFrames), in a random order seeded by ``seed``, a bounded chunk
     of images at a time."""
@@ -87,7 +105,7 @@ def fit_predict(methods: dict, table: FeatureTable, train: np.ndarray, test: np.
             declined[name] = why
     order = np.random.default_rng(seed).permutation(len(test))
     parts = {name: [] for name in fitted}
-    found = {name: 0 for name in fitted}
+    found = {name: [] for name in fitted}
     for chunk in camera_chunks(table, test[order]):
         frames = read_camera_frames(table, chunk)
         for name, model in list(fitted.items()):
@@ -97,11 +115,14 @@ def fit_predict(methods: dict, table: FeatureTable, train: np.ndarray, test: np.
                 declined[name] = failure(exc, "predict: ")
                 del fitted[name]
                 continue
-            count = _found(model, frames)
-            found[name] = None if count is None or found[name] is None else found[name] + count
-    out = {}
+            flags = _found(model, frames)
+            found[name] = None if flags is None or found[name] is None else found[name] + [flags]
+    out, flags = {}, {}
     for name in fitted:
         pred = np.full((len(test), 6), np.nan)
         pred[order] = np.concatenate(parts[name]) if parts[name] else np.zeros((0, 6))
         out[name] = pred
-    return out, declined, {name: found[name] for name in fitted}
+        if found[name] is not None:
+            flags[name] = np.zeros(len(test), bool)
+            flags[name][order] = np.concatenate(found[name]) if found[name] else np.zeros(0, bool)
+    return out, declined, {name: flags.get(name) for name in fitted}

@@ -42,10 +42,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from spm_data.errors import ModelError, SpmError
+from spm_data.errors import ModelError
 from spm_model.base.feature_memo import use_folder
 from spm_model.base.frames import Frames
-from spm_model.bench.fitting import failure, fit_predict, unmet_needs
+from spm_model.bench.fitting import construct, failure, fit_predict, unmet_needs
 from spm_model.bench.feature_cache import FeatureTable, load_features, memo_folder, offgrid_table
 from spm_model.bench.scoring import eccentricity, frame_errors, run_summary
 from spm_model.bench.surface_metrics import mesh_keys
@@ -157,7 +157,7 @@ def make_methods(seed: int, model_params: dict, builtins=None, estimators=None) 
     params = dict(model_params)
     features = params.pop("features")
     methods = {k: v for k, v in builtin_methods(seed, features, params).items() if builtins is None or k in builtins}
-    methods.update({name: cls() for name, cls in (estimators or {}).items()})
+    methods.update({name: construct(cls) for name, cls in (estimators or {}).items()})
     return methods
 
 
@@ -186,8 +186,10 @@ def split_job(job, report=lambda n: None):
     none = np.full((len(test), 6), np.nan)
     errors = {name: frame_errors(table, test, predictions.get(name, none), keys, symmetries) for name in methods}
     report(len(test))
-    return tested, len(train), test, errors, {"declined": declined,
-                                               "featured": {name: featured.get(name) for name in methods}}
+    # Of the scored frames (a measured angle), as `frames` and `estimated` count them.
+    counts = {name: None if featured.get(name) is None else
+              int(featured[name][~np.isnan(errors[name]["rotation_max"])].sum()) for name in methods}
+    return tested, len(train), test, errors, {"declined": declined, "featured": counts}
 
 
 def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_params: dict | None = None,
@@ -236,7 +238,7 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
 
 
 # Protocols whose splits are the same in every run (they ignore the run's seed).
-SAME_SPLITS_EVERY_RUN = ("loco", "offgrid")
+SAME_SPLITS_EVERY_RUN = ("loco", "offgrid", "interleaved")
 
 
 def _reused_methods(protocol: str, runs: int, model_params, builtins, estimators) -> set:
@@ -272,7 +274,10 @@ def _with_first_run(output: tuple, first: tuple) -> tuple:
         raise ModelError(f"internal: split {tested!r} differs between runs; cannot reuse its predictions")
     order = list(first[3]) + [name for name in errors if name not in first[3]]
     errors = {**first[3], **errors}
-    notes = {k: {**first[4][k], **notes[k]} for k in ("declined", "featured")}
+    # Only the reused methods' notes come from the first run: the others ran here (and a method
+    # that declined in the first run may run in this one).
+    notes = {k: {**{n: v for n, v in first[4][k].items() if n not in notes["featured"]}, **notes[k]}
+             for k in ("declined", "featured")}
     return tested, n_train, test, {n: errors[n] for n in order}, notes
 
 
@@ -291,11 +296,11 @@ def final_models(table: FeatureTable, model_params: dict, train_occluded: bool) 
     else:
         try:
             model = SPMEstimator(**model_params).fit(table.train_vector[usable], table.pose[usable])
-        except SpmError as exc:
+        except Exception as exc:  # noqa: BLE001 - as in the splits: the other model is still written
             declined["spm"] = failure(exc)
     try:
         reference = TemplatePose().fit(Frames(table, rows), table.pose[rows])
-    except SpmError as exc:
+    except Exception as exc:  # noqa: BLE001 - as above
         declined["template"] = failure(exc)
     return model, reference, len(usable), declined
 

@@ -18,7 +18,7 @@ __all__ = ["SCHEMA", "SCHEMA_VERSION", "aggregate", "check_report_folder", "mark
            "write_error", "write_report"]
 
 SCHEMA = "spm-results"
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 COUNTS = ("frames", "estimated", "low", "high")
 
 

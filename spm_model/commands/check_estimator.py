@@ -64,8 +64,7 @@ def built_in_set(folder: Path, progress=None):
     try:
         render_dataset(specs, folder)
     except SpmError as exc:
-        raise SpmError(f"cannot render the built-in set with pyrender ({one_line(exc)}); check-estimator needs "
-                       "an OpenGL context (PYOPENGL_PLATFORM=egl)") from None
+        raise SpmError(f"cannot render the built-in set with pyrender: {one_line(exc)}") from None
     return load_features(folder, FeatureConfig(), progress=progress)
 
 

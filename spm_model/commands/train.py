@@ -11,6 +11,7 @@ from spm_data.errors import ModelError, SpmError
 from spm_data.io.folders import find_folders
 from spm_data.io.outputs import removing_created
 from spm_data.io.shards import MANIFEST, read_manifest
+from spm_model.base.estimator import needs_of
 from spm_model.bench.feature_cache import FeatureTable, load_features, offgrid_table
 from spm_model.bench.protocols import evaluate
 from spm_model.bench.report import (check_report_folder, declined_everywhere, summary_text, write_error,
@@ -60,8 +61,14 @@ def choose_protocol(protocol: str | None, test, shards, log) -> str:
 
 
 def load_estimators(specs) -> dict:
-    """{name: class} of ``--estimator MODULE:CLASS`` values (name: CLASS, or MODULE:CLASS if two share it)."""
+    """{name: class} of ``--estimator MODULE:CLASS`` values (name: CLASS, or MODULE:CLASS if two share it);
+    a class whose NEEDS is not a Needs is refused here, before any work."""
     classes = {spec: load_estimator_class(spec) for spec in dict.fromkeys(specs or ())}
+    for spec, cls in classes.items():
+        try:
+            needs_of(cls)
+        except ModelError as exc:
+            raise ModelError(f"--estimator {spec}: {exc}") from None
     short = [spec.split(":")[1] for spec in classes]
     return {(spec.split(":")[1] if short.count(spec.split(":")[1]) == 1 else spec): cls
             for spec, cls in classes.items()}
@@ -138,11 +145,16 @@ def _save(model, path: Path):
 
 
 def check_some_method_ran(evaluation: dict) -> None:
-    """ModelError (one line) when every method but chance declined in every split: nothing to report."""
+    """ModelError (one line) when every method asked for, chance aside, declined in every split:
+    nothing to report (asking for chance alone is not refused)."""
     gone = declined_everywhere(evaluation)
-    ran = [m for m in evaluation["methods"] if m != "chance" and m not in gone]
-    if not ran:
-        reasons = "; ".join(f"{m}: {why}" for m, why in gone.items() if m != "chance")
-        raise ModelError(f"no method could run on this data (chance aside): {reasons or 'none was asked for'}")
+    asked = [m for m in evaluation["methods"] if m != "chance"]
+    if asked and all(m in gone for m in asked):
+        reasons = "; ".join(f"{m}: {_short(gone[m])}" for m in asked)
+        raise ModelError(f"no method could run on this data (chance aside): {reasons}")
+
+
+def _short(text: str, most: int = 160) -> str:
+    return text if len(text) <= most else text[: most - 1] + "…"
 
 

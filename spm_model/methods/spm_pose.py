@@ -75,8 +75,9 @@ class SPMNeighbours(PoseEstimator):
         self.spm = spm
 
     def features_found(self, frames) -> np.ndarray:
-        """(n,) bool: the frames with SPM query features."""
-        return (self.spm if self.spm is not None else SPMPose()).features_found(frames)
+        """(n,) bool: the frames with SPM query features (by the fitted SPM's feature configuration)."""
+        check_fitted(self, self.FITTED)
+        return self.spm_.features_found(frames)
 
     def fit(self, frames, poses) -> "SPMNeighbours":
         spm = self.spm if self.spm is not None else SPMPose()

@@ -104,7 +104,8 @@ class SPMEstimator(Estimator):
     def from_model_file(cls, header: dict, arrays: dict) -> "SPMEstimator":
         """The model a file's (header, arrays) describe (load_model_file); KeyError naming the
         first missing entry, in the order params, features, W, gamma_, centres, dual_coef, mean."""
-        params = {**header["params"], "features": FeatureConfig(**header["features"])}
+        # A model saved before min_side existed computed its features without upsampling.
+        params = {**header["params"], "features": FeatureConfig(**{"min_side": 1, **header["features"]})}
         projection = SparseProjection(W=arrays["W"])
         regressor = RBFPoseRegressor.from_state(
             kernel_coef_=header["gamma_"], X_fit_=arrays["centres"], dual_coef_=arrays["dual_coef"],

@@ -77,14 +77,14 @@ class FeatureConfig:
 
 def working_image(rgb: np.ndarray, mask: np.ndarray | None, max_side: int, min_side: int = 1):
     """(H, W, 3) uint8 RGB and its (H, W) mask as SIFT sees them: downscaled (area) so the
-    longest side is <= max_side, or upsampled (bicubic) so the shorter side is >= min_side;
-    as given when both hold."""
+    longest side is <= max_side, or upsampled (bicubic) so the shorter side is >= min_side
+    (but the longest no more than max_side); as given when both hold."""
     import cv2
 
     h, w = rgb.shape[:2]
     scale = max_side / max(h, w)
-    if scale >= 1:
-        scale = max(1.0, min_side / min(h, w))
+    if scale >= 1:  # upsampled, never past max_side
+        scale = min(scale, max(1.0, min_side / min(h, w)))
         if scale == 1.0:
             return rgb, mask
     size = (max(1, round(w * scale)), max(1, round(h * scale)))

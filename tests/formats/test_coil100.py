@@ -11,7 +11,7 @@ import pytest
 from spm_data.core.poses import wrap_degrees
 from spm_data.formats.coil100 import import_coil100
 from spm_data.io.shards import list_shards, read_manifest, read_shard
-from tests.helpers import coil_image, ppm16
+from tests.helpers import coil_image, png_bytes, ppm16
 
 
 def test_coil100_folder_labels_value_by_value(coil_folder, tmp_path):
@@ -114,3 +114,36 @@ def test_coil20_numbers_name_views_and_coil100_says_when_it_sees_them(tmp_path):
     (root / "obj1__72.png").write_bytes((root / "obj1__0.png").read_bytes())
     assert (str(root / "obj1__72.png"), "view 72 is not a view number in 0..71") in coil_records(
         root, layout="coil20")[1]
+
+
+def test_coil20_says_when_it_sees_angles_and_a_view_given_twice_is_listed(tmp_path):
+    from spm_data.errors import SpmError
+    from spm_data.formats.coil100 import coil_records
+
+    root = _turntable(tmp_path / "coil100", "coil100", 32, False, objects=(1,), views=(0, 1, 20))
+    with pytest.raises(SpmError, match="numbered by angle .* use spm-data import coil100"):
+        coil_records(root, layout="coil20")
+    (root / "sub").mkdir()
+    (root / "sub" / "obj1__5.png").write_bytes((root / "obj1__5.png").read_bytes())
+    records, problems = coil_records(root, layout="coil100")
+    assert len(records) == 3 and any("the same view as" in why for _, why in problems)
+
+
+def test_image_sizes_read_each_archive_once(tmp_path, monkeypatch):
+    """A tar.gz of 72 views: sizes from one pass over the archive, not one decompression per image."""
+    import tarfile as tar_module
+
+    from spm_data.formats.coil100 import coil_records
+
+    archive = tmp_path / "coil-100.tar.gz"
+    with tarfile.open(archive, "w:gz") as tf:
+        for angle in range(0, 360, 5):
+            data = png_bytes(coil_image(4, angle))
+            info = tarfile.TarInfo(f"coil-100/obj4__{angle}.png")
+            info.size = len(data)
+            tf.addfile(info, io.BytesIO(data))
+    opened = []
+    real_open = tar_module.open
+    monkeypatch.setattr(tar_module, "open", lambda *a, **k: opened.append(a[0]) or real_open(*a, **k))
+    records, problems = coil_records(archive)
+    assert len(records) == 72 and problems == [] and len(opened) == 2   # the listing, then the sizes

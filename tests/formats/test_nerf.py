@@ -110,7 +110,9 @@ def test_lens_distortion_is_removed_to_the_pinhole_k(tmp_path):
 
     root = tmp_path / "lens"
     (root / "images").mkdir(parents=True)
-    cv2.imwrite(str(root / "images" / "a.png"), np.dstack([distorted, np.full((h, w), 255, np.uint8)]))
+    alpha = np.zeros((h, w), np.uint8)
+    alpha[5:-5, 5:-5] = 255
+    cv2.imwrite(str(root / "images" / "a.png"), np.dstack([distorted, alpha]))
     Kc = K_to_corner_origin(K)
     (root / "transforms.json").write_text(json.dumps({
         "fl_x": Kc[0, 0], "fl_y": Kc[1, 1], "cx": Kc[0, 2], "cy": Kc[1, 2], "w": w, "h": h,
@@ -175,3 +177,19 @@ def test_paths_that_are_not_a_capture_are_one_line(tmp_path):
         r = CliRunner().invoke(data_cli, ["import", "nerf", str(root), "--out", str(tmp_path / "o"), option, value])
         assert r.exit_code == 1 and message in r.output, r.output
     assert not (tmp_path / "out").exists() and not (tmp_path / "o").exists()
+
+
+def test_named_masks_win_over_alpha_and_an_opaque_alpha_is_no_mask(rendered, tmp_path):
+    """Apps write RGBA PNGs opaque everywhere: such an alpha holds no mask. A frame's mask_path or
+    --mask-dir is used before the alpha; an opaque alpha on its own is skipped and listed."""
+    d = rendered
+    rgb, mask = d["rgb"][:2], d["mask"][:2] > 0
+    capture = write_capture(tmp_path / "c", rgb, np.ones_like(mask), d["K"][:2], d["R"][:2], d["t"][:2])
+    summary, _ = import_nerf(capture, tmp_path / "opaque", scale=SCALE, center=CENTER)
+    skipped = [s for r in summary.results.values() for s in r["skipped"]]
+    assert summary.frames == 0 and len(skipped) == 2 and "opaque everywhere, so it holds no mask" in skipped[0][1]
+    (tmp_path / "masks").mkdir()
+    for i in range(2):
+        cv2.imwrite(str(tmp_path / "masks" / f"frame_{i:05d}.png"), mask[i].astype(np.uint8) * 255)
+    import_nerf(capture, tmp_path / "out", scale=SCALE, center=CENTER, mask_dir=tmp_path / "masks")
+    np.testing.assert_array_equal(_imported(tmp_path / "out")["mask"] > 0, mask)

@@ -7,7 +7,7 @@ import pytest
 
 from spm_model.base.estimator import Needs
 from spm_model.bench.feature_cache import FeatureTable, load_features
-from spm_model.bench.fitting import failure, fit_predict, unmet_needs
+from spm_model.bench.fitting import construct, failure, fit_predict, unmet_needs
 from spm_model.spm.features import FeatureConfig
 
 FAST = FeatureConfig(ellipse="direct")
@@ -90,6 +90,11 @@ class BreaksLater:
         return np.zeros((len(frames), 6))
 
 
+class Fussy:
+    def __init__(self):
+        raise ValueError("needs a licence file")
+
+
 class Counts:
     def fit(self, frames, poses):
         self.mean_ = np.asarray(poses).mean(axis=0)
@@ -109,10 +114,25 @@ def test_one_method_failing_never_takes_the_others_down(model_shards, monkeypatc
     train, test = np.flatnonzero(t.class_name != "box"), np.flatnonzero(t.class_name == "box")
     monkeypatch.setattr(fitting, "camera_chunks", lambda tab, rows: [rows[:20], rows[20:]])   # two chunks
     predictions, declined, found = fit_predict({"raises": Raises(), "later": BreaksLater(), "counts": Counts(),
-                                                "deep": Deep()}, t, train, test)
+                                                "deep": Deep(), "fussy": construct(Fussy)}, t, train, test)
     assert list(predictions) == ["counts", "deep"] and predictions["counts"].shape == (48, 6)
-    assert declined == {"raises": "RuntimeError: my bug", "later": "predict: ValueError: second chunk"}
-    assert found == {"counts": 10 + 14, "deep": None}   # every other frame of each chunk of 20 and 28
+    assert declined == {"raises": "RuntimeError: my bug", "later": "predict: ValueError: second chunk",
+                        "fussy": "Fussy(): ValueError: needs a licence file"}   # its constructor raised
+    assert found["deep"] is None and found["counts"].shape == (48,)
+    assert found["counts"].sum() == 10 + 14             # every other frame of each chunk of 20 and 28
     t.arrays["has_depth"] = np.zeros(len(t), bool)
     _, declined, _ = fit_predict({"deep": Deep()}, t, train, test)
     assert declined["deep"].startswith("needs depth")
+
+
+def test_a_later_run_takes_only_the_reused_methods_notes_from_the_first():
+    """smm declined in run 1 but ran in run 2; pca (deterministic) is reused from run 1."""
+    from spm_model.bench.protocols import _with_first_run
+
+    test = np.arange(4)
+    errors = {"rotation_max": np.zeros(4)}
+    first = ("all", 10, test, {"pca": errors, "smm": errors},
+             {"declined": {"smm": "no pairs"}, "featured": {"pca": None, "smm": 0}})
+    later = ("all", 10, test, {"smm": errors}, {"declined": {}, "featured": {"smm": 3}})
+    _, _, _, merged, notes = _with_first_run(later, first)
+    assert list(merged) == ["pca", "smm"] and notes == {"declined": {}, "featured": {"pca": None, "smm": 3}}

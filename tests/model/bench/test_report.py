@@ -78,7 +78,7 @@ def test_write_report_writes_four_files_whole(tmp_path):
     assert sorted(p.name for p in (tmp_path / "report").iterdir()) == ["accuracy.png", "occlusion.png",
                                                                        "results.json", "results.md"]
     payload = json.loads((tmp_path / "report" / "results.json").read_text())
-    assert (payload["schema"], payload["schema_version"]) == (SCHEMA, SCHEMA_VERSION) == ("spm-results", 3)
+    assert (payload["schema"], payload["schema_version"]) == (SCHEMA, SCHEMA_VERSION) == ("spm-results", 4)
     assert list(payload) == ["schema", "schema_version", "context", "summary", "evaluation"]
     assert payload["summary"]["methods"]["spm"]["std"]["success_tol5"] is None          # one run: no sigma
     assert payload["summary"] == json.loads(json.dumps(summary)) and payload["context"] == CONTEXT

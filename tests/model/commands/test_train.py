@@ -23,7 +23,7 @@ def test_train_loco_writes_the_report_and_model(model_shards, loco_report, tmp_p
     assert sorted(p.name for p in report.iterdir()) == ["accuracy.png", "model.npz", "occlusion.png",
                                                         "reference-model.npz", "results.json", "results.md"]
     payload = json.loads((report / "results.json").read_text())
-    assert payload["schema"] == "spm-results" and payload["schema_version"] == 3
+    assert payload["schema"] == "spm-results" and payload["schema_version"] == 4
     assert payload["context"]["frames"] == 144 and len(payload["evaluation"]["runs"]) == 2
     summary = payload["summary"]
     assert set(summary["methods"]) == {"spm", "knn1", "knn3", "pca", "ls", "n3m", "smm", "template", "MeanPose"}
@@ -182,3 +182,15 @@ def test_when_no_method_but_chance_can_run_train_exits_1_with_one_line(tmp_path)
     assert len(errors) == 1 and errors[0].startswith("error: no method could run on this data (chance aside): n3m: "
                                                      "needs depth"), r.output
     assert not (tmp_path / "imported" / "report").exists()
+
+
+def test_a_plug_in_with_a_wrong_needs_is_refused_before_any_work(tmp_path, monkeypatch):
+    from spm_data.errors import ModelError
+    from spm_model.commands.train import load_estimators
+
+    (tmp_path / "odd_pose.py").write_text("class Odd:\n    NEEDS = {'depth': True}\n"
+                                          "    def fit(self, f, p):\n        return self\n"
+                                          "    def predict(self, f):\n        return None\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(ModelError, match=r"^--estimator odd_pose:Odd: Odd.NEEDS must be a spm_model.base.estimator.Needs"):
+        load_estimators(["odd_pose:Odd"])

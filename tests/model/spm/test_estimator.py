@@ -39,6 +39,12 @@ def test_estimator_fits_saves_and_loads_as_one_file(table, tmp_path):
     with pytest.raises(ModelError, match=r"^this SPMEstimator is not fitted yet; call fit\(X, y\) first, "
                                          r"or load a model file with SPMEstimator\.load\(path\)$"):
         SPMEstimator().predict(X)
+    # A model file from before FeatureConfig.min_side: its features were made without upsampling.
+    from spm_model.base.model_files import load_model_file
+
+    header, arrays = load_model_file(path, "spm")
+    del header["features"]["min_side"]
+    assert SPMEstimator.from_model_file(header, arrays).features.min_side == 1
     (tmp_path / "junk.npz").write_bytes(b"junk")
     with pytest.raises(ModelError, match="not an spm model file"):
         SPMEstimator.load(tmp_path / "junk.npz")

@@ -74,3 +74,10 @@ def test_a_32_pixel_image_gets_spm_features_once_upsampled(model_shards):
                 pass
         got.append(found)
     assert got[0] < got[1] and got[1] >= 4, got
+
+
+def test_upsampling_stops_at_max_side():
+    from spm_model.spm.features import working_image
+
+    up, _ = working_image(np.zeros((100, 250, 3), np.uint8), None, max_side=256, min_side=128)
+    assert up.shape == (102, 256, 3)
