@@ -327,8 +327,9 @@ def _run_jobs(jobs: list, executor, report) -> list:
     def said(job, output):
         if job[0] != "final" and len(output[2]):
             declined = output[4]["declined"]
+            reused = "; every method's predictions reused from run 1" if job[2] and not output[3] else ""
             report(f"run {job[2] + 1}: {job[1]} test {output[0]} ({output[1]} train / {len(output[2])} test frames)"
-                   + (f"; declined: {', '.join(declined)}" if declined else ""))
+                   + (f"; declined: {', '.join(declined)}" if declined else "") + reused)
 
     if executor is None:
         outputs = []

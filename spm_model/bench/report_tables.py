@@ -47,8 +47,10 @@ def _cov(entry_: dict) -> str:
 
 def declined_lines(summary: dict) -> list[str]:
     """One line per method that declined (in every split: no figures; in some: its coverage says
-    how many frames that cost), with its reason."""
-    lines = []
+    how many frames that cost), with its reason; one per method that ran but estimated nothing."""
+    lines = [f"- {name(m)} ran but gave no estimate for any of the {s['frames']} test frames (coverage 0%: none "
+             "passed its own checks, e.g. N3M's marker and pose validation on objects it never saw)"
+             for m, s in summary["methods"].items() if s.get("frames") and s.get("estimated") == 0]
     for m, d in (summary.get("declined") or {}).items():
         where = "declined" if d["splits"] == d["of"] else f"declined in {d['splits']} of {d['of']} splits"
         lines.append(f"- {name(m)} {where}: {d['reason']}")
@@ -88,6 +90,10 @@ def plain_summary(summary: dict) -> list[str]:
     if constant:
         lines.append("- Not varied in this data (a random training pose has a median error under 0.5): "
                      + ", ".join(constant) + ".")
+    if b["frames"] and b["geodesic_median_deg"] is None and b["success_tol5"] is not None:
+        lines.append("- The test frames measure only part of the rotation (as a turntable's angle: COIL): ±5° and "
+                     "sum < 5° are over the measured angle, and the geodesic, AUC, per-DoF, translation and surface "
+                     "figures are – (docs/results-schema.md).")
     return lines + declined_lines(summary)
 
 
@@ -122,9 +128,9 @@ def _intro(summary: dict, context: dict) -> list:
     return [f"# Pose benchmark ({summary['protocol']} protocol, {runs} run{'s' if runs != 1 else ''})", "",
             *plain_summary(summary), "",
             f"Command: `{context.get('command', '')}`", "",
-            f"Data: {context.get('frames', '?')} frames under `{context.get('shards', '')}`{test}; SPM features: "
-            f"{context.get('train_features', '?')} training frames with training features, "
-            f"{context.get('query_features', '?')} frames with query features "
+            f"Data: {context.get('frames', '?')} frames under `{context.get('shards', '')}`{test}; of those, "
+            f"{context.get('train_features', '?')} have SPM's training feature (the frames the final SPM model "
+            f"trained on) and {context.get('query_features', '?')} its query feature "
             f"({context.get('without_path_neighbour', 0)} frames had no path neighbour for the training rule). "
             "Methods see test frames as a camera gives them: image, visible mask and K, in a seeded random order. "
             "Criteria (the paper's): **±5° tolerance** (Table 2), every rotation angle within 5°, inclusive; "
@@ -222,11 +228,13 @@ def _method_tables(summary: dict, names: list) -> list:
               "features on (SIFT keypoints, SPM's ellipse; – where the method does not say). Every success rate "
               "counts a frame without an estimate as a failure; medians are over the frames with one.", "",
               "Per DoF: median absolute errors (spm_data/core/poses.py's viewing angles and distance); "
-              "tx, ty, tz: along the camera's axes (the paper's Figs. 6–7).", "",
-              "## Surface errors (BOP), where the mesh is known", ""]
+              "tx, ty, tz: along the camera's axes (the paper's Figs. 6–7)."]
+    if not any(entry(summary, m).get("surface") for m in names):
+        return lines   # no test frame's mesh is known (imported photos): no table of dashes
     rows = [[name(m)] + [fmt((entry(summary, m).get("surface") or {}).get(k), d) for k, _, d in SURFACE]
             for m in names]
-    return lines + table(["Method"] + [h for _, h, _ in SURFACE], rows)
+    header = ["Method"] + [h for _, h, _ in SURFACE]
+    return lines + ["", "## Surface errors (BOP), where the mesh is known", ""] + table(header, rows)
 
 
 def _class_and_occlusion_tables(summary: dict, names: list) -> list:

@@ -140,3 +140,21 @@ def test_frames_without_an_estimate_show_as_coverage_beside_the_scores():
     assert "| cup | 75.0 (0) · 75% est. | 100.0 (0) | 50.0 (15) | 0.0 (90) |" in lines
     assert "| 0%–10% | 4 | 75.0 · 75% est. | 100.0 | 50.0 | 0.0 |" in lines
     assert "- SPM declined in 1 of 2 splits: predict: ValueError: boom" in lines
+
+
+def test_a_method_that_ran_without_any_estimate_and_partly_measured_frames_are_said():
+    """COIL-like frames (only rz measured): the summary says why the geodesic figures are –; a method
+    that ran but estimated nothing is named, not left as a row of zeros."""
+    evaluation = tiny_evaluation()
+    measured = np.zeros((4, 6), bool)
+    measured[:, 2] = True
+    run = evaluation["runs"][0]
+    for m, off in OFF.items():
+        pred = TRUE.copy()
+        pred[:, 2] += off
+        if m == "knn3":
+            pred[:] = np.nan
+        run["overall"][m] = summarise(pose_errors(pred, TRUE, measured))
+    lines = markdown(evaluation, aggregate(evaluation), CONTEXT).splitlines()
+    assert any(line.startswith("- The test frames measure only part of the rotation") for line in lines)
+    assert any(line.startswith("- KNN K=3 ran but gave no estimate for any of the 4 test frames") for line in lines)
