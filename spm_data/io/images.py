@@ -201,18 +201,8 @@ def decode_image(data: bytes, name: str = "", mode: str = "RGB") -> np.ndarray:
 
 
 def image_size(ref: str) -> tuple[int, int]:
-    """(width, height) from the header only."""
-    data = read_bytes(ref)
-    try:
-        if data[:2] in (b"P5", b"P6"):
-            img = parse_pnm(data)
-            return img.shape[1], img.shape[0]
-        if not data:
-            raise ImageError("empty file")
-        with _open_image(data) as img:
-            return img.size
-    except ImageError as exc:
-        raise ImageError(f"{ref}: {exc}") from None
+    """(width, height) from the header only (image_header)."""
+    return image_header(ref)[:2]
 
 
 def _has_alpha(img) -> bool:

@@ -54,6 +54,12 @@ def visible_field(shard: str) -> str:
     return "visible_mask" if "visible_mask" in shard_layout(shard) else "mask"
 
 
+def camera_paths(table, index) -> np.ndarray:
+    """(len(index),) str: the camera path of each frame ``index`` of a feature table, one per
+    (shard, instance): what ``sequence`` numbers and what a method's ``Needs.sequences`` counts."""
+    return np.char.add(np.char.add(table.shard[index].astype(str), "#"), table.instance_id[index].astype(str))
+
+
 class _Frame(Mapping):
     """One training frame: its fields read on first use (depth only when asked for)."""
 
@@ -86,9 +92,7 @@ class Frames(Sequence):
         self._frame = table.frame[index]
         self._K = table.K[index]
         self._path_index = table.path_index[index].astype(np.int64)
-        # One id per (shard, instance): a camera path.
-        _, self._sequence = np.unique(np.char.add(np.char.add(self._shard.astype(str), "#"),
-                                                  table.instance_id[index].astype(str)), return_inverse=True)
+        _, self._sequence = np.unique(camera_paths(table, index), return_inverse=True)
         self._features = {k: table.arrays[k] for k in FEATURE_COLUMNS if k in table.arrays}
         self._rows = index
         self._blocks: OrderedDict = OrderedDict()

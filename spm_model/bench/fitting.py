@@ -10,7 +10,7 @@ import numpy as np
 
 from spm_data.errors import ModelError, SpmError, one_line
 from spm_model.base.estimator import needs_of
-from spm_model.base.frames import Frames, camera_chunks, read_camera_frames
+from spm_model.base.frames import Frames, camera_chunks, camera_paths, read_camera_frames
 from spm_model.bench.feature_cache import FeatureTable
 from spm_model.methods.registry import check_predictions
 
@@ -30,8 +30,7 @@ def unmet_needs(method, table: FeatureTable, train: np.ndarray) -> str | None:
             return (f"needs {needs.spm_features} training frames with SPM features, {usable} of {len(train)} have "
                     "them (SIFT finds too few keypoints on small or plain images)")
     if needs.sequences > 1:
-        paths = len(np.unique(np.char.add(np.char.add(table.shard[train].astype(str), "#"),
-                                          table.instance_id[train].astype(str))))
+        paths = len(np.unique(camera_paths(table, train)))
         if paths < needs.sequences:
             return f"needs {needs.sequences} camera paths (sequences) among the training frames, got {paths}"
     return None
@@ -92,8 +91,8 @@ def _fit(method, table: FeatureTable, train: np.ndarray):
 def fit_predict(methods: dict, table: FeatureTable, train: np.ndarray, test: np.ndarray, seed: int = 0):
     """Every method fitted on ``train``, then asked for the test frames: ({name: (len(test), 6)
     predictions, in ``test``'s order}, {name: why it declined}, {name: (len(test),) bool, the
-    test frames it found features on, or None}). A method declined (unmet needs, fit or predict raising, output of
-    the wrong shape) has no predictions; the others are unaffected. Methods see the test frames
+    test frames it found features on, or None}). A method declined (unmet needs, fit or predict
+    raising, output of the wrong shape) has no predictions; the others are unaffected. Methods see the test frames
     as a camera gives them (CameraFrames), in a random order seeded by ``seed``, a bounded chunk
     of images at a time."""
     fitted, declined = {}, {}
