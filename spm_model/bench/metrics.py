@@ -215,6 +215,51 @@ METRICS = (
 )
 
 
+Z95 = 1.959963984540054  # the normal quantile of a two-sided 95% interval
+# The success rates (% of frames) that carry a 95% Wilson interval, and the per-frame array whose
+# non-NaN entries are the frames each is a rate of.
+RATES = {"success_tol5": "rotation_max", "success_sum5": "rotation_sum", "success_sum3": "rotation_sum",
+         "success_tol5_sym": "rotation_max_sym", "pose_class_accuracy": "pose_class_hit"}
+
+
+def wilson_interval(rate: float | None, n: float) -> tuple[float, float] | None:
+    """The 95% Wilson score interval (low, high), in %, of a success rate ``rate`` (%) over ``n``
+    frames (n may be a mean over runs, so not whole); None without a rate or frames.
+
+    Wilson's, not the normal approximation: it stays inside 0-100% and is honest at 0% or 100%
+    and with few frames (Brown, Cai & DasGupta 2001)."""
+    if rate is None or not n or n <= 0:
+        return None
+    p, z2 = rate / 100.0, Z95 * Z95
+    centre = (p + z2 / (2 * n)) / (1 + z2 / n)
+    half = Z95 * np.sqrt(p * (1 - p) / n + z2 / (4 * n * n)) / (1 + z2 / n)
+    return 100.0 * max(0.0, centre - half), 100.0 * min(1.0, centre + half)
+
+
+def intervals(entry: dict, counts: dict) -> dict:
+    """``ci95`` of a summary entry: {rate key: {"low", "high", "n"}} (%, %, frames) for every
+    RATES key ``entry`` has a value for; ``counts`` gives each key's frames."""
+    out = {}
+    for key in RATES:
+        bounds = wilson_interval(entry.get(key), counts.get(key) or 0)
+        if bounds is not None:
+            out[key] = {"low": bounds[0], "high": bounds[1], "n": counts[key]}
+    return out
+
+
+def refresh_intervals(entry: dict) -> dict:
+    """``entry`` with its ``ci95`` recomputed from its (mean) rates and (mean) counts: the
+    interval of a mean over runs is the interval of one run's frames at that mean."""
+    if entry.get("ci95"):
+        entry["ci95"] = intervals(entry, {k: v["n"] for k, v in entry["ci95"].items()})
+    return entry
+
+
+def rate_counts(errors: dict) -> dict:
+    """{rate key: frames it is a rate of} from per-frame errors (pose_errors' keys)."""
+    return {k: int((~np.isnan(errors[a])).sum()) for k, a in RATES.items() if a in errors}
+
+
 def metric_value(entry: dict, key: str):
     """A metric's value in a summary entry (dotted keys reach into nested dicts); None if absent."""
     for part in key.split("."):
@@ -236,6 +281,7 @@ def summarise(errors: dict) -> dict:
         for part in parents:
             target = target.setdefault(part, {})
         target[leaf] = metric.compute(errors)
+    out["ci95"] = intervals(out, rate_counts(errors))
     if "add" in errors:
         from spm_model.bench.surface_metrics import summarise_surface
 

@@ -219,7 +219,8 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
     later = _without(builtins, estimators, model_params, reused)   # the methods of runs after the first
     jobs = [(key, protocol, run, i, dict(model_params or {}), *(later if run else (builtins, estimators)),
              train_occluded) for run in range(runs) for i in range(len(splits(table, protocol, seed=run)))]
-    finals = [("final", key, dict(model_params or {}), train_occluded)] if final else []
+    wanted = tuple(m for m in FINAL_MODELS if builtins is None or m in builtins)   # only what was asked for
+    finals = [("final", key, dict(model_params or {}), train_occluded, wanted)] if final else []
     outputs = _run_jobs(finals + jobs, executor if source is not None else None, report)
     models, outputs = (outputs[0], outputs[1:]) if final else (None, outputs)
     if reused:
@@ -281,32 +282,36 @@ def _with_first_run(output: tuple, first: tuple) -> tuple:
     return tested, n_train, test, {n: errors[n] for n in order}, notes
 
 
-def final_models(table: FeatureTable, model_params: dict, train_occluded: bool) -> tuple:
+FINAL_MODELS = ("spm", "template")  # the methods whose model ``spm train`` saves (model.npz, reference-model.npz)
+
+
+def final_models(table: FeatureTable, model_params: dict, train_occluded: bool, wanted=FINAL_MODELS) -> tuple:
     """(SPMEstimator or None, TemplatePose or None, training frames of the SPM model, {name: why
-    it declined}): the models ``spm train`` saves, fitted on every training frame (offgrid: every
-    frame of the training folder), without occluded ones unless ``train_occluded``; SPM on the
-    frames with training features. A model that cannot be fitted is None, with its reason."""
+    it declined}): the models ``spm train`` saves, of the methods ``wanted`` names, fitted on every
+    training frame (offgrid: every frame of the training folder), without occluded ones unless
+    ``train_occluded``; SPM on the frames with training features. A model not wanted is None
+    without a reason; one that cannot be fitted is None, with its reason."""
     rows = np.flatnonzero(~table.test) if "test" in table.arrays else np.arange(len(table))
     rows = training_rows(table, rows, train_occluded)
     usable = rows[np.isfinite(table.train_vector[rows]).all(axis=1)]
     declined, model, reference = {}, None, None
-    why = unmet_needs(SPMPose, table, rows)
+    why = unmet_needs(SPMPose, table, rows) if "spm" in wanted else None
     if why is not None:
         declined["spm"] = why
-    else:
+    elif "spm" in wanted:
         try:
             model = SPMEstimator(**model_params).fit(table.train_vector[usable], table.pose[usable])
         except Exception as exc:  # noqa: BLE001 - as in the splits: the other model is still written
             declined["spm"] = failure(exc)
     try:
-        reference = TemplatePose().fit(Frames(table, rows), table.pose[rows])
+        reference = TemplatePose().fit(Frames(table, rows), table.pose[rows]) if "template" in wanted else None
     except Exception as exc:  # noqa: BLE001 - as above
         declined["template"] = failure(exc)
     return model, reference, len(usable), declined
 
 
 def bench_job(job, report=lambda n: None):
-    """A split_job, or ("final", source, model_params, train_occluded): final_models of the table.
+    """A split_job, or ("final", source, model_params, train_occluded, wanted): final_models of the table.
     Runs on one BLAS thread wherever it runs: LAPACK's threaded solvers round differently
     with 2 threads than with 1, and SPM's RBF system amplifies that (0.003 degrees), so the
     BLAS threads of a worker (cores / --workers) would otherwise change results.json and
@@ -316,7 +321,7 @@ def bench_job(job, report=lambda n: None):
     with threadpool_limits(limits=1, user_api="blas"):
         if job[0] == "final":
             try:
-                return final_models(_table(job[1]), job[2], job[3])
+                return final_models(_table(job[1]), *job[2:])
             except ModelError as exc:
                 raise ModelError(f"final models (on every training frame): {exc}") from None
         return split_job(job, report)

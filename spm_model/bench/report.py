@@ -11,14 +11,15 @@ import numpy as np
 from spm_data.errors import SpmError
 from spm_data.io.outputs import unwritable
 from spm_data.io.files import atomic_file, write_json_atomic
-from spm_model.bench.metrics import CURVE_THRESHOLDS
-from spm_model.bench.report_tables import fmt, markdown, name, summary_text
+from spm_model.bench.headline import best_method
+from spm_model.bench.metrics import CURVE_THRESHOLDS, refresh_intervals
+from spm_model.bench.report_tables import FEW_FRAMES, fmt, markdown, name, summary_text
 
 __all__ = ["SCHEMA", "SCHEMA_VERSION", "aggregate", "check_report_folder", "markdown", "summary_text",
            "write_error", "write_report"]
 
 SCHEMA = "spm-results"
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 COUNTS = ("frames", "estimated", "low", "high")
 
 
@@ -35,15 +36,19 @@ def _std_tree(items: list):
     """σ over runs of every number (None with fewer than two runs that have it)."""
     first = next((i for i in items if i is not None), None)
     if isinstance(first, dict):
-        return {k: _std_tree([i.get(k) if i else None for i in items]) for k in first if k not in COUNTS}
+        return {k: _std_tree([i.get(k) if i else None for i in items]) for k in first
+                if k not in COUNTS and k != "ci95"}
     values = [v for v in items if v is not None]
     return float(np.std(values)) if len(values) > 1 else None
 
 
 def _mean_rows(per_run: list) -> list:
-    """Occlusion bins of several runs -> one list: counts of the first run, means of the rest."""
-    return [{**{k: row[k] for k in COUNTS if k in row},
-             **_mean_tree([{k: v for k, v in r[b].items() if k not in COUNTS} for r in per_run])}
+    """Occlusion bins of several runs -> one list: counts of the first run, means of the rest, the
+    intervals at the mean rates and ``std`` (σ over runs of each rate; None with one run)."""
+    return [refresh_intervals({**{k: row[k] for k in COUNTS if k in row},
+                               **_mean_tree([{k: v for k, v in r[b].items() if k not in COUNTS} for r in per_run]),
+                               "std": _std_tree([{k: v for k, v in r[b].items() if k not in COUNTS}
+                                                 for r in per_run])})
             for b, row in enumerate(per_run[0])]
 
 
@@ -53,7 +58,7 @@ def _summary(per_run: list) -> dict:
         if k in per_run[0]:
             out[k] = per_run[0][k]
     out["std"] = _std_tree([{k: v for k, v in r.items() if k != "featured"} for r in per_run])
-    return out
+    return refresh_intervals(out)
 
 
 def declined(evaluation: dict) -> dict:
@@ -90,8 +95,9 @@ def aggregate(evaluation: dict) -> dict:
              **{m: (np.mean([r["accuracy_curve"][m] for r in runs], axis=0).tolist()
                     if all(r["accuracy_curve"][m] is not None for r in runs) else None) for m in names}}
     out = {"protocol": evaluation["protocol"], "runs": len(runs),
-           "methods": {m: overall[m] for m in names if m != "chance"}, "chance": overall.get("chance"),
+           "methods": {m: overall[m] for m in names if m != "chance"}, "chance": overall.get("chance"), "best": None,
            "declined": declined(evaluation), "classes": classes, "occlusion": occlusion, "accuracy_curve": curve}
+    out["best"] = best_method(out)
     if "fig5" in runs[0]:
         out["fig5"] = {g: {k: {m: _mean_rows([r["fig5"][g][k][m] for r in runs]) for m in names}
                            for k in kinds} for g, kinds in runs[0]["fig5"].items()}
@@ -148,20 +154,38 @@ def plot_accuracy(summary: dict, path) -> Path:
 
 
 def plot_occlusion(summary: dict, path) -> Path:
-    """Success (sum < 5°, solid; sum < 3°, dotted) against occlusion: with offgrid, the seen
-    instances' rectangle curves (the paper's Fig. 5), else every test frame's."""
+    """Success (sum < 5°, solid, with its 95% Wilson interval as a bar; sum < 3°, dotted) against occlusion:
+    with offgrid, the seen instances' rectangle curves (the paper's Fig. 5), else every test
+    frame's. Each bin's frame count is printed over it; bins under FEW_FRAMES frames are hollow
+    markers; methods are offset a little along x so that equal curves (several at 0) stay visible."""
     fig5 = (summary.get("fig5") or {}).get("seen") or (summary.get("fig5") or {}).get("all") or {}
     curves = fig5.get("rectangles") or fig5.get("all") or summary["occlusion"]
     fig, ax = _axes(8.5 if fig5 else 6.0)
-    for m, rows in curves.items():
+    spread = 4.0 / max(len(curves), 1)  # % of occlusion between neighbouring methods' markers (a bin is 10)
+    for i, (m, rows) in enumerate(curves.items()):
         rows = [r for r in rows if r["frames"] and r["success_sum5"] is not None]
-        x = [50 * (r["low"] + r["high"]) for r in rows]
-        line, = ax.plot(x, [r["success_sum5"] for r in rows], marker="o", label=name(m),
-                        linestyle="--" if m == "chance" else "-")
+        x = np.array([50 * (r["low"] + r["high"]) for r in rows]) + spread * (i - (len(curves) - 1) / 2)
+        y = [r["success_sum5"] for r in rows]
+        line, = ax.plot(x, y, label=name(m), linestyle="--" if m == "chance" else "-", zorder=3)
+        colour = line.get_color()
+        band = [(r.get("ci95") or {}).get("success_sum5") for r in rows]
+        if rows and all(band):  # a bar per bin, not a filled band: nine methods' bands would hide each other
+            low, high = np.array([b["low"] for b in band]), np.array([b["high"] for b in band])
+            ax.errorbar(x, y, yerr=np.maximum(0.0, [np.array(y) - low, high - np.array(y)]),  # float noise at 0 and 100
+                        fmt="none", ecolor=colour, elinewidth=0.8, alpha=0.45, zorder=2)
+        few = np.array([r["frames"] < FEW_FRAMES for r in rows], bool)
+        ax.scatter(x[~few], np.array(y)[~few], color=colour, s=18, zorder=4)
+        ax.scatter(x[few], np.array(y)[few], facecolors="white", edgecolors=colour, s=18, zorder=4)
         if fig5:
-            ax.plot(x, [r["success_sum3"] for r in rows], linestyle=":", color=line.get_color())
-    if fig5:
-        ax.set_title("Fig. 5: seen instances, rectangles; solid sum < 5°, dotted sum < 3°", fontsize=9)
+            ax.plot(x, [r["success_sum3"] for r in rows], linestyle=":", color=colour)
+    first = next(iter(curves.values()), [])
+    for r in first:
+        if r["frames"]:
+            ax.annotate(f"n={r['frames']}", (50 * (r["low"] + r["high"]), 101), ha="center", va="bottom",
+                        fontsize=6, color="0.3", annotation_clip=False)
+    title = ("Fig. 5: seen instances, rectangles; solid sum < 5° (bars: 95% interval), dotted sum < 3°" if fig5
+             else "bars: 95% interval")
+    ax.set_title(title + f"; hollow: under {FEW_FRAMES} frames", fontsize=8, pad=14)
     return _finish(fig, ax, path, "occlusion of the object (%)", "success rate (%)" if fig5 else
                    "success rate (%), rotation error sum < 5°", legend_outside=bool(fig5))
 

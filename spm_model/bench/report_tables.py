@@ -6,27 +6,21 @@ bench/metrics.py's METRICS."""
 
 from __future__ import annotations
 
-from spm_model.bench.metrics import METRICS, metric_value
-from spm_model.methods.registry import METHOD_NAMES
+from spm_model.bench.headline import coverage_note as _cov, declined_lines, fmt, name, plain_summary
+from spm_model.bench.metrics import METRICS, RATES, metric_value
 
 PAPER_TABLE1 = {"box": (97.2, 0.9, 0.31, 0.09), "car": (95.6, 1.1, 0.44, 0.12), "motorcycle": (92.8, 1.6, 0.61, 0.11),
                 "ball": (88.4, 2.5, 0.76, 0.08), "animal4": (87.9, 2.9, 0.84, 0.09), "cup": (86.6, 3.3, 0.87, 0.07)}
 PAPER_TABLE2 = {"box": (94.7, 2.6, 94.2, 2.3), "car": (91.5, 3.2, 94.5, 3.0), "motorcycle": (92.0, 1.8, 95.5, 1.1),
                 "ball": (86.2, 3.4, 86.1, 2.5), "animal4": (83.3, 3.7, 83.8, 2.9), "cup": (82.6, 3.4, 82.8, 3.2)}
-DOF = (("azimuth_deg", "azimuth", "°"), ("azimuth_mod180_deg", "azimuth mod 180°", "°"),
-       ("elevation_deg", "elevation", "°"), ("roll_deg", "in-plane roll", "°"), ("distance_mm", "distance", " mm"))
+FEW_FRAMES = 20  # a bin with fewer frames is marked: its rate's 95% interval is wider than ±20 points
 SURFACE = (("frames", "Frames", 0), ("add_s_recall", "ADD(-S) <10% d %", 1), ("add_recall", "ADD <10% d %", 1),
            ("adds_recall", "ADD-S <10% d %", 1), ("ar_mssd", "AR MSSD %", 1), ("ar_mspd", "AR MSPD %", 1),
            ("mssd_median_mm", "MSSD median mm", 1), ("mspd_median_px", "MSPD median px", 1))
-FIG5_CELL = "sum<5° / sum<3° / ±5° % (geodesic median °)"
+FIG5_CELL = "sum<5° / sum<3° / ±5° %, each [95% interval] (geodesic median °)"
+# What a method returns decides which criterion can judge it: said under every table it is in.
+OWN_CRITERION = {"smm": ("pose_class_accuracy", "SMM returns the rotation of one training view (the nearest of its voted pose class) and a translation scaled from it: ±5° and sum < 5° are met only where a training view lies that close to the truth, so its own criterion is the pose class ({} azimuth classes of 45°)")}
 
-
-def fmt(value, digits=1):
-    return "–" if value is None else f"{value:.{digits}f}"
-
-
-def name(m: str) -> str:
-    return METHOD_NAMES.get(m, m)
 
 
 def table(header: list, rows: list) -> list:
@@ -35,66 +29,25 @@ def table(header: list, rows: list) -> list:
            ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
 
 
+def rate_cell(entry_: dict, key: str, digits: int = 1) -> str:
+    """A success rate with its 95% Wilson interval and, over several runs, σ: "90.4 [88.1–92.3] σ1.2"."""
+    value, ci = metric_value(entry_, key), (entry_.get("ci95") or {}).get(key)
+    std = (entry_.get("std") or {}).get(key)
+    text = fmt(value, digits) + (f" [{ci['low']:.{digits}f}–{ci['high']:.{digits}f}]" if ci and value is not None
+                                 else "")
+    return text + (f" σ{std:.{digits}f}" if std is not None and value is not None else "")
+
+
+def own_criterion_lines(summary: dict, names: list) -> list[str]:
+    """Under a table: for a method judged by its own criterion too (OWN_CRITERION), why, and that figure."""
+    from spm_model.methods.smm import PAPER_BINS
+
+    return [f"{why.format(PAPER_BINS)}: {rate_cell(entry(summary, m), key)} % over all test frames."
+            for m, (key, why) in OWN_CRITERION.items() if m in names and m in summary["methods"]]
+
+
 def entry(summary: dict, m: str) -> dict:
     return summary["methods"].get(m) or summary["chance"]
-
-
-def _cov(entry_: dict) -> str:
-    """" · 80% estimated" after a figure whose frames did not all get an estimate, else ""."""
-    frames, estimated = entry_.get("frames") or 0, entry_.get("estimated")
-    return "" if estimated is None or not frames or estimated >= frames else f" · {100 * estimated / frames:.0f}% est."
-
-
-def declined_lines(summary: dict) -> list[str]:
-    """One line per method that declined (in every split: no figures; in some: its coverage says
-    how many frames that cost), with its reason; one per method that ran but estimated nothing."""
-    lines = [f"- {name(m)} ran but gave no estimate for any of the {s['frames']} test frames (coverage 0%: none "
-             "passed its own checks, e.g. N3M's marker and pose validation on objects it never saw)"
-             for m, s in summary["methods"].items() if s.get("frames") and s.get("estimated") == 0]
-    for m, d in (summary.get("declined") or {}).items():
-        where = "declined" if d["splits"] == d["of"] else f"declined in {d['splits']} of {d['of']} splits"
-        lines.append(f"- {name(m)} {where}: {d['reason']}")
-    return lines
-
-
-def plain_summary(summary: dict) -> list[str]:
-    """The first lines a newcomer reads: the best method, how far above chance,
-    and which degrees of freedom it recovers (median error at most half of chance's);
-    then the methods that declined, with their reasons."""
-    methods, chance = summary["methods"], summary["chance"] or {}
-    if not methods:
-        return ["- **No method but chance ran on this data**; each says why below."] + declined_lines(summary)
-    best = max(methods, key=lambda m: (methods[m]["success_tol5"] or 0, methods[m]["auc_45"] or 0))
-    b = methods[best]
-    lines = [f"- **Best method, {summary['protocol']} protocol: {name(best)}**, {fmt(b['success_tol5'])}% within "
-             f"±5° (chance {fmt(chance.get('success_tol5'))}%){_cov(b)}, geodesic median "
-             f"{fmt(b['geodesic_median_deg'])}° (chance {fmt(chance.get('geodesic_median_deg'))}°), AUC of accuracy "
-             f"to 45° {fmt(b['auc_45'])} (chance {fmt(chance.get('auc_45'))})."]
-    spm = methods.get("spm")
-    if spm and best != "spm":
-        lines.append(f"- SPM: {fmt(spm['success_tol5'])}% within ±5°, geodesic median {fmt(spm['geodesic_median_deg'])}°.")
-    good, bad, constant = [], [], []
-    for key, label, unit in DOF:
-        mine, base = b["median_error"].get(key), (chance.get("median_error") or {}).get(key)
-        if mine is None or base is None:
-            continue
-        if base < 0.5:  # a random training pose gets it right: the data does not vary it
-            constant.append(label)
-            continue
-        text = f"{label} {fmt(mine)}{unit} (chance {fmt(base)}{unit})"
-        (good if mine <= 0.5 * base else bad).append(text)
-    if good:
-        lines.append(f"- Recovered by {name(best)} (median error at most half of chance's): " + "; ".join(good) + ".")
-    if bad:
-        lines.append("- Not recovered (median error above half of chance's): " + "; ".join(bad) + ".")
-    if constant:
-        lines.append("- Not varied in this data (a random training pose has a median error under 0.5): "
-                     + ", ".join(constant) + ".")
-    if b["frames"] and b["geodesic_median_deg"] is None and b["success_tol5"] is not None:
-        lines.append("- The test frames measure only part of the rotation (as a turntable's angle: COIL): ±5° and "
-                     "sum < 5° are over the measured angle, and the geodesic, AUC, per-DoF, translation and surface "
-                     "figures are – (docs/results-schema.md).")
-    return lines + declined_lines(summary)
 
 
 def markdown(evaluation: dict, summary: dict, context: dict) -> str:
@@ -135,7 +88,8 @@ def _intro(summary: dict, context: dict) -> list:
             "Methods see test frames as a camera gives them: image, visible mask and K, in a seeded random order. "
             "Criteria (the paper's): **±5° tolerance** (Table 2), every rotation angle within 5°, inclusive; "
             "**sum < 5° (3°)** (Fig. 5), the summed absolute angle errors below 5° (3°); *sym.*: the same up to "
-            "the object's declared symmetries. A frame without an estimate fails. σ: over runs (– with one run). "
+            "the object's declared symmetries. A frame without an estimate fails. Every success rate is shown as "
+            "% [its 95% Wilson interval over the frames it counts] and, over several runs, σ over runs. "
             "Schema of results.json: docs/results-schema.md.", ""]
 
 
@@ -163,20 +117,20 @@ def _fig5_tables(summary: dict, names: list) -> list:
             lines += table(["Occlusion", "Frames"] + [name(m) for m in names], rows) + [""]
     groups = summary.get("instances") or {}
     if groups:
-        rows = [[titles.get(g, g), name(m), entry_["frames"]] + [fmt(metric_value(entry_, k)) for k in (
+        rows = [[titles.get(g, g), name(m), entry_["frames"]] + [rate_cell(entry_, k) for k in (
                     "coverage", "success_sum5", "success_sum3", "success_tol5", "success_tol5_sym",
                     "geodesic_median_deg", "translation_axis_median_mm.x", "translation_axis_median_mm.y",
                     "translation_axis_median_mm.z")]
                 for g, methods in groups.items() for m, entry_ in methods.items() if m in names]
         lines += ["### Every occlusion level together", ""]
         lines += table(["Instances", "Method", "Frames", "Coverage %", "sum<5° %", "sum<3° %", "±5° %", "±5° sym. %",
-                        "Geodesic median °", "tx mm", "ty mm", "tz mm"], rows) + [""]
+                        "Geodesic median °", "tx mm", "ty mm", "tz mm"], rows) + ["", *own_criterion_lines(summary, names)]
     return lines
 
 
 def _fig5_cell(row: dict) -> str:
-    return (f"{fmt(row['success_sum5'], 0)} / {fmt(row['success_sum3'], 0)} / {fmt(row['success_tol5'], 0)} "
-            f"({fmt(row.get('geodesic_median_deg'))}){_cov(row)}")
+    return (f"{rate_cell(row, 'success_sum5', 0)} / {rate_cell(row, 'success_sum3', 0)} / "
+            f"{rate_cell(row, 'success_tol5', 0)} ({fmt(row.get('geodesic_median_deg'))}){_cov(row)}")
 
 
 def _paper_tables(evaluation: dict, summary: dict) -> list:
@@ -187,46 +141,43 @@ def _paper_tables(evaluation: dict, summary: dict) -> list:
         if "spm" not in row:
             continue
         s, e, paper = row["spm"], ecc.get(c, {}), PAPER_TABLE1.get(c)
-        rows.append([c, fmt(s["success_tol5"]) + _cov(s), fmt(s["std"]["success_tol5"]), fmt(s["success_sum5"]),
-                     fmt(s["success_sum3"]), fmt(e.get("mean"), 2), fmt(e.get("std"), 2),
+        rows.append([c, s["frames"], rate_cell(s, "success_tol5") + _cov(s), rate_cell(s, "success_sum5"),
+                     rate_cell(s, "success_sum3"), fmt(e.get("mean"), 2), fmt(e.get("std"), 2),
                      paper[0] if paper else "–", paper[2] if paper else "–"])
     lines = []
     if rows:
         lines += ["## Table 1 analogue: SPM", "",
                   "The paper's Table 1 counts successful grasps; its pose criterion is Table 2's ±5°, used here.", ""]
-        lines += table(["Class", "±5° %", "σ", "sum<5° %", "sum<3° %", "Mean eccentricity", "σ", "Paper success %",
-                        "Paper ecc."], rows)
+        lines += table(["Class", "Frames", "±5° %", "sum<5° %", "sum<3° %", "Mean eccentricity", "σ",
+                        "Paper success %", "Paper ecc."], rows)
     rows = []
     for c, row in classes.items():
         if "knn1" in row and "knn3" in row:
             k1, k3, paper = row["knn1"], row["knn3"], PAPER_TABLE2.get(c)
-            rows.append([c, fmt(k1["success_tol5"]) + _cov(k1), fmt(k1["std"]["success_tol5"]),
-                         fmt(k3["success_tol5"]) + _cov(k3),
-                         fmt(k3["std"]["success_tol5"]), paper[0] if paper else "–", paper[2] if paper else "–"])
+            rows.append([c, k1["frames"], rate_cell(k1, "success_tol5") + _cov(k1),
+                         rate_cell(k3, "success_tol5") + _cov(k3), paper[0] if paper else "–",
+                         paper[2] if paper else "–"])
     if rows:
         lines += ["", "## Table 2 analogue: KNN on SPM's vectors, ±5° tolerance", ""]
-        lines += table(["Class", "K=1 %", "σ", "K=3 %", "σ", "Paper K=1 %", "Paper K=3 %"], rows)
+        lines += table(["Class", "Frames", "K=1 %", "K=3 %", "Paper K=1 %", "Paper K=3 %"], rows)
     return lines
 
 
 def _method_tables(summary: dict, names: list) -> list:
     """Every method over all test frames: every METRICS column (σ after ±5°), then BOP surface errors."""
-    header = ["Method", "Estimated", "Features"]
-    for k in METRICS:
-        header += [k.header] + (["σ"] if k.key == "success_tol5" else [])
+    header = ["Method", "Estimated", "Features"] + [k.header for k in METRICS]
     rows = []
     for m in names:
         s = entry(summary, m)
         featured = s.get("featured")
         row = [name(m), f"{s['estimated']}/{s['frames']}", "–" if featured is None else f"{featured}/{s['frames']}"]
-        for k in METRICS:
-            row += [fmt(metric_value(s, k.key), k.digits)]
-            row += [fmt((s.get("std") or {}).get("success_tol5"))] if k.key == "success_tol5" else []
-        rows.append(row)
+        rows.append(row + [rate_cell(s, k.key, k.digits) if k.key in RATES else fmt(metric_value(s, k.key), k.digits)
+                           for k in METRICS])
     lines = ["", "## Every method, all test frames", ""] + table(header, rows)
     lines += ["", "Estimated: test frames the method gave an estimate for; Features: test frames it found its "
               "features on (SIFT keypoints, SPM's ellipse; – where the method does not say). Every success rate "
-              "counts a frame without an estimate as a failure; medians are over the frames with one.", "",
+              "counts a frame without an estimate as a failure; medians are over the frames with one (Coverage "
+              "says how many that is).", *own_criterion_lines(summary, names), "",
               "Per DoF: median absolute errors (spm_data/core/poses.py's viewing angles and distance); "
               "tx, ty, tz: along the camera's axes (the paper's Figs. 6–7)."]
     if not any(entry(summary, m).get("surface") for m in names):
@@ -238,15 +189,17 @@ def _method_tables(summary: dict, names: list) -> list:
 
 
 def _class_and_occlusion_tables(summary: dict, names: list) -> list:
-    rows = [[c] + [f"{fmt(row[m]['success_tol5'])} ({fmt(row[m]['geodesic_median_deg'], 0)}){_cov(row[m])}"
-                   for m in names]
+    rows = [[c, row[names[0]]["frames"]]
+            + [f"{rate_cell(row[m], 'success_tol5')} ({fmt(row[m]['geodesic_median_deg'], 0)}){_cov(row[m])}"
+               for m in names]
             for c, row in summary["classes"].items()]
-    lines = ["", "## Per class, ±5° % (geodesic median °; where not every frame got an estimate, the share "
-             "that did)", ""] + table(["Class"] + [name(m) for m in names], rows)
+    lines = ["", "## Per class, ±5° % [95% interval] (geodesic median °; where not every frame got an estimate, "
+             "the share that did)", ""] + table(["Class", "Frames"] + [name(m) for m in names], rows)
     rows = [[f"{row['low']:.0%}–{row['high']:.0%}", row["frames"]]
-            + [fmt(summary["occlusion"][m][b]["success_sum5"]) + _cov(summary["occlusion"][m][b]) for m in names]
+            + [rate_cell(summary["occlusion"][m][b], "success_sum5") + _cov(summary["occlusion"][m][b])
+               for m in names]
             for b, row in enumerate(summary["occlusion"][names[0]]) if row["frames"]]
-    lines += ["", "## Success (sum < 5°) against occlusion, every test frame", ""]
+    lines += ["", "## Success (sum < 5°, % [95% interval]) against occlusion, every test frame", ""]
     return lines + table(["Occlusion", "Frames"] + [name(m) for m in names], rows)
 
 
@@ -264,11 +217,15 @@ def summary_text(summary: dict) -> str:
     fig5 = (summary.get("fig5") or {}).get("seen") or (summary.get("fig5") or {}).get("all")
     if fig5:
         curves = fig5.get("rectangles") or fig5.get("all")
-        bins = [f"{r['low']:.0%}" for r in next(iter(curves.values())) if r["frames"]]
-        lines.append(f"Fig. 5 (sum < 5° %, bins {', '.join(bins)} occluded):")
+        shown_rows = [r for r in next(iter(curves.values())) if r["frames"]]
+        lines.append("Fig. 5 (sum < 5° %, bins " + ", ".join(f"{r['low']:.0%} (n={r['frames']}"
+                                                            f"{'*' if r['frames'] < FEW_FRAMES else ''})"
+                                                            for r in shown_rows) + " occluded; "
+                     f"* under {FEW_FRAMES} frames: read as a hint; intervals in results.md):")
+        width = max(len(name(m)) for m in curves) + 1
         for m, rows in curves.items():
             est, frames = sum(r.get("estimated", r["frames"]) for r in rows), sum(r["frames"] for r in rows)
-            lines.append(f"  {name(m):<30}" + " ".join(f"{fmt(r['success_sum5'], 0):>4}" for r in rows if r["frames"])
+            lines.append(f"  {name(m):<{width}}" + " ".join(f"{fmt(r['success_sum5'], 0):>4}" for r in rows if r["frames"])
                          + (f"  ({100 * est / frames:.0f}% estimated)" if frames and est < frames else ""))
     return "\n".join(lines)
 
@@ -289,6 +246,10 @@ ENTRY_LAST = (
     "object's diameter; `ar_mssd`, `ar_mspd` (the BOP challenge's average recalls: MSSD thresholds 5–50% of the "
     "diameter, MSPD thresholds 5–50 px × width/640); `add_median_mm`, `adds_median_mm`, `mssd_median_mm`, "
     "`mspd_median_px`} (spm_model/bench/surface_metrics.py) |",
+    "| `ci95` | {rate key: {`low`, `high`, `n`}} for `success_tol5`, `success_sum5`, `success_sum3`, "
+    "`success_tol5_sym` and `pose_class_accuracy` where they have a value: the 95% Wilson score interval (%) over "
+    "the `n` frames the rate counts; over several runs, the interval at the mean rate over one run's frames (runs "
+    "share most frames, so pooling them would claim too much) |",
     "| `std` | σ over runs of the keys above (`null` with fewer than two runs) |",
 )
 

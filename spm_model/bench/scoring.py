@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from spm_model.bench.metrics import SUM_THRESHOLDS, TOLERANCE_DEG, accuracy_curve, pose_errors, summarise, \
-    success_rate, tolerance_rate
+from spm_model.bench.metrics import SUM_THRESHOLDS, TOLERANCE_DEG, accuracy_curve, intervals, pose_errors, \
+    summarise, success_rate, tolerance_rate
 from spm_model.bench.surface_metrics import frame_surface_errors
 from spm_model.bench.symmetry_errors import instance_symmetries, symmetric_errors
 
@@ -34,19 +34,21 @@ def _select(errors: dict, sel) -> dict:
 
 def occlusion_rows(occ: np.ndarray, errors: dict) -> list:
     """Per tenth of occlusion: frames, of those the frames with an estimate, the paper's criteria
-    (sum < 5°, sum < 3°, ±5°) and the geodesic median, over the frames of that bin (the last
-    bin includes 1)."""
+    (sum < 5°, sum < 3°, ±5°) with their 95% Wilson intervals (``ci95``) and the geodesic
+    median, over the frames of that bin (the last bin includes 1)."""
     rows = []
     for lo, hi in zip(OCCLUSION_BINS[:-1], OCCLUSION_BINS[1:]):
         sel = (occ >= lo) & ((occ < hi) | (hi == 1.0)) & ~np.isnan(errors["rotation_max"])
         geo, t = errors["geodesic"][sel], errors["translation"][sel]
         geo, t = geo[np.isfinite(geo)], t[np.isfinite(t)]
-        rows.append({"low": float(lo), "high": float(hi), "frames": int(sel.sum()),
-                     "estimated": int(np.isfinite(errors["rotation_max"][sel]).sum()),
-                     "success_tol5": tolerance_rate(errors["rotation_max"][sel], TOLERANCE_DEG),
-                     **{f"success_sum{th:g}": success_rate(errors["rotation_sum"][sel], th) for th in SUM_THRESHOLDS},
-                     "geodesic_median_deg": float(np.median(geo)) if len(geo) else None,
-                     "translation_median_mm": 1000.0 * float(np.median(t)) if len(t) else None})
+        row = {"low": float(lo), "high": float(hi), "frames": int(sel.sum()),
+               "estimated": int(np.isfinite(errors["rotation_max"][sel]).sum()),
+               "success_tol5": tolerance_rate(errors["rotation_max"][sel], TOLERANCE_DEG),
+               **{f"success_sum{th:g}": success_rate(errors["rotation_sum"][sel], th) for th in SUM_THRESHOLDS},
+               "geodesic_median_deg": float(np.median(geo)) if len(geo) else None,
+               "translation_median_mm": 1000.0 * float(np.median(t)) if len(t) else None}
+        rows.append({**row, "ci95": intervals(row, dict.fromkeys(("success_tol5", "success_sum5", "success_sum3"),
+                                                                  row["frames"]))})
     return rows
 
 

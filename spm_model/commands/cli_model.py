@@ -85,12 +85,14 @@ def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs,
 
 
 def _models_line(result) -> str:
-    """"models: PATH (SPM), PATH (reference)" for what train wrote, and what it could not fit."""
+    """"models: PATH (SPM), PATH (reference)" for what train fitted and wrote (only the models of
+    methods asked for), and what it could not fit."""
     written = [f"{result[key]} ({what})" for key, what in (("model", "SPM"), ("reference_model", "reference"))
                if result[key] is not None]
     missing = [f"{what} declined" for key, what in (("spm", "SPM"), ("template", "reference"))
-               if result["models"][key] != "written"]
-    return "models: " + (", ".join(written) or "none") + (f" ({'; '.join(missing)})" if missing else "")
+               if result["models"].get(key, "written") != "written"]   # absent: not asked for, so not fitted
+    none = "none (neither spm nor template was asked for)" if not result["models"] else "none"
+    return "models: " + (", ".join(written) or none) + (f" ({'; '.join(missing)})" if missing else "")
 
 
 @click.command("check-estimator")

@@ -13,7 +13,7 @@ from spm_data.io.outputs import removing_created
 from spm_data.io.shards import MANIFEST, read_manifest
 from spm_model.base.estimator import needs_of
 from spm_model.bench.feature_cache import FeatureTable, load_features, offgrid_table
-from spm_model.bench.protocols import evaluate
+from spm_model.bench.protocols import FINAL_MODELS, evaluate
 from spm_model.bench.report import (check_report_folder, declined_everywhere, summary_text, write_error,
                                     write_report)
 from spm_model.methods.registry import load_estimator_class
@@ -112,8 +112,9 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
                           train_occluded=train_occluded, executor=executor, source=source, final=True)
     model, reference, train_features, final_declined = evaluation.pop("final_models")
     check_some_method_ran(evaluation)
-    models = {"spm": "written" if model is not None else {"declined": final_declined.get("spm", "")},
-              "template": "written" if reference is not None else {"declined": final_declined.get("template", "")}}
+    asked = [m for m in FINAL_MODELS if builtins is None or m in builtins]   # a model only of a method asked for
+    models = {m: "written" if fitted is not None else {"declined": final_declined.get(m, "")}
+              for m, fitted in (("spm", model), ("template", reference)) if m in asked}
     context = {"command": command, "shards": str(shards), **({"test": str(test)} if test is not None else {}),
                "frames": len(table), "train_features": int(train_features),
                "query_features": int(np.isfinite(table.query_vector).all(axis=1).sum()),

@@ -98,7 +98,7 @@ def test_a_plugged_in_estimator_gets_frames_and_is_scored_through_the_cli(model_
     assert plugin_module.MeanPose.seen == {"rgb": ((128, 128, 3), "uint8"), "mask": "bool", "K": (3, 3), "n": 96,
                                            "poses": (96, 6)}
     payload = json.loads((report / "results.json").read_text())
-    assert payload["schema_version"] == 4 and "MeanPose" in payload["summary"]["methods"]
+    assert payload["schema_version"] == 5 and "MeanPose" in payload["summary"]["methods"]
     summary = payload["summary"]["methods"]["MeanPose"]
     assert summary["frames"] == 144 and summary["estimated"] == 144
     assert "| MeanPose |" in (report / "results.md").read_text()

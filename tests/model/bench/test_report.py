@@ -8,6 +8,7 @@ import pytest
 
 from spm_data.errors import SpmError
 from spm_model.bench.metrics import accuracy_curve, pose_errors, summarise
+from spm_model.bench.scoring import occlusion_rows
 from spm_model.bench.report import (SCHEMA, SCHEMA_VERSION, aggregate, check_report_folder, markdown, summary_text,
                               write_error, write_report)
 
@@ -24,10 +25,7 @@ def tiny_evaluation():
         errors[m] = pose_errors(pred, TRUE)
     run = {"seed": 0, "overall": {m: summarise(e) for m, e in errors.items()},
            "classes": {"cup": {m: summarise(e) for m, e in errors.items()}},
-           "occlusion": {m: [{"low": 0.0, "high": 0.1, "frames": 4,
-                              **{k: summarise(e)[k] for k in ("success_tol5", "success_sum5", "success_sum3")}},
-                             {"low": 0.1, "high": 0.2, "frames": 0, "success_tol5": None, "success_sum5": None,
-                              "success_sum3": None}] for m, e in errors.items()},
+           "occlusion": {m: occlusion_rows(np.zeros(4), e) for m, e in errors.items()},
            "accuracy_curve": {m: accuracy_curve(e["geodesic"], 4).tolist() for m, e in errors.items()}}
     return {"protocol": "views", "runs": [run], "eccentricity": {"cup": {"mean": 0.5, "std": 0.1, "frames": 4}},
             "classes": ["cup"], "methods": list(OFF)}
@@ -54,23 +52,29 @@ def test_markdown_of_a_tiny_summary_has_the_expected_rows():
     text = markdown(evaluation, aggregate(evaluation), CONTEXT)
     lines = text.splitlines()
     assert lines[0] == "# Pose benchmark (views protocol, 1 run)"
-    assert lines[2].startswith("- **Best method, views protocol: KNN K=1**, 100.0% within ±5° (chance 0.0%), "
-                               "geodesic median 0.0° (chance 90.0°)")
-    assert "- SPM: 75.0% within ±5°, geodesic median 0.0°." in lines
+    # 4 of 4 frames: Wilson's 95% interval is [1 / (1 + z²/4), 1] = [51.0, 100]; 0 of 4: [0, 49.0].
+    assert lines[2] == ("- **Best method, views protocol: KNN K=1**, 100.0% (95% CI 51.0–100.0, 4 frames) within ±5°, "
+                        "above chance's 0.0% (95% CI 0.0–49.0, 4 frames) beyond both 95% intervals; geodesic median "
+                        "0.0° (chance 90.0°), AUC of accuracy to 45° 100.0 (chance 0.0).")
+    assert lines[3] == ("- ±5° of the others: SPM 75.0% (95% CI 30.1–95.4, 4 frames); KNN K=3 50.0% "
+                        "(95% CI 15.0–85.0, 4 frames).")
     assert "Command: `spm train --shards s`" in lines
     # Table 1 (SPM, with the paper's cup numbers beside), Table 2 (KNN K=1 and K=3).
-    assert "| cup | 75.0 | – | 75.0 | 75.0 | 0.50 | 0.10 | 86.6 | 0.87 |" in lines
-    assert "| cup | 100.0 | – | 50.0 | – | 82.6 | 82.8 |" in lines
+    assert ("| cup | 4 | 75.0 [30.1–95.4] | 75.0 [30.1–95.4] | 75.0 [30.1–95.4] | 0.50 | 0.10 | 86.6 | 0.87 |"
+            in lines)
+    assert "| cup | 4 | 100.0 [51.0–100.0] | 50.0 [15.0–85.0] | 82.6 | 82.8 |" in lines
     # Every method over all frames, chance last; per class; occlusion bins with frames only.
     rows = [line for line in lines if line.startswith(("| SPM |", "| KNN K=1 |", "| KNN K=3 |", "| chance"))]
-    # Method, Estimated, Features (– where the method does not say), Coverage %, ±5° %, σ
-    assert [r.split(" | ")[:6] for r in rows[:4]] == [["| SPM", "4/4", "–", "100.0", "75.0", "–"],
-                                                      ["| KNN K=1", "4/4", "–", "100.0", "100.0", "–"],
-                                                      ["| KNN K=3", "4/4", "–", "100.0", "50.0", "–"],
-                                                      ["| chance (random training pose)", "4/4", "–", "100.0", "0.0",
-                                                       "–"]]
-    assert "| cup | 75.0 (0) | 100.0 (0) | 50.0 (15) | 0.0 (90) |" in lines
-    assert "| 0%–10% | 4 | 75.0 | 100.0 | 50.0 | 0.0 |" in lines and not any(r.startswith("| 10%–20%") for r in lines)
+    # Method, Estimated, Features (– where the method does not say), Coverage %, ±5° % [interval] (one run: no σ)
+    assert [r.split(" | ")[:5] for r in rows[:4]] == [["| SPM", "4/4", "–", "100.0", "75.0 [30.1–95.4]"],
+                                                      ["| KNN K=1", "4/4", "–", "100.0", "100.0 [51.0–100.0]"],
+                                                      ["| KNN K=3", "4/4", "–", "100.0", "50.0 [15.0–85.0]"],
+                                                      ["| chance (random training pose)", "4/4", "–", "100.0",
+                                                       "0.0 [0.0–49.0]"]]
+    assert "| cup | 4 | 75.0 [30.1–95.4] (0) | 100.0 [51.0–100.0] (0) | 50.0 [15.0–85.0] (15) | 0.0 [0.0–49.0] (90) |" \
+        in lines
+    assert "| 0%–10% | 4 | 75.0 [30.1–95.4] | 100.0 [51.0–100.0] | 50.0 [15.0–85.0] | 0.0 [0.0–49.0] |" in lines
+    assert not any(r.startswith("| 10%–20%") for r in lines)
 
 
 def test_write_report_writes_four_files_whole(tmp_path):
@@ -78,13 +82,14 @@ def test_write_report_writes_four_files_whole(tmp_path):
     assert sorted(p.name for p in (tmp_path / "report").iterdir()) == ["accuracy.png", "occlusion.png",
                                                                        "results.json", "results.md"]
     payload = json.loads((tmp_path / "report" / "results.json").read_text())
-    assert (payload["schema"], payload["schema_version"]) == (SCHEMA, SCHEMA_VERSION) == ("spm-results", 4)
+    assert (payload["schema"], payload["schema_version"]) == (SCHEMA, SCHEMA_VERSION) == ("spm-results", 5)
     assert list(payload) == ["schema", "schema_version", "context", "summary", "evaluation"]
     assert payload["summary"]["methods"]["spm"]["std"]["success_tol5"] is None          # one run: no sigma
+    assert payload["summary"]["best"] == "knn1" and list(payload["summary"])[:5] == ["protocol", "runs", "methods", "chance", "best"]
     assert payload["summary"] == json.loads(json.dumps(summary)) and payload["context"] == CONTEXT
     assert (tmp_path / "report" / "accuracy.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     text = summary_text(summary).splitlines()
-    assert text[0].startswith("- Best method, views protocol: KNN K=1, 100.0% within ±5°")
+    assert text[0].startswith("- Best method, views protocol: KNN K=1, 100.0% (95% CI 51.0–100.0, 4 frames) within ±5°")
     assert "- Recovered by KNN K=1 (median error at most half of chance's): azimuth 0.0° (chance 90.0°); azimuth " \
            "mod 180° 0.0° (chance 90.0°)." in text
     # The method, ±5° %, sum<5 %, AUC to 45° (spm: 75% up to 20°, then 100%), geodesic median, elevation, distance.
@@ -135,10 +140,12 @@ def test_frames_without_an_estimate_show_as_coverage_beside_the_scores():
     assert (spm["estimated"], spm["frames"], spm["coverage"], spm["featured"]) == (3, 4, 75.0, 3)
     assert summary["declined"]["spm"] == {"reason": "predict: ValueError: boom", "splits": 1, "of": 2}
     lines = markdown(evaluation, summary, CONTEXT).splitlines()
-    assert [line.split(" | ")[:6] for line in lines if line.startswith("| SPM |")][0] == [
-        "| SPM", "3/4", "3/4", "75.0", "75.0", "–"]
-    assert "| cup | 75.0 (0) · 75% est. | 100.0 (0) | 50.0 (15) | 0.0 (90) |" in lines
-    assert "| 0%–10% | 4 | 75.0 · 75% est. | 100.0 | 50.0 | 0.0 |" in lines
+    assert [line.split(" | ")[:5] for line in lines if line.startswith("| SPM |")][0] == [
+        "| SPM", "3/4", "3/4", "75.0", "75.0 [30.1–95.4]"]
+    assert "| cup | 4 | 75.0 [30.1–95.4] (0) · 75% est. | 100.0 [51.0–100.0] (0) | 50.0 [15.0–85.0] (15) | " \
+        "0.0 [0.0–49.0] (90) |" in lines
+    assert "| 0%–10% | 4 | 75.0 [30.1–95.4] · 75% est. | 100.0 [51.0–100.0] | 50.0 [15.0–85.0] | 0.0 [0.0–49.0] |" \
+        in lines
     assert "- SPM declined in 1 of 2 splits: predict: ValueError: boom" in lines
 
 

@@ -38,4 +38,4 @@ def test_the_schema_doc_lists_every_metric_as_made_from_the_list(tmp_path):
     copy = tmp_path / "schema.md"
     copy.write_text(doc.read_text())
     assert update_schema_doc(copy) is False, "run: python -m spm_model.bench.report_tables"
-    assert all(f"| `{m.key}` |" in doc.read_text() for m in METRICS) and len(schema_rows()) == len(METRICS) + 6
+    assert all(f"| `{m.key}` |" in doc.read_text() for m in METRICS) and len(schema_rows()) == len(METRICS) + 7   # 2 header, frames, estimated, surface, ci95, std

@@ -18,7 +18,7 @@ def test_cli_train_predict_evaluate_and_bad_input(model_shards, tmp_path):
     r = runner.invoke(model_cli, ["train", str(shards), "--runs", "1", "--ellipse", "direct",
                                   "--protocol", "views", "--methods", "spm,template"])
     assert r.exit_code == 0, r.output
-    assert "Best method, views protocol" in r.output and (shards / "report" / "model.npz").is_file()
+    assert "No method is called best here (views protocol)" in r.output and (shards / "report" / "model.npz").is_file()
     model = str(shards / "report" / "model.npz")
     d = read_shard(sorted(shards.glob("box*.h5"))[0], ["rgb"], frames=slice(3, 4))
     Image.fromarray(d["rgb"][0]).save(tmp_path / "box.png")
@@ -67,3 +67,18 @@ def test_cli_offgrid_writes_the_fig5_tables_and_refuses_bad_method_names(model_s
     assert r.exit_code == 1 and "--methods: unknown nope" in r.output and "Traceback" not in r.output
     r = runner.invoke(model_cli, ["train", str(shards), "--protocol", "views", "--test", str(shards)])
     assert r.exit_code == 1 and "--test goes with --protocol offgrid" in r.output
+
+
+def test_train_fits_and_names_only_the_models_of_methods_asked_for(model_shards, tmp_path):
+    shards = tmp_path / "s"
+    shutil.copytree(model_shards, shards)
+    (shards / "report").mkdir()
+    (shards / "report" / "model.npz").write_bytes(b"an earlier run's model")   # must not be paired with this run
+    r = CliRunner().invoke(model_cli, ["train", str(shards), "--runs", "1", "--protocol", "views",
+                                       "--methods", "pca,chance"])
+    assert r.exit_code == 0, r.output
+    assert r.output.splitlines()[-1].endswith("models: none (neither spm nor template was asked for)")
+    assert sorted(p.name for p in (shards / "report").iterdir()) == ["accuracy.png", "occlusion.png", "results.json",
+                                                                    "results.md"]
+    payload = json.loads((shards / "report" / "results.json").read_text())
+    assert payload["context"]["models"] == {} and "No model was written." in (shards / "report" / "results.md").read_text()

@@ -15,6 +15,7 @@ from spm_data.io.shards import read_shard
 from spm_model.commands.check_estimator import CHECK_SPEC
 from spm_model.commands.evaluate import evaluate_model
 from spm_model.commands.predict import predict_images
+from spm_model.methods.registry import METHOD_NAMES
 
 
 @pytest.mark.slow  # the full benchmark (loco_report: every built-in method, 2 runs)
@@ -23,7 +24,7 @@ def test_train_loco_writes_the_report_and_model(model_shards, loco_report, tmp_p
     assert sorted(p.name for p in report.iterdir()) == ["accuracy.png", "model.npz", "occlusion.png",
                                                         "reference-model.npz", "results.json", "results.md"]
     payload = json.loads((report / "results.json").read_text())
-    assert payload["schema"] == "spm-results" and payload["schema_version"] == 4
+    assert payload["schema"] == "spm-results" and payload["schema_version"] == 5
     assert payload["context"]["frames"] == 144 and len(payload["evaluation"]["runs"]) == 2
     summary = payload["summary"]
     assert set(summary["methods"]) == {"spm", "knn1", "knn3", "pca", "ls", "n3m", "smm", "template", "MeanPose"}
@@ -35,10 +36,15 @@ def test_train_loco_writes_the_report_and_model(model_shards, loco_report, tmp_p
         assert entry["surface"]["frames"] == 144 and "std" in entry
     assert summary["classes"]["cup"]["pca"]["frames"] == 48 and summary["classes"]["cup"]["pca"]["estimated"] == 48
     text = (report / "results.md").read_text()
-    assert text.startswith("# Pose benchmark (loco protocol, 2 runs)\n\n- **Best method, loco protocol:")
+    best = summary["best"]  # named only where it beats chance beyond both 95% intervals
+    first = f"- **Best method, loco protocol: {METHOD_NAMES[best]}**" if best else "- **No method beats chance here"
+    assert text.startswith("# Pose benchmark (loco protocol, 2 runs)\n\n" + first)
+    if best:
+        ci = summary["methods"][best]["ci95"]["success_tol5"]
+        assert ci["low"] > summary["chance"]["ci95"]["success_tol5"]["high"] and ci["n"] == 144
     assert "Table 1 analogue" in text and "Table 2 analogue" in text and "| cup |" in text and "86.6" in text
     assert "ADD(-S)" in text and "chance (random training pose)" in text
-    assert result["text"].splitlines()[0].startswith("- Best method, loco protocol:")
+    assert result["text"].splitlines()[0].startswith(first.replace("**", ""))
     # The final model predicts from an image.
     d = read_shard(sorted(model_shards.glob("cup*.h5"))[0], ["rgb", "pose"], frames=slice(0, 1))
     Image.fromarray(d["rgb"][0]).save(tmp_path / "cup.png")
