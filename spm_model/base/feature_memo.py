@@ -16,11 +16,13 @@ Memory: each process keeps at most ``SPM_FEATURE_MEMO_MB`` megabytes (default 20
 budget; keeping the first ones gives a hit rate of about budget / working set).
 
 Folder: ``spm train``'s workers use ``<feature cache>/memo/`` (spm_model/bench/protocols.py),
-one ``.feat`` file per image and method (:func:`save_entry`: the arrays' raw bytes and a
-digest, so a damaged file is recomputed and rewritten, never used), written to a
-temporary name and renamed. About 50 KB per 128-pixel frame for N3M and SMM together;
-delete the folder to reclaim the space. An entry of the earlier ``.npz`` format (read at a
-tenth of the speed) is rewritten as ``.feat`` the first time it is needed.
+one ``.feat`` file per image and method (:func:`save_entry`: the content key of the input it
+was computed from, the arrays' raw bytes and a digest over both), written to a temporary
+name and renamed. A read checks the digest and that the key inside is the key asked for, so
+a damaged, cut-short, renamed, swapped or foreign entry (another image's, another version's,
+an earlier format's) is recomputed and rewritten, never used; the first one in a process is
+said in one ``warning:`` line. About 50 KB per 128-pixel frame for N3M and SMM together;
+delete the folder to reclaim the space.
 """
 
 from __future__ import annotations
@@ -31,12 +33,12 @@ import os
 import socket
 import struct
 import warnings
-import zipfile
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
+from spm_data.errors import SpmWarning
 from spm_data.io.locking import pid_alive
 
 DEFAULT_MB = 2048
@@ -44,6 +46,7 @@ DEFAULT_MB = 2048
 _entries: dict[bytes, tuple] = {}
 _stats = {"bytes": 0, "hits": 0, "misses": 0, "disk_hits": 0}
 _folder: list = [None]  # the process's memo folder, or None
+_warned: list = [False]  # whether this process has said that an entry was refused
 
 
 def budget_bytes() -> int:
@@ -80,17 +83,21 @@ def content_key(kind: tuple, *arrays) -> bytes:
     return h.digest()
 
 
-MAGIC = b"SPMFEAT1"
-DIGEST = 20     # bytes of the blake2b digest that ends a file
+MAGIC = b"SPMFEAT2"  # 2: the content key inside the digest (1 had none: a renamed entry was served)
+DIGEST = 20     # bytes of the blake2b digest that ends a file; also the length of a content key
 ALIGN = 16      # each array's bytes start at a multiple of this, so they are read in place
+NO_KEY = bytes(DIGEST)
 
 
-def save_entry(path, arrays) -> None:
-    """Write ``arrays`` (a tuple of numpy arrays of plain dtypes) to ``path``: MAGIC, the
-    count (uint32), per array its dtype string (uint8 length, ASCII), ndim (uint8) and
-    shape (int64 each), then each array's C-order bytes at an ALIGN-byte boundary, then
-    the blake2b digest (DIGEST bytes) of everything before it. Little-endian."""
-    head = [MAGIC, struct.pack("<I", len(arrays))]
+def save_entry(path, arrays, key: bytes = NO_KEY) -> None:
+    """Write ``arrays`` (a tuple of numpy arrays of plain dtypes), computed from the input whose
+    :func:`content_key` is ``key``, to ``path``: MAGIC, the key (DIGEST bytes), the count (uint32),
+    per array its dtype string (uint8 length, ASCII), ndim (uint8) and shape (int64 each), then
+    each array's C-order bytes at an ALIGN-byte boundary, then the blake2b digest (DIGEST
+    bytes) of everything before it. Little-endian."""
+    if len(key) != DIGEST:
+        raise ValueError(f"save_entry: a content key is {DIGEST} bytes, got {len(key)}")
+    head = [MAGIC, bytes(key), struct.pack("<I", len(arrays))]
     arrays = [np.asarray(a, order="C") for a in arrays]
     if any(a.dtype.hasobject or a.dtype.names is not None for a in arrays):
         raise ValueError("save_entry: arrays of Python objects or of named fields are not stored; "
@@ -108,20 +115,23 @@ def save_entry(path, arrays) -> None:
         f.write(body + hashlib.blake2b(body, digest_size=DIGEST).digest())
 
 
-def load_entry(path) -> tuple | None:
-    """The arrays :func:`save_entry` wrote to ``path`` (read-only views of the file's
-    bytes), or None when the file is missing, damaged, cut short or of another format."""
+def load_entry(path, key: bytes = NO_KEY) -> tuple | None:
+    """The arrays :func:`save_entry` wrote to ``path`` for ``key`` (read-only views of the file's
+    bytes), or None when the file is missing, damaged, cut short, of another format, or was
+    computed from another input (its key is not ``key``)."""
     try:
         with open(path, "rb") as f:
             data = f.read()
     except OSError:
         return None
-    body = memoryview(data)[:-DIGEST]
-    if len(data) < len(MAGIC) + 4 + DIGEST or data[:len(MAGIC)] != MAGIC or \
+    body, start = memoryview(data)[:-DIGEST], len(MAGIC) + DIGEST
+    if len(data) < start + 4 + DIGEST or data[:len(MAGIC)] != MAGIC or \
             hashlib.blake2b(body, digest_size=DIGEST).digest() != data[-DIGEST:]:
         return None  # damaged or half-written by a killed process: recomputed and rewritten
+    if data[len(MAGIC):start] != key:
+        return None  # a sound entry of another input (renamed, swapped, copied): never served
     try:
-        (count,), at, specs = struct.unpack_from("<I", data, len(MAGIC)), len(MAGIC) + 4, []
+        (count,), at, specs = struct.unpack_from("<I", data, start), start + 4, []
         for _ in range(count):
             length = data[at]
             dtype, ndim = np.dtype(data[at + 1:at + 1 + length].decode()), data[at + 1 + length]
@@ -144,23 +154,14 @@ def _path(key: bytes) -> Path:
 
 
 def _read(key: bytes) -> tuple | None:
-    found = load_entry(_path(key))
-    return _read_earlier(key) if found is None else found
-
-
-def _read_earlier(key: bytes) -> tuple | None:
-    """An entry of the earlier ``.npz`` format, rewritten as ``.feat`` and removed (a
-    folder filled before the change is not recomputed); None if there is none or it is damaged."""
-    old = _path(key).with_suffix(".npz")
-    try:
-        with np.load(old, allow_pickle=False) as f:
-            value = tuple(f[f"arr_{i}"] for i in range(len(f.files)))
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
-        return None   # none, or damaged: recomputed
-    if _store(key, value) is None:   # a read-only folder keeps serving its .npz entries
-        with contextlib.suppress(OSError):
-            old.unlink()
-    return value
+    """The folder's entry for ``key``; None when there is none or it cannot be used (said once)."""
+    path = _path(key)
+    found = load_entry(path, key)
+    if found is None and path.exists() and not _warned[0]:
+        _warned[0] = True
+        warnings.warn(f"feature memo entry {path} is damaged, cut short, of an earlier format or of another "
+                      "image; recomputed and rewritten (any further ones in this process silently)", SpmWarning)
+    return found
 
 
 def _store(key: bytes, value: tuple) -> OSError | None:
@@ -169,7 +170,7 @@ def _store(key: bytes, value: tuple) -> OSError | None:
     tmp = path.with_name(f".{path.stem}.{socket.gethostname()}.{os.getpid()}.partial")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        save_entry(tmp, value)
+        save_entry(tmp, value, key)
         os.replace(tmp, path)
     except OSError as exc:
         with contextlib.suppress(OSError):

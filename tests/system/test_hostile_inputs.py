@@ -99,6 +99,43 @@ def test_a_folder_merged_with_itself_is_said_so_not_called_corrupt(folder, tmp_p
     assert "corrupt" not in line and not (tmp_path / "m").exists()
 
 
+@pytest.mark.parametrize("command", ["validate", "info", "occlude", "merge", "export", "train"])
+@pytest.mark.parametrize("how", ["name", "content"])
+def test_a_shard_listed_twice_or_copied_is_refused_by_every_reader(folder, tmp_path, command, how):
+    """One rule, every reader (issue 35): no frame is read twice. A name listed twice in the
+    manifest, or a copy of a shard under another name, is one line, and nothing is written."""
+    manifest = folder / "manifest.json"
+    payload = json.loads(manifest.read_text())
+    if how == "name":
+        payload["shards"].append(dict(payload["shards"][0]))
+        expected = "cup-00000.h5 is listed twice"
+    else:
+        shutil.copy(folder / "cup-00000.h5", folder / "cup-00009.h5")
+        payload["shards"].append({**payload["shards"][0], "file": "cup-00009.h5"})
+        expected = "cup-00000.h5 and cup-00009.h5 have the same content (SHA-256"
+    manifest.write_text(json.dumps(payload))
+    out = tmp_path / "out"
+    args = {"validate": [data_cli, "validate", folder], "info": [data_cli, "info", folder],
+            "occlude": [data_cli, "occlude", "--in", folder, "--out", out],
+            "merge": [data_cli, "merge", folder, "--out", out], "export": [data_cli, "export", "bop", folder, "--out", out],
+            "train": [model_cli, "train", folder, "--out", out]}[command]
+    r = run(*args)
+    if command == "validate":  # validate lists problems
+        assert r.exit_code == 1 and "Traceback" not in r.output and expected in r.output, r.output
+    else:
+        assert expected in one_error(r)
+    assert not out.exists()
+
+
+def test_merging_a_folder_with_a_copy_of_itself_is_refused(folder, tmp_path):
+    shutil.copytree(folder, tmp_path / "copy")
+    line = one_error(run(data_cli, "merge", folder, tmp_path / "copy", "--out", tmp_path / "m"))
+    assert line.startswith(f"error: merge: {folder}/cup-00000.h5 and {tmp_path}/copy/cup-00000.h5 have the same "
+                           "content (SHA-256 ") and line.endswith("give each folder once (a copy of a folder is the "
+                                                                  "same frames)")
+    assert not (tmp_path / "m").exists()
+
+
 def test_a_full_disk_in_occludes_object_copy_is_one_line(folder, tmp_path, monkeypatch):
     import h5py
 

@@ -9,8 +9,8 @@ draws), ``manifest`` (a folder's shards and
 attributes and layouts). Nothing else in spm opens an HDF5 file; import from here.
 """
 
-from spm_data.io.shards.manifest import (list_shards, manifest_entry, no_shards, read_manifest, remove_partials,
-                                         write_manifest)
+from spm_data.io.shards.manifest import (list_shards, listed_twice, manifest_entry, no_shards, read_manifest,
+                                         remove_partials, write_manifest)
 from spm_data.io.shards.reader import (H5_ERRORS, ShardReader, forget_checks, h5_is_string, read_attrs, read_shard,
                                        shard_digest, shard_layout, verify_shard)
 from spm_data.io.shards.schema import (FIELDS, IMAGE_FIELDS, MANIFEST, MISSING, OPTIONAL_FIELDS, REQUIRED_ATTRS,
@@ -22,6 +22,7 @@ from spm_data.io.shards.writer import ShardWriter, write_shard
 
 __all__ = ["FIELDS", "H5_ERRORS", "IMAGE_FIELDS", "MANIFEST", "MISSING", "OPTIONAL_FIELDS", "REQUIRED_ATTRS",
            "SCHEMA_VERSION", "SHARD_SUFFIX", "SIZED_FIELDS", "SOURCES", "ShardReader", "ShardWriter", "check_arrays",
-           "encode_chunk", "forget_checks", "h5_is_string", "hash_ahead", "list_shards", "manifest_entry", "no_shards",
-           "read_attrs", "read_manifest", "read_shard", "remove_partials", "reuse_verification", "shard_digest",
-           "shard_layout", "verification", "verify_shard", "write_manifest", "write_shard"]
+           "encode_chunk", "forget_checks", "h5_is_string", "hash_ahead", "list_shards", "listed_twice",
+           "manifest_entry", "no_shards", "read_attrs", "read_manifest", "read_shard", "remove_partials",
+           "reuse_verification", "shard_digest", "shard_layout", "verification", "verify_shard", "write_manifest",
+           "write_shard"]

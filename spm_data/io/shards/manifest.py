@@ -118,11 +118,34 @@ def _manifest_problem(payload: dict) -> str | None:
         if "classes" in entry and not (isinstance(entry["classes"], dict)
                                        and all(_is_int(v) for v in entry["classes"].values())):
             return f"shards[{i}] ({entry['file']}): 'classes' is not a table of frame counts"
+    twice = listed_twice(payload["shards"])
+    if twice:
+        return twice
     missing = payload.get(MISSING, [])
     if not isinstance(missing, list) or not all(isinstance(m, str) for m in missing):
         return f"'{MISSING}' is {json.dumps(missing)[:60]}, not a list of shard names"
     if "frames" in payload and not _is_int(payload["frames"]):
         return f"'frames' is {json.dumps(payload['frames'])[:40]}, not a count"
+    return None
+
+
+def listed_twice(entries: list) -> str | None:
+    """The one rule every reader of shards applies (read_manifest, merge): no shard is read
+    twice. What is wrong with ``entries`` ([{"file", "sha256"?}, ...]): a name listed twice, or
+    two shards of equal content (SHA-256), whose frames would be read twice (a test frame
+    training too, an export writing it twice); None when each shard is there once."""
+    names: dict = {}
+    digests: dict = {}
+    for entry in entries:
+        name, digest = entry["file"], entry.get("sha256")
+        if name in names:
+            return f"{name} is listed twice"
+        names[name] = True
+        if isinstance(digest, str) and digest:
+            if digest in digests:
+                return (f"{digests[digest]} and {name} have the same content (SHA-256 {digest[:12]}…), so its "
+                        "frames would be read twice")
+            digests[digest] = name
     return None
 
 

@@ -7,6 +7,8 @@ import pytest
 import os
 import socket
 
+from spm_data.errors import SpmWarning
+from spm_model.base import feature_memo
 from spm_model.base.feature_memo import (clear_memo, content_key, load_entry, memo_stats, memoized, save_entry,
                                          use_folder)
 
@@ -14,6 +16,7 @@ from spm_model.base.feature_memo import (clear_memo, content_key, load_entry, me
 @pytest.fixture(autouse=True)
 def empty_memo(monkeypatch):
     monkeypatch.delenv("SPM_FEATURE_MEMO_MB", raising=False)
+    monkeypatch.setattr(feature_memo, "_warned", [False])
     clear_memo()
     use_folder(None)
     yield
@@ -66,14 +69,6 @@ def test_a_full_memo_keeps_what_it_has_and_zero_turns_it_off(monkeypatch):
     assert memo_stats()["entries"] == 0 and len(calls) == 9
 
 
-def to_earlier_format(folder, change=lambda a: a):
-    """Every .feat entry under ``folder`` rewritten as the earlier code's .npz (arrays passed
-    through ``change``), the .feat removed."""
-    for new in folder.glob("*/*.feat"):
-        np.savez(new.with_suffix(".npz"), *[change(np.asarray(a)) for a in load_entry(new)])
-        new.unlink()
-
-
 def test_the_folder_serves_other_processes_and_damage_is_recomputed(tmp_path):
     calls = []
     f = counting(calls)
@@ -90,7 +85,9 @@ def test_the_folder_serves_other_processes_and_damage_is_recomputed(tmp_path):
     data[len(data) // 2] ^= 0xFF                                        # a flipped byte: the digest fails
     files[0].write_bytes(bytes(data))
     clear_memo()
-    again = memoized(("k",), (img,), lambda: f(img))
+    with pytest.warns(SpmWarning, match="feature memo entry .* is damaged, cut short, of an earlier format or of "
+                                        "another image; recomputed and rewritten"):
+        again = memoized(("k",), (img,), lambda: f(img))
     assert len(calls) == 2 and all(np.array_equal(a, b) for a, b in zip(first, again))
     clear_memo()
     memoized(("k",), (img,), lambda: f(img))                            # rewritten whole: served again
@@ -130,8 +127,9 @@ def test_an_unwritable_folder_warns_once_and_memory_still_serves(tmp_path):
     (),
 ])
 def test_entries_read_back_exactly_and_in_place(tmp_path, arrays):
-    save_entry(tmp_path / "e.feat", arrays)
-    back = load_entry(tmp_path / "e.feat")
+    key = content_key(("k",), np.arange(3))
+    save_entry(tmp_path / "e.feat", arrays, key)
+    back = load_entry(tmp_path / "e.feat", key)
     assert len(back) == len(arrays)
     for a, b in zip(arrays, back):
         assert a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b)
@@ -152,33 +150,79 @@ def test_entries_cut_short_or_of_another_format_are_refused(tmp_path):
         save_entry(path, (np.zeros(3, dtype=[("a", "<f8"), ("b", "<i4")]),))
 
 
-def test_an_earlier_entry_in_a_folder_that_cannot_be_written_is_still_served(tmp_path, monkeypatch):
-    from spm_model.base import feature_memo
+def _features(img):
+    """A stand-in feature whose every value depends on the image: a wrong entry shows."""
+    return img.astype(np.float64).sum(axis=(0, 1)), np.flatnonzero(img[..., 0].ravel() > 128)
 
-    calls = []
-    f = counting(calls)
-    imgs = [np.full((8, 8, 3), v, np.uint8) for v in (1, 2)]
-    use_folder(tmp_path / "memo")
-    for img in imgs:
-        memoized(("k",), (img,), lambda img=img: f(img))
-    to_earlier_format(tmp_path / "memo")
+
+def _fill(folder, images):
+    use_folder(folder)
     clear_memo()
-    monkeypatch.setattr(feature_memo, "save_entry", lambda *a: (_ for _ in ()).throw(PermissionError("read-only")))
-    for img in imgs:
-        memoized(("k",), (img,), lambda img=img: f(img))
-    assert len(calls) == 2 and memo_stats()["disk_hits"] == 2            # both served, none recomputed
-    assert len(list((tmp_path / "memo").glob("*/*.npz"))) == 2          # and kept
+    return [memoized(("f", 1), (img,), lambda img=img: _features(img)) for img in images]
 
 
-def test_entries_of_the_earlier_format_are_served_and_rewritten(tmp_path):
+def _reread(folder, images, calls):
+    """Every image's features from ``folder`` in a fresh process's memo, counting recomputations."""
+    clear_memo()
+    use_folder(folder)
+
+    def compute(img):
+        calls.append(1)
+        return _features(img)
+    return [memoized(("f", 1), (img,), lambda img=img: compute(img)) for img in images]
+
+
+def _same(a, b):
+    return all(all(np.array_equal(x, y) and x.dtype == y.dtype for x, y in zip(p, q)) for p, q in zip(a, b))
+
+
+def test_rotated_swapped_flipped_and_cut_entries_are_recomputed_never_used(tmp_path):
+    """The audit's case: entries renamed in a ring (mtime kept) were served for the wrong images.
+    Now the key inside each entry is checked: every scenario equals a cache-less run exactly."""
+    rng = np.random.default_rng(5)
+    images = [rng.integers(0, 255, (12, 12, 3), dtype=np.uint8) for _ in range(50)]
+    truth = [_features(img) for img in images]                      # a run without any cache
+    folder = tmp_path / "memo"
+    assert _same(_fill(folder, images), truth)
+    files = sorted(folder.glob("*/*.feat"))
+    assert len(files) == 50
+    contents = [p.read_bytes() for p in files]
+    stats = [p.stat() for p in files]
+    for p, data, st in zip(files, contents[1:] + contents[:1], stats):  # rotate all 50, mtimes kept
+        p.write_bytes(data)
+        os.utime(p, ns=(st.st_atime_ns, st.st_mtime_ns))
     calls = []
-    f = counting(calls)
+    with pytest.warns(SpmWarning, match="feature memo entry"):
+        assert _same(_reread(folder, images, calls), truth)
+    assert len(calls) == 50                                         # every one recomputed ...
+    calls.clear()
+    assert _same(_reread(folder, images, calls), truth) and calls == []   # ... and rewritten: served again
+    # Flip every byte of one entry, one at a time, and cut it at every length.
+    target, key = files[0], bytes.fromhex(files[0].stem)
+    good = target.read_bytes()
+    for i in range(len(good)):
+        bad = bytearray(good)
+        bad[i] ^= 0x01
+        target.write_bytes(bytes(bad))
+        assert load_entry(target, key) is None, f"byte {i} flipped and still served"
+    for n in range(len(good)):
+        target.write_bytes(good[:n])
+        assert load_entry(target, key) is None, f"cut at {n} and still served"
+    target.write_bytes(good)
+    assert load_entry(target, key) is not None and load_entry(target, bytes(20)) is None
+
+
+def test_entries_of_the_earlier_formats_are_recomputed(tmp_path):
     img = np.random.default_rng(2).integers(0, 255, (16, 16, 3), dtype=np.uint8)
-    use_folder(tmp_path / "memo")
-    first = memoized(("k",), (img,), lambda: f(img))
-    new = next((tmp_path / "memo").glob("*/*.feat"))
-    to_earlier_format(tmp_path / "memo", change=lambda a: a + 1)   # + 1: served, not recomputed
-    clear_memo()
-    served = memoized(("k",), (img,), lambda: f(img))
-    assert len(calls) == 1 and all(np.array_equal(a + 1, b) for a, b in zip(first, served))
-    assert new.exists() and not new.with_suffix(".npz").exists()
+    folder = tmp_path / "memo"
+    first = _fill(folder, [img])
+    path = next(folder.glob("*/*.feat"))
+    old = path.read_bytes()
+    body = b"SPMFEAT1" + old[28:-20]                        # version 1: no key inside
+    import hashlib
+
+    path.write_bytes(body + hashlib.blake2b(body, digest_size=20).digest())
+    np.savez(path.with_suffix(".npz"), *[a + 1 for a in first[0]])   # the older .npz beside it: never read
+    calls = []
+    with pytest.warns(SpmWarning):
+        assert _same(_reread(folder, [img], calls), first) and len(calls) == 1
