@@ -12,6 +12,7 @@ import hashlib
 import io
 import json
 import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -63,3 +64,26 @@ def write_json_atomic(path, payload, sort_keys: bool = True) -> None:
         fh.write("\n")
         fh.flush()
         os.fsync(fh.fileno())
+
+
+def file_kind(mode: int) -> str:
+    """What a file that is not a regular one is, in words ("a FIFO", "a character device", …)."""
+    return ("a FIFO" if stat.S_ISFIFO(mode) else "a character device" if stat.S_ISCHR(mode) else
+            "a block device" if stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode) else "not a plain file")
+
+
+def read_regular_file(path, limit: int) -> bytes:
+    """The bytes of a regular file of at most ``limit`` bytes. OSError for a missing or unreadable
+    file; ValueError(reason) for a folder ("is a folder"), anything that is not a regular file (a
+    FIFO, a device such as /dev/zero: refused without reading or waiting: "is a FIFO") and a
+    file over ``limit`` (refused before reading: "N bytes is over the limit of L bytes")."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)  # a FIFO opens at once, not when a writer comes
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode):
+        os.close(fd)
+        raise ValueError("is a folder" if stat.S_ISDIR(st.st_mode) else f"is {file_kind(st.st_mode)}")
+    with os.fdopen(fd, "rb") as fh:
+        data = fh.read(limit + 1) if st.st_size <= limit else b""
+    if st.st_size > limit or len(data) > limit:
+        raise ValueError(f"{max(st.st_size, len(data)):,} bytes is over the limit of {limit:,} bytes")
+    return data

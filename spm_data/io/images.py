@@ -9,9 +9,7 @@ cannot be read (missing, truncated, foreign, a decompression bomb) is an
 from __future__ import annotations
 
 import io
-import os
 import re
-import stat
 import tarfile
 import zipfile
 from contextlib import contextmanager
@@ -20,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from spm_data.errors import ImageError, SpmError, one_line  # noqa: F401 (SpmError: re-exported)
+from spm_data.io.files import read_regular_file
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".bmp", ".tif", ".tiff")
 # An image file larger than this is refused before it is read (decoded sizes are bounded by
@@ -27,36 +26,24 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".bmp", ".tif", ".tif
 MAX_IMAGE_BYTES = 256 * 2**20
 
 
-def _kind(mode: int) -> str:
-    return ("a FIFO" if stat.S_ISFIFO(mode) else "a character device" if stat.S_ISCHR(mode) else
-            "a block device" if stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode) else "not a plain file")
-
-
 def read_image_file(path, limit: int = MAX_IMAGE_BYTES) -> bytes:
     """The bytes of an image file; ImageError with the reason alone for a missing file, a
     folder, anything that is not a regular file (a FIFO, a device such as /dev/zero: refused
     without reading or waiting), and a file over ``limit`` bytes (refused before reading)."""
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)  # a FIFO opens at once, not when a writer comes
+        return read_regular_file(path, limit)
     except FileNotFoundError:
         raise ImageError("no such file") from None
     except OSError as exc:
         raise ImageError(f"cannot read ({exc.strerror or exc})") from None
-    st = os.fstat(fd)
-    mode, size = st.st_mode, st.st_size
-    if not stat.S_ISREG(mode):
-        os.close(fd)
-        raise ImageError("is a folder, not an image file" if stat.S_ISDIR(mode) else
-                         f"is {_kind(mode)}, not a regular file; give an image file")
-    with os.fdopen(fd, "rb") as fh:
-        try:
-            data = fh.read(limit + 1) if size <= limit else b""
-        except OSError as exc:
-            raise ImageError(f"cannot read ({exc.strerror or exc})") from None
-    if size > limit or len(data) > limit:
-        raise ImageError(f"{max(size, len(data)):,} bytes is over the image file limit of {limit:,} bytes "
-                         "(spm_data.io.images.MAX_IMAGE_BYTES); downscale or recompress the image")
-    return data
+    except ValueError as exc:
+        reason = str(exc)
+        if reason == "is a folder":
+            raise ImageError("is a folder, not an image file") from None
+        if reason.startswith("is "):
+            raise ImageError(f"{reason}, not a regular file; give an image file") from None
+        raise ImageError(f"{reason.replace('the limit', 'the image file limit')} "
+                         "(spm_data.io.images.MAX_IMAGE_BYTES); downscale or recompress the image") from None
 
 
 def read_bytes(ref: str) -> bytes:

@@ -1,8 +1,15 @@
-"""Model files and the estimator boundary: one ``.npz`` per model (a JSON header and
-named arrays, no pickle), and the input checks every estimator shares."""
+"""Model files and the estimator boundary: one ``.npz`` per model (a JSON header, named
+arrays and a SHA-256 seal over both; no pickle), and the input checks every estimator shares.
+
+A model file is trusted as a shard is: it is read only if it is a regular file of at most
+MAX_MODEL_BYTES (a FIFO, a device or a folder is refused without reading or waiting), and
+used only if its seal matches what it holds (format 2; a format-1 file has no seal and is
+refused with the advice to retrain). The header names the spm version that wrote it."""
 
 from __future__ import annotations
 
+import hashlib
+import io
 import json
 import zipfile
 import zlib
@@ -10,11 +17,13 @@ from pathlib import Path
 
 import numpy as np
 
+from spm_data import __version__
 from spm_data.errors import one_line
-from spm_data.io.files import write_npz_atomic
+from spm_data.io.files import read_regular_file, write_npz_atomic
 from spm_model.base.estimator import ModelError
 
-MODEL_FORMAT = 1
+MODEL_FORMAT = 2   # 2: sealed (SHA-256 over header and arrays) and the writer's spm version
+MAX_MODEL_BYTES = 4 * 2**30   # a model over 4 GiB is refused before it is read (the default set's is ~0.2 GB)
 
 
 def check_xy(X, y=None, dims=None):
@@ -35,11 +44,25 @@ def check_xy(X, y=None, dims=None):
     return X, y
 
 
+def model_seal(header_json: str, arrays: dict) -> str:
+    """The SHA-256 (hex) of a model's header (its JSON text) and arrays (each one's name, dtype,
+    shape and C-order bytes, by name): what its file must still hold to be used."""
+    h = hashlib.sha256(header_json.encode())
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"\0{name}\0{a.dtype.str}\0{a.shape}\0".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
 def save_model_file(path, kind: str, params: dict, arrays: dict, extra: dict | None = None) -> Path:
-    """One ``.npz``: a JSON header (format, kind, parameters) and named arrays; no pickle."""
+    """One ``.npz``: a JSON header (format, kind, spm version, parameters), named arrays and
+    their ``seal`` (:func:`model_seal`); no pickle. Written to a temporary name, then renamed."""
     path = Path(path)
-    header = {"format": MODEL_FORMAT, "kind": kind, "params": params, **(extra or {})}
-    return write_npz_atomic(path, header=np.array(json.dumps(header)), **arrays)
+    header = json.dumps({"format": MODEL_FORMAT, "kind": kind, "spm_version": __version__, "params": params,
+                         **(extra or {})})
+    arrays = {k: np.asarray(v) for k, v in arrays.items()}
+    return write_npz_atomic(path, header=np.array(header), seal=np.array(model_seal(header, arrays)), **arrays)
 
 
 def need(ok: bool, what: str) -> None:
@@ -53,25 +76,46 @@ def need_finite(*arrays) -> None:
 
 
 def load_model_file(path, kind: str | None = None) -> tuple[dict, dict]:
-    """(header, arrays) of a model file; ModelError naming the file for a missing, truncated,
-    corrupt, foreign or newer one."""
+    """(header, arrays) of a model file; ModelError naming the file for a missing, unreadable,
+    irregular (FIFO, device, folder), oversized, truncated, corrupt, unsealed, foreign or newer one."""
     retrain = "retrain it with spm train"
     foreign = "give the model.npz or reference-model.npz that spm train wrote, or retrain with spm train"
-    magic = b""
     try:
-        with open(path, "rb") as fh:
-            magic = fh.read(4)
-        z = np.load(path, allow_pickle=False)
+        data = read_regular_file(path, MAX_MODEL_BYTES)
     except FileNotFoundError:
         raise ModelError(f"model file not found: {path}; train one with spm train") from None
-    except IsADirectoryError:
-        raise ModelError(f"{path}: is a folder, not a model file; {foreign}") from None
-    except PermissionError as exc:
-        raise ModelError(f"{path}: cannot read the model file ({exc.strerror}); check its permissions") from None
+    except OSError as exc:
+        raise ModelError(f"{path}: cannot read the model file ({exc.strerror or exc}); check its permissions") from None
+    except ValueError as exc:
+        reason = f"{exc} (spm_model.base.model_files.MAX_MODEL_BYTES)" if "limit" in str(exc) else f"{exc}"
+        raise ModelError(f"{path}: {reason}, not a model file; {foreign}") from None
+    if not data:
+        raise ModelError(f"{path}: damaged spm model file (an empty file); {retrain}")
+    header_json, arrays = _read_npz(path, data, retrain, foreign)
+    try:
+        header = json.loads(header_json)
+    except ValueError:
+        header = None
+    if not isinstance(header, dict) or not isinstance(header.get("format", 0), int):
+        raise ModelError(f"{path}: damaged spm model file (its header is not spm's); {retrain}")
+    if header.get("format", 0) > MODEL_FORMAT or (kind is not None and header.get("kind") != kind):
+        raise ModelError(f"{path}: model format {header.get('format')} of kind {header.get('kind')} is not one "
+                         f"this spm reads here ({kind or 'any'}, format {MODEL_FORMAT}); retrain or upgrade spm")
+    seal = arrays.pop("seal", None)
+    if seal is None or header.get("format", 0) < MODEL_FORMAT:
+        raise ModelError(f"{path}: model format {header.get('format')} has no SHA-256 seal, so it cannot be "
+                         f"verified; {retrain} (spm {__version__} writes format {MODEL_FORMAT})")
+    if str(seal) != model_seal(header_json, arrays):
+        raise ModelError(f"{path}: damaged spm model file (what it holds differs from its SHA-256 seal); {retrain}")
+    return header, arrays
+
+
+def _read_npz(path, data: bytes, retrain: str, foreign: str) -> tuple[str, dict]:
+    """(header JSON text, {name: array}) of an spm ``.npz`` held in ``data``; ModelError otherwise."""
+    try:
+        z = np.load(io.BytesIO(data), allow_pickle=False)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
-        if not magic:
-            raise ModelError(f"{path}: damaged spm model file (an empty file); {retrain}") from None
-        if magic.startswith(b"PK"):  # a zip (every .npz is one) that cannot be read
+        if data.startswith(b"PK"):  # a zip (every .npz is one) that cannot be read
             raise ModelError(f"{path}: damaged spm model file (truncated or corrupt: {type(exc).__name__}: "
                              f"{one_line(exc)}); {retrain}") from None
         raise ModelError(f"{path}: not an spm model file (not an .npz archive); {foreign}") from None
@@ -81,14 +125,8 @@ def load_model_file(path, kind: str | None = None) -> tuple[dict, dict]:
         if "header" not in z.files:
             raise ModelError(f"{path}: not an spm model file (an .npz archive without spm's header); {foreign}")
         try:
-            header = json.loads(str(z["header"]))
-            arrays = {k: z[k] for k in z.files if k != "header"}
-        except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+            return str(z["header"]), {k: z[k] for k in z.files if k != "header"}
+        except Exception as exc:  # noqa: BLE001 - numpy parses each .npy header with Python's tokenizer:
+            # a flipped byte there raises SyntaxError or TokenError, not only the errors of a bad zip
             raise ModelError(f"{path}: damaged spm model file (truncated or corrupt: "
                              f"{type(exc).__name__}: {one_line(exc)}); {retrain}") from None
-    if not isinstance(header, dict) or not isinstance(header.get("format", 0), int):
-        raise ModelError(f"{path}: damaged spm model file (its header is not spm's); {retrain}")
-    if header.get("format", 0) > MODEL_FORMAT or (kind is not None and header.get("kind") != kind):
-        raise ModelError(f"{path}: model format {header.get('format')} of kind {header.get('kind')} is not one "
-                         f"this spm reads here ({kind or 'any'}, format {MODEL_FORMAT}); retrain or upgrade spm")
-    return header, arrays

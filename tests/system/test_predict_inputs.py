@@ -19,6 +19,7 @@ from spm_data.core.poses import intrinsics_from_fov
 from spm_model.spm.estimator import SPMEstimator
 from spm_model.spm.features import FeatureConfig, image_features
 from spm_model.methods.template import TemplatePose
+from tests.helpers import sealed_model
 
 SIDE = 96
 SPM_CMD = Path(sys.executable).with_name("spm")
@@ -241,15 +242,22 @@ def damaged_models(models, root):
         np.save(fh, np.zeros(3))
     out.append((root / "array.npz", f"{root / 'array.npz'}: not an spm model file (a single numpy array, not an "
                                     f".npz archive); {FOREIGN}"))
-    np.savez(root / "kind.npz", header=np.array(json.dumps({"format": 1, "kind": "forest", "params": {}})))
+    sealed_model(root / "kind.npz", {"format": 2, "kind": "forest", "params": {}}, {})
     out.append((root / "kind.npz", f"{root / 'kind.npz'}: not an spm model file (kind 'forest', expected one of "
                                    "['spm', 'template']); give the model.npz or reference-model.npz that spm "
                                    "train wrote"))
-    np.savez(root / "hollow.npz", header=np.array(json.dumps({"format": 1, "kind": "spm", "params": {}})))
+    sealed_model(root / "hollow.npz", {"format": 2, "kind": "spm", "params": {}}, {})
     out.append((root / "hollow.npz", f"{root / 'hollow.npz'}: damaged spm model file (no 'features' in it); {RETRAIN}"))
     arrays = dict(np.load(models["template"]))
+    header, seal = json.loads(str(arrays.pop("header"))), arrays.pop("seal")
     arrays["poses"] = arrays["poses"][:3]
-    np.savez(root / "cut.npz", **arrays)
+    np.savez(root / "unsealed.npz", header=np.array(json.dumps(header)), seal=seal, **arrays)   # a valid zip
+    out.append((root / "unsealed.npz", f"{root / 'unsealed.npz'}: damaged spm model file (what it holds differs "
+                                       f"from its SHA-256 seal); {RETRAIN}"))
+    np.savez(root / "format1.npz", header=np.array(json.dumps({**header, "format": 1})), **arrays)
+    out.append((root / "format1.npz", f"{root / 'format1.npz'}: model format 1 has no SHA-256 seal, so it cannot "
+                                      f"be verified; {RETRAIN} (spm 0.1.0 writes format 2)"))
+    sealed_model(root / "cut.npz", header, arrays)
     out.append((root / "cut.npz", f"{root / 'cut.npz'}: damaged spm model file (templates of different lengths "
                                   f"(codes (12, 11), poses (3, 6), geometry (12, 7), distance (12,))); {RETRAIN}"))
     out.append((root / "none.npz", f"model file not found: {root / 'none.npz'}; train one with spm train"))
@@ -286,3 +294,28 @@ def test_what_is_not_a_regular_file_or_too_big_is_refused_before_reading(models,
                         "recompress the image\n")
     refused(predict(models["spm"], good, "--mask", fifo),
             f"--mask {fifo}: is a FIFO, not a regular file; give an image file")
+
+
+@pytest.mark.parametrize("command", ["predict", "evaluate"])
+def test_a_model_that_is_a_fifo_device_folder_or_too_big_is_refused_before_reading(models, tmp_path, monkeypatch,
+                                                                                   command):
+    """--model naming a FIFO hung predict and evaluate; now it, /dev/zero, a folder and a file over
+    MAX_MODEL_BYTES are one line each, without reading or waiting."""
+    from spm_model.base import model_files
+
+    image = save(tmp_path / "a.png", textured(4))
+    fifo = tmp_path / "model.npz"
+    os.mkfifo(fifo)
+    (tmp_path / "folder.npz").mkdir()
+    size = Path(models["spm"]).stat().st_size
+    monkeypatch.setattr(model_files, "MAX_MODEL_BYTES", size - 1)
+    foreign = "give the model.npz or reference-model.npz that spm train wrote, or retrain with spm train"
+    cases = [(fifo, f"{fifo}: is a FIFO, not a model file; {foreign}"),
+             ("/dev/zero", f"/dev/zero: is a character device, not a model file; {foreign}"),
+             (tmp_path / "folder.npz", f"{tmp_path / 'folder.npz'}: is a folder, not a model file; {foreign}"),
+             (models["spm"], f"{models['spm']}: {size:,} bytes is over the limit of {size - 1:,} bytes "
+                             f"(spm_model.base.model_files.MAX_MODEL_BYTES), not a model file; {foreign}")]
+    for model, message in cases:
+        args = ["predict", "--model", str(model), str(image)] if command == "predict" else \
+            ["evaluate", str(tmp_path / "no-shards"), "--model", str(model)]
+        refused(CliRunner().invoke(model_cli, args), message)

@@ -11,7 +11,7 @@ from spm_model.spm.estimator import ModelError, SPMEstimator
 from spm_model.base.model_files import load_model_file
 from spm_model.methods.template import TemplatePose
 from spm_model.commands.evaluate import load_model
-from tests.helpers import FAST_SPM, N, frames, labels, vectors
+from tests.helpers import FAST_SPM, N, frames, labels, sealed_model, vectors
 
 
 def members(path):
@@ -51,8 +51,31 @@ def test_template_model_file_round_trips_and_names_a_missing_array(tmp_path):
     assert loaded.size_neighbours == 5 and np.array_equal(loaded.predict(frames(N, 5)), model.predict(frames(N, 5)))
     assert members(loaded.save(tmp_path / "again.npz")) == members(path)
     del arrays["codes"]
-    np.savez(tmp_path / "hollow.npz", header=np.array(json.dumps(header)), **arrays)
+    sealed_model(tmp_path / "hollow.npz", header, arrays)
     with pytest.raises(ModelError) as info:
         load_model(tmp_path / "hollow.npz")
     assert str(info.value) == (f"{tmp_path / 'hollow.npz'}: damaged spm model file (no 'codes' in it); "
                                "retrain it with spm train")
+
+
+def test_no_flipped_byte_of_a_model_file_is_ever_used(tmp_path):
+    """A bit flipped anywhere (every 11th byte, and every byte of the first 600: zip headers and
+    spm's JSON header) is refused with one ModelError, or leaves the model exactly as written
+    (a byte zip ignores, such as a timestamp): never a different model, never another error."""
+    model = SPMEstimator(**FAST_SPM).fit(vectors(40, 0), labels(40, 0))
+    path = model.save(tmp_path / "model.npz")
+    good = path.read_bytes()
+    reference = load_model_file(path, "spm")
+    refused = same = 0
+    for i in sorted(set(range(0, len(good), 11)) | set(range(min(600, len(good))))):
+        bad = bytearray(good)
+        bad[i] ^= 1 << (i % 8)
+        path.write_bytes(bytes(bad))
+        try:
+            header, arrays = load_model_file(path, "spm")
+        except ModelError:
+            refused += 1
+            continue
+        assert header == reference[0] and all(np.array_equal(arrays[k], reference[1][k]) for k in reference[1]), i
+        same += 1
+    assert refused > 0.9 * (refused + same)
