@@ -75,7 +75,7 @@ def test_manifest_disagreeing_with_files_is_caught(good, tmp_path):
     d = copy(good, tmp_path)
     m = json.loads((d / "manifest.json").read_text())
     m["shards"][0]["frames"] += 1
-    m["shards"].append(dict(m["shards"][1], file="cup-00099.h5"))
+    m["shards"].append(dict(m["shards"][1], file="cup-00099.h5", sha256="0" * 64))   # not a copy: only missing
     (d / "manifest.json").write_text(json.dumps(m))
     found = messages(d)
     assert "manifest.json: lists cup-00099.h5, which is not in the folder" in found
