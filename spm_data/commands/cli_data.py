@@ -98,10 +98,14 @@ def validate_cmd(folder):
 @click.argument("path", metavar="SHARD_OR_FOLDER", type=click.Path())
 @handle_errors
 def info_cmd(path):
-    """Print what a shard or a shard folder holds: classes, frames, fields, the spec it came from."""
-    from spm_data.commands.info import info_text
+    """Print what a shard or a shard folder holds: classes, frames, fields, the spec it came from.
+    Exit 1 (after the description) when a folder is not whole: a listed shard missing or damaged,
+    an unlisted shard, no manifest."""
+    from spm_data.commands.info import check_noted, info_text
 
-    click.echo(info_text(path))
+    text = info_text(path)
+    click.echo(text)
+    check_noted(path, text)
 
 
 @click.command("show")

@@ -47,7 +47,7 @@ def folder_info(folder) -> str:
     with warnings.catch_warnings(record=True) as caught:  # info describes a partial folder, noting its gaps
         warnings.simplefilter("always", SpmWarning)
         shards = open_folder(folder, allow_partial=True).shards
-    lines = [f"folder {folder}: {len(shards)} shards"] + [f"  note: {w.message}" for w in caught]
+    lines = [f"folder {folder}: {len(shards)} shards"] + [f"{NOTE}{w.message}" for w in caught]
     if (folder / MANIFEST).is_file():
         m = read_manifest(folder)
         lines.append(f"  manifest: {m.get('frames', '?')} frames in {len(m['shards'])} shards")
@@ -72,3 +72,16 @@ def info_text(path) -> str:
     if path.is_file():
         return shard_info(path)
     raise ShardError(f"no such shard or folder: {path}")
+
+
+NOTE = "  note: "
+
+
+def check_noted(path, text: str) -> None:
+    """ShardError (one line, after the description is printed) when ``text`` (info_text) noted a
+    gap: a listed shard missing, cut short or damaged, a shard the manifest does not list, no
+    manifest. info still describes what it can, but does not exit 0 on a folder that is not whole."""
+    notes = sum(line.startswith(NOTE) for line in text.splitlines())
+    if notes:
+        raise ShardError(f"{path}: {notes} problem{'s' if notes != 1 else ''} noted above; the folder is not whole: "
+                         f"run `spm-data validate {path}` for the details")

@@ -93,10 +93,15 @@ def validate_folder(folder) -> list[tuple[str, str]]:
         problems.append((MANIFEST, f"does not list {name}"))
     for name in sorted(set(listed) & set(on_disk)):
         entry, path = listed[name], on_disk[name]
-        if entry.get("bytes") != path.stat().st_size:
-            problems.append((name, f"size {path.stat().st_size} bytes, manifest says {entry.get('bytes')} "
-                                   "(truncated or replaced?)"))
-        elif entry.get("sha256") != file_sha256(path):
+        try:
+            size = path.stat().st_size
+            digest = file_sha256(path) if entry.get("bytes") == size else None
+        except OSError as exc:  # unreadable, a symlink loop: said, and the other shards still checked
+            problems.append((name, f"cannot be read ({exc.strerror or exc}); fix it or replace it"))
+            continue
+        if entry.get("bytes") != size:
+            problems.append((name, f"size {size} bytes, manifest says {entry.get('bytes')} (truncated or replaced?)"))
+        elif entry.get("sha256") != digest:
             problems.append((name, "checksum differs from the manifest (a changed or flipped byte)"))
         try:
             frames = int(read_attrs(path)["frames"])

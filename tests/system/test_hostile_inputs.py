@@ -179,3 +179,33 @@ def test_a_corrupt_shard_with_its_mtime_put_back_is_refused_by_train_and_evaluat
         assert expected in one_error(run(model_cli, "evaluate", "--model", model, "--shards", shards))
     finally:
         shard.write_bytes(before)
+
+
+def test_an_unreadable_or_looping_shard_is_one_problem_in_validate_and_info_is_not_whole(folder, monkeypatch):
+    """validate: PermissionError from hashing (simulated: tests run as root) and a symlink loop
+    each one problem line, never a traceback; info describes a folder with a cut shard but exits 1."""
+    from spm_data.commands import validate
+
+    real = validate.file_sha256
+
+    def denied(path):
+        if path.name == "cup-00000.h5":
+            raise PermissionError(13, "Permission denied")
+        return real(path)
+
+    monkeypatch.setattr(validate, "file_sha256", denied)
+    r = run(data_cli, "validate", folder)
+    assert r.exit_code == 1 and "Traceback" not in r.output, r.output
+    assert "  cup-00000.h5: cannot be read (Permission denied); fix it or replace it" in r.output.splitlines()
+    monkeypatch.undo()
+    loop = folder / "cup-00001.h5"
+    loop.unlink()
+    loop.symlink_to(loop.name)
+    r = run(data_cli, "validate", folder)
+    assert r.exit_code == 1 and "Traceback" not in r.output and "Too many levels of symbolic links" in r.output
+    data = (folder / "cup-00000.h5").read_bytes()
+    (folder / "cup-00000.h5").write_bytes(data[: len(data) // 2])
+    r = run(data_cli, "info", folder)
+    assert r.exit_code == 1 and "Traceback" not in r.output
+    assert r.output.splitlines()[-1] == (f"error: {folder}: 2 problems noted above; the folder is not whole: run "
+                                         f"`spm-data validate {folder}` for the details")
