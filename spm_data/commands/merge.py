@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from spm_data.core.specs import class_name_problem
 from spm_data.errors import SpmError
 from spm_data.io.folders import open_folder
 from spm_data.io.outputs import check_out_name
@@ -41,6 +42,9 @@ def parse_renames(spec: str | None) -> dict[str, str]:
         if "=" not in part or not part.split("=", 1)[0].strip() or not part.split("=", 1)[1].strip():
             raise SpmError(f"--rename: expected OLD=NEW[,OLD=NEW...], got {part!r}")
         old, new = (x.strip() for x in part.split("=", 1))
+        problem = class_name_problem(new)
+        if problem:  # the rule render applies: a merged class must be one a render could have made
+            raise SpmError(f"--rename {old}={new}: {problem}")
         out[old] = new
     return out
 

@@ -227,11 +227,18 @@ def validate_spec(spec: RenderSpec) -> RenderSpec:
     return _validate(spec)
 
 
+def class_name_problem(name: str) -> str | None:
+    """Why ``name`` cannot be a class name (it names shard files: CLASS-00000.h5), or None. The
+    one rule for specs, importers' class maps and merge's --rename."""
+    if _file_name_ok(name):
+        return None
+    return (f"{name!r} cannot name a shard file (CLASS-00000.h5): expected a non-empty name that does not start "
+            f"with '.' or a space, without '/', '\\' or control characters, at most {MAX_CLASS_BYTES} bytes")
+
+
 def _validate(spec: RenderSpec) -> RenderSpec:
-    _check(_file_name_ok(spec.class_name),
-           f"class: {spec.class_name!r} cannot name a shard file (CLASS-00000.h5): expected a non-empty name that "
-           f"does not start with '.' or a space, without '/', '\\' or control characters, at most "
-           f"{MAX_CLASS_BYTES} bytes")
+    problem = class_name_problem(spec.class_name)
+    _check(problem is None, f"class: {problem}")
     _check(0 <= spec.seed <= MAX_SEED, f"seed: expected an integer in [0, {MAX_SEED}], got {spec.seed}")
     m = spec.mesh
     _check(m.source in ("procedural", "files"), f"mesh.source: expected 'procedural' or 'files', got {m.source!r}")

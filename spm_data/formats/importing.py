@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from spm_data import __version__
+from spm_data.core.specs import class_name_problem
 from spm_data.errors import SpmError
 from spm_data.core.poses import is_rotation, pose_to_label
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
@@ -227,11 +228,18 @@ def pose_problem(R, t, K=None) -> str | None:
 
 
 def check_records(records) -> None:
-    """SpmError naming the first record whose pose or intrinsics cannot be imported (see pose_problem)."""
+    """SpmError naming the first record whose pose or intrinsics cannot be imported (see pose_problem),
+    or whose class name render would refuse (class_name_problem: a class names shard files)."""
+    named = set()
     for rec in records:
         problem = pose_problem(rec.R, rec.t, rec.K)
         if problem is not None:
             raise SpmError(f"{rec.image}: {problem}; correct its pose or intrinsics (nothing was written)")
+        if rec.class_name not in named:
+            problem = class_name_problem(rec.class_name)
+            if problem is not None:
+                raise SpmError(f"{rec.image}: class {problem}; give another class name (nothing was written)")
+            named.add(rec.class_name)
 
 
 def import_records(records, out_dir, *, source: str, prefix: str, frames_per_shard=256, threshold=10,

@@ -13,11 +13,14 @@ from spm_data.errors import SpmError
 
 
 NAME_MAX = 255  # bytes in one file name on common file systems (ext4, xfs, btrfs, APFS, NTFS in UTF-16 units)
+PATH_MAX = 4096  # bytes in a whole path on Linux, when the file system does not say
+INSIDE = 64  # bytes a command adds under --out: "/.motorcycle-00000-occ0.h5.partial" and the like
 
 
 def check_out_name(path, option: str = "--out") -> Path:
     """SpmError unless every name in ``path`` fits the file system (with room for the
-    hidden ``.NAME.partial`` a write goes through): checked before any work."""
+    hidden ``.NAME.partial`` a write goes through) and so does the whole path with a file
+    inside it (PATH_MAX): checked before any work."""
     path = Path(path)
     try:
         limit = os.pathconf(nearest_existing(path.absolute()), "PC_NAME_MAX")
@@ -28,6 +31,15 @@ def check_out_name(path, option: str = "--out") -> Path:
         if size + len(".partial") + 1 > limit:
             raise SpmError(f"{option}: the name {part[:24]}... is {size} bytes, over the "
                            f"{limit - len('.partial') - 1} a file name can have here; give a shorter name")
+    try:
+        whole = os.pathconf(nearest_existing(path.absolute()), "PC_PATH_MAX")
+    except (OSError, ValueError):
+        whole = PATH_MAX
+    # Room for what goes inside: a shard's partial name (.CLASS-00000.h5.partial) and the like.
+    size = len(os.fsencode(str(path.absolute()))) + INSIDE
+    if size > whole:
+        raise SpmError(f"{option}: the path {str(path)[:24]}... is {size - INSIDE} bytes, and with the files "
+                       f"written inside it would be over the {whole} a path can have here; give a shorter path")
     return path
 
 

@@ -14,7 +14,7 @@ from click.testing import CliRunner
 
 from cli import data_cli, model_cli
 from spm_data.io.shards import write_manifest, write_shard
-from tests.helpers import flip_stored_byte, make_arrays
+from tests.helpers import coil_image, flip_stored_byte, make_arrays, png_bytes
 
 
 def one_error(result) -> str:
@@ -209,3 +209,34 @@ def test_an_unreadable_or_looping_shard_is_one_problem_in_validate_and_info_is_n
     assert r.exit_code == 1 and "Traceback" not in r.output
     assert r.output.splitlines()[-1] == (f"error: {folder}: 2 problems noted above; the folder is not whole: run "
                                          f"`spm-data validate {folder}` for the details")
+
+
+@pytest.mark.parametrize("command", ["render", "occlude", "merge", "export"])
+def test_an_out_path_too_long_as_a_whole_is_one_line(folder, tmp_path, command):
+    """Every name fits (200 bytes) but the whole path is over PATH_MAX: one line, nothing made
+    (render once checked the last name only and failed with a traceback deep inside)."""
+    out = tmp_path.joinpath(*["d" * 200] * 21)
+    spec = tmp_path / "cup.toml"
+    spec.write_text('class = "cup"\n[render]\nrenderer = "pyrender"\n')
+    args = {"render": ["render", "--spec", spec, "--out", out, "--limit", 2],
+            "occlude": ["occlude", "--in", folder, "--out", out], "merge": ["merge", folder, "--out", out],
+            "export": ["export", "bop", folder, "--out", out]}[command]
+    line = one_error(run(data_cli, *args))
+    assert "and with the files written inside it would be over the 4096 a path can have here; give a shorter path" \
+        in line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cup.toml", "in"]
+
+
+def test_a_class_name_render_would_refuse_is_refused_by_merge_and_the_importers(folder, tmp_path):
+    rule = "'a/b' cannot name a shard file (CLASS-00000.h5): expected a non-empty name"
+    line = one_error(run(data_cli, "merge", folder, "--out", tmp_path / "m", "--rename", "cup=a/b"))
+    assert line.startswith(f"error: --rename cup=a/b: {rule}") and not (tmp_path / "m").exists()
+    photos = tmp_path / "coil"
+    photos.mkdir()
+    for view in range(2):
+        (photos / f"obj1__{view}.png").write_bytes(png_bytes(coil_image(1, 5 * view)))
+    (tmp_path / "map.csv").write_text("1,a/b\n")
+    line = one_error(run(data_cli, "import", "coil20", photos, "--out", tmp_path / "o", "--class-map",
+                         tmp_path / "map.csv"))
+    assert f"class {rule}" in line and line.endswith("give another class name (nothing was written)")
+    assert not (tmp_path / "o").exists()
