@@ -106,6 +106,19 @@ def _annotation(ann_id, image_id, obj, frame, bbox_type) -> dict | None:
             "ignore": bool(obj["visib_fract"] < IGNORE_BELOW_VISIB_FRACT)}
 
 
+def creation_time() -> datetime.datetime:
+    """The date an export records: ``SOURCE_DATE_EPOCH`` (seconds since 1970, UTC; the
+    reproducible-builds convention) when set, so two exports of one folder are byte-identical;
+    else now. SpmError for a value that is not a whole number of seconds."""
+    text = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
+    if not text:
+        return datetime.datetime.now(datetime.timezone.utc)
+    if not text.isdigit() or int(text) > 253402300799:   # 9999-12-31: the last date isoformat can write
+        raise SpmError(f"SOURCE_DATE_EPOCH={text!r}: expected whole seconds since 1970-01-01 UTC (e.g. "
+                       "$(git log -1 --format=%ct)), or unset it")
+    return datetime.datetime.fromtimestamp(int(text), datetime.timezone.utc)
+
+
 def scene_coco(frames, *, dataset: str, split: str = "train", obj_ids=None, bbox_type: str = "modal",
                created: datetime.datetime | None = None) -> dict:
     """One scene's COCO ground truth (the dict ``save_scene_gt_coco`` writes).
@@ -117,11 +130,11 @@ def scene_coco(frames, *, dataset: str, split: str = "train", obj_ids=None, bbox
     (bop_toolkit lists every model of the dataset); default, the obj_ids that occur.
     ``bbox_type``: "modal" boxes the visible mask; "amodal" the full mask, which is what
     bop_toolkit and BlenderProc put in scene_gt_coco.json by default. Annotation ids run
-    from 1 over the scene; ``created`` (UTC datetime, default now) fills the dates."""
+    from 1 over the scene; ``created`` (UTC datetime, default :func:`creation_time`) fills the dates."""
     if bbox_type not in ("modal", "amodal"):
         raise SpmError(f"bbox_type must be 'modal' or 'amodal', not {bbox_type!r}")
     frames = list(frames)  # walked twice: images, then the default categories
-    stamp = created if created is not None else datetime.datetime.now(datetime.timezone.utc)
+    stamp = created if created is not None else creation_time()
     when = stamp.isoformat(" ")
     images, annotations = [], []
     for index, frame in enumerate(frames):

@@ -315,3 +315,21 @@ def test_scene_camera_has_world_to_camera_poses(exported):
         # One object a scene, in its own frame: world to camera is model to camera.
         assert cam["cam_R_w2c"] == gt["cam_R_m2c"] and cam["cam_t_w2c"] == gt["cam_t_m2c"]
         assert cam["depth_scale"] == 0.1
+
+
+def test_two_exports_with_source_date_epoch_are_byte_identical(exported, tmp_path, monkeypatch):
+    """An export records a date (COCO's date_created): SOURCE_DATE_EPOCH fixes it, so the same
+    folder exports to the same bytes, file for file."""
+    rendered, _ = exported
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1764115200")   # 2025-11-26 00:00 UTC
+    export_bop(rendered, tmp_path / "a", split="train_pbr")
+    export_bop(rendered, tmp_path / "b", split="train_pbr")
+    files = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*") if p.is_file())
+    assert files and files == sorted(p.relative_to(tmp_path / "b") for p in (tmp_path / "b").rglob("*") if p.is_file())
+    assert all((tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes() for f in files)
+    coco = json.loads(next((tmp_path / "a" / "train_pbr").glob("*/scene_gt_coco.json")).read_text())
+    assert coco["info"]["date_created"] == "2025-11-26 00:00:00+00:00"
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "yesterday")
+    with pytest.raises(SpmError, match=r"^SOURCE_DATE_EPOCH='yesterday': expected whole seconds since 1970"):
+        export_bop(rendered, tmp_path / "c", split="train_pbr")
+    assert not (tmp_path / "c").exists()
