@@ -23,7 +23,8 @@ from spm_data.render import renderer_names
 @click.option("--out", default="out", show_default=True, type=click.Path(), help="Folder to write the shards to.")
 @click.option("--renderer", type=click.Choice(renderer_names()), default=None, help="Override the spec's renderer.")
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Override the spec's seed.")
-@click.option("--limit", type=click.IntRange(min=1), default=None, help="At most N frames per class, spread over views.")
+@click.option("--limit", type=click.IntRange(min=1, max=10**7), default=None,
+              help="At most N frames per class, spread over views (at most 10,000,000).")
 @executor_options("Render processes", recycle_after=16,
                   task_cpus="Give a Blender task its Cycles threads (render.blender.threads).")
 @handle_errors
@@ -41,7 +42,8 @@ def render_cmd(classes, all_classes, spec_files, specs_dir, out, renderer, seed,
               help="Folder to write the occluded shards to.")
 @click.option("--min", "low", default=0.0, show_default=True, type=float, help="Smallest covered fraction of the object.")
 @click.option("--max", "high", default=0.6, show_default=True, type=float, help="Largest covered fraction of the object.")
-@click.option("--copies", default=1, show_default=True, type=click.IntRange(min=1), help="Differently occluded copies per frame.")
+@click.option("--copies", default=1, show_default=True, type=click.IntRange(min=1, max=100),
+              help="Differently occluded copies per frame (at most 100: each copy is the whole dataset again).")
 @click.option("--rects", default=1, show_default=True, type=click.IntRange(min=1), help="Rectangles per frame.")
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Seed (same seed, same bytes).")
 @ALLOW_PARTIAL
@@ -64,8 +66,8 @@ def occlude_cmd(in_dir, out_dir, low, high, copies, rects, seed, allow_partial, 
 @click.option("--sources", default=None, help="Keep only frames of these sources, e.g. synthetic,coil100.")
 @click.option("--rename", "renames", multiple=True, metavar="OLD=NEW",
               help="Rename a class (OLD=NEW, or several as OLD=NEW,OLD2=NEW2). Repeatable.")
-@click.option("--frames-per-shard", default=256, show_default=True, type=click.IntRange(min=1),
-              help="Frames in each merged shard (the last one may hold fewer).")
+@click.option("--frames-per-shard", default=256, show_default=True, type=click.IntRange(min=1, max=65536),
+              help="Frames in each merged shard (the last one may hold fewer; at most 65,536).")
 @ALLOW_PARTIAL
 @executor_options("Merging processes")
 @old_spelling("--classes", "renames", "use --rename OLD=NEW")
@@ -112,7 +114,7 @@ def info_cmd(path):
 @click.argument("shard", type=click.Path())
 @click.option("--out", "out_png", default="sheet.png", show_default=True, type=click.Path(),
               help="Image to write: .png, .jpg, .jpeg, .pdf or .svg.")
-@click.option("--frames", default=24, show_default=True, type=click.IntRange(min=1), help="Frames on the sheet.")
+@click.option("--frames", default=24, show_default=True, type=click.IntRange(min=1, max=1024), help="Frames on the sheet (at most 1,024).")
 @click.option("--field", default="rgb", show_default=True,
               type=click.Choice(["rgb", "normals", "instances", "coords", "depth"]),
               help="What the tiles show: the image, or an [outputs] field in false colour.")
