@@ -7,13 +7,24 @@ options, old spellings) is spm_data/commands/cli_support.py. One grammar through
 is the first argument, every output is ``--out`` (README.md, "Command line").
 """
 
-import click
+import os
+import sys
 
-from spm_data.commands.cli_data import (export_group, hist_cmd, info_cmd, merge_cmd, occlude_cmd, render_cmd,
-                                        show_cmd, validate_cmd)
-from spm_data.commands.cli_import import import_group
-from spm_data.commands.cli_support import Group
-from spm_model.commands.cli_model import check_estimator_cmd, evaluate_cmd, predict_cmd, train_cmd
+# Before anything else is imported: a Ctrl-C or SIGTERM from the first instant is one line and
+# 130 / 143 (spm_data/jobs/outcome.py). Only as the installed programs: a process that imports
+# this module (tests, notebooks) keeps its own handlers.
+from spm_data.jobs.outcome import catch_signals_early
+
+if os.path.basename(sys.argv[0]) in ("spm", "spm-data"):
+    catch_signals_early()
+
+import click  # noqa: E402 - after the signal handlers, on purpose
+
+from spm_data.commands.cli_data import (export_group, hist_cmd, info_cmd, merge_cmd,  # noqa: E402
+                                        occlude_cmd, render_cmd, show_cmd, validate_cmd)
+from spm_data.commands.cli_import import import_group  # noqa: E402
+from spm_data.commands.cli_support import Group  # noqa: E402
+from spm_model.commands.cli_model import check_estimator_cmd, evaluate_cmd, predict_cmd, train_cmd  # noqa: E402
 
 
 @click.group(cls=Group)

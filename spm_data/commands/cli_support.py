@@ -32,19 +32,40 @@ ALLOW_PARTIAL = click.option(
 
 
 def handle_errors(fn):
+    """A command's shell: the library's errors as one ``error:`` line and exit 1; SIGINT and
+    SIGTERM (from the moment the command starts) as one ``interrupted`` line and exit 130 / 143,
+    with whatever the library had started undone (its locks released, partial files removed);
+    a signal whose KeyboardInterrupt a library swallowed still ends the command that way."""
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
-        from spm_data.jobs.outcome import sigterm_as_interrupt
+        from spm_data.jobs import outcome
 
         warnings.showwarning = _show_warning
-        sigterm_as_interrupt()  # SIGTERM stops a run as Ctrl-C does: no lock or partial file left
+        outcome.signals_for_work()  # SIGTERM stops a run as Ctrl-C does: no lock or partial file left
         try:
-            return fn(*args, **kwargs)
+            result = fn(*args, **kwargs)
         except SpmError as exc:
             click.echo(f"error: {exc}", err=True)
             sys.exit(1)
+        except KeyboardInterrupt:
+            click.echo(f"interrupted ({_signal_name(outcome.received())}); what was complete is kept: run the same "
+                       "command again to resume", err=True)
+            sys.exit(outcome.exit_status())
+        finally:
+            outcome.end_of_command()
+        if outcome.received() is not None:   # the signal's KeyboardInterrupt was swallowed on the way
+            click.echo(f"interrupted ({_signal_name(outcome.received())}) as the command finished; its output "
+                       "is complete", err=True)
+            sys.exit(outcome.exit_status())
+        return result
 
     return wrapper
+
+
+def _signal_name(signum) -> str:
+    import signal
+
+    return signal.Signals(signum).name if signum else "SIGINT"
 
 
 class Group(click.Group):
@@ -94,7 +115,9 @@ def run_with_progress(call, report=lambda summary: summary.report()):
         bar.close()
     click.echo(report(summary))
     if summary.interrupted:
-        sys.exit(130)
+        from spm_data.jobs.outcome import exit_status
+
+        sys.exit(exit_status())   # 130 after Ctrl-C, 143 after SIGTERM
     if summary.failed:
         sys.exit(1)
 

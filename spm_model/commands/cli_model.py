@@ -49,7 +49,8 @@ def _method_names(text):
               help="Whether occluded frames train too (the paper's training with noise) [default: yes, but no "
                    "under offgrid].")
 @click.option("--methods", "methods", default=None, metavar="NAME,...",
-              help="Built-in methods to run (default all): spm, knn1, knn3, pca, ls, n3m, smm, template, chance.")
+              help="Built-in methods to run (default all): spm, knn1, knn3, pca, ls, n3m, sift-pnp, smm, template, "
+                   "chance.")
 @click.option("--runs", default=3, show_default=True, type=click.IntRange(min=1), help="Repeated runs (seeds) for sigma.")
 @click.option("--ellipse", type=click.Choice(["pso", "direct"]), default="pso", show_default=True,
               help="Ellipse fit: Eq. 1 by particle swarm (the paper's) or the direct fit.")
@@ -76,9 +77,11 @@ def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs,
                        estimators=estimators, allow_partial=allow_partial, test=test,
                        train_occluded=train_occluded, builtins=_method_names(methods))
     except KeyboardInterrupt:
+        from spm_data.jobs.outcome import exit_status
+
         bar.close()
         click.echo("interrupted; features already cached are kept", err=True)
-        sys.exit(130)
+        sys.exit(exit_status())   # 130 after Ctrl-C, 143 after SIGTERM
     bar.close()
     click.echo(result["text"])
     click.echo(f"report: {result['report']}/results.md, {_models_line(result)}")
