@@ -1,6 +1,6 @@
 # make demo: the main job on built-in defaults.  make test: the test suite.
 # Both build .venv on first use (Debian packages, venv, pinned pip install).
-# The demo's loco run leaves out N3M and SMM (instance-level methods: at chance on unseen classes,
+# The demo's loco run leaves out N3M, SIFT + PnP and SMM (instance-level methods: at chance on unseen classes,
 # and 2.5 of its minutes); its last step runs every method on a small Fig. 5 set.
 PYTHON ?= python3
 VENV   ?= .venv

@@ -5,7 +5,7 @@ Layers, lowest first (each imports its own and those below, never above):
 get, model files), ``spm`` (the method's stages: keypoints, bunches, ellipse,
 manifold, sparse, regressor, features, and SPMEstimator), ``methods`` (every
 benchmark method behind ``fit(frames, poses)``/``predict(frames)``: SPM, KNN,
-PCA, LS, the reference templates, N3M, SMM, chance; the registry), ``bench``
+PCA, LS, the reference templates, N3M, SIFT + PnP, SMM, chance; the registry), ``bench``
 (feature cache, protocols, metrics, surface metrics, report) and ``commands``
 (what ``spm train``, ``evaluate`` and ``predict`` call). Decisions: docs/method.md.
 """

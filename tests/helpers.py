@@ -1,7 +1,7 @@
 """What tests in several files share: waiting for a state, reaping processes, small
 specs, shard arrays, a flipped stored byte, COIL-100 images, transforms.json captures,
-ellipse points and estimator inputs. Fixtures are in tests/conftest.py; import these as
-``from tests.helpers import ...``."""
+ellipse points, estimator inputs and posed splits of rendered views. Fixtures are in
+tests/conftest.py; import these as ``from tests.helpers import ...``."""
 
 import contextlib
 import json
@@ -291,3 +291,35 @@ def sealed_model(path, header: dict, arrays: dict):
     text = json.dumps(header)
     np.savez(path, header=np.array(text), seal=np.array(model_seal(text, arrays)), **arrays)
     return path
+
+
+# --------------------------------------------------------------------------- posed renders (N3M, SIFT + PnP)
+
+def grid_split(folder):
+    """N3M's and SIFT + PnP's data from the model_shards fixture: training frames (even path
+    steps: a 10-degree grid) with depth and "sequence", and test frames (odd steps 1, 7, 13,
+    ...: 5 degrees off every training view) with only rgb, mask, K. Returns (train, poses,
+    test, truth)."""
+    from spm_data.io.shards import read_shard
+
+    train, train_poses, test, test_poses = [], [], [], []
+    for s, path in enumerate(sorted(folder.glob("*.h5"))):
+        data = read_shard(path, ("rgb", "mask", "depth", "K", "pose", "path_index"))
+        for i, step in enumerate(data["path_index"]):
+            frame = {"rgb": data["rgb"][i], "mask": data["mask"][i] > 0, "K": data["K"][i]}
+            if step % 2 == 0:
+                train.append({**frame, "depth": data["depth"][i], "sequence": s})
+                train_poses.append(data["pose"][i])
+            elif step % 6 == 1:
+                test.append(frame)
+                test_poses.append(data["pose"][i])
+    return train, np.array(train_poses), test, np.array(test_poses)
+
+
+def within_5_degrees(pred, truth) -> np.ndarray:
+    """(n,) bool: a pose estimated (no NaN) and each Euler angle within 5 degrees of the truth."""
+    from spm_data.core.poses import wrap_degrees
+
+    found = np.all(np.isfinite(pred), axis=1)
+    err = np.abs(wrap_degrees(np.nan_to_num(pred[:, :3]) - truth[:, :3]))
+    return found & np.all(err <= 5.0, axis=1)

@@ -33,7 +33,7 @@ do under loco, views and instances (as before) and do not under offgrid.
 Runs differ in their seed: the model's random choices, the views split, the
 instances order and the test order (the features are extracted once, with a
 fixed seed, and cached). Under loco and offgrid the splits are the same in every
-run (and under interleaved), so a DETERMINISTIC method (no seed: pca, ls, n3m, template;
+run (and under interleaved), so a DETERMINISTIC method (no seed: pca, ls, n3m, sift-pnp, template;
 spm_model/base/estimator.py) is fitted in the first run only and its predictions are reused
 in the others: the same scores as fitting it again.
 """

@@ -210,10 +210,12 @@ def summary_text(summary: dict) -> str:
     lines = [line.replace("**", "") for line in plain_summary(summary)]
     if not summary["methods"] and not summary["chance"]:
         return "\n".join(lines)
-    lines.append(f"{'method':<32}" + "".join(f"{m.terminal:>9}" for m in shown))
-    for m in [*summary["methods"], *(["chance"] if summary["chance"] else [])]:
+    names = [*summary["methods"], *(["chance"] if summary["chance"] else [])]
+    width = max(32, *(len(name(m)) + 1 for m in names))   # every row in line, however long a name
+    lines.append(f"{'method':<{width}}" + "".join(f"{m.terminal:>9}" for m in shown))
+    for m in names:
         s = entry(summary, m)
-        lines.append(f"{name(m):<32}" + "".join(f"{fmt(metric_value(s, k.key), k.digits):>9}" for k in shown))
+        lines.append(f"{name(m):<{width}}" + "".join(f"{fmt(metric_value(s, k.key), k.digits):>9}" for k in shown))
     fig5 = (summary.get("fig5") or {}).get("seen") or (summary.get("fig5") or {}).get("all")
     if fig5:
         curves = fig5.get("rectangles") or fig5.get("all")

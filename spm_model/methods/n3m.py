@@ -4,11 +4,17 @@ chosen among them, and a continuous 6-DoF pose per test image by matching, multi
 validation and PnP. The stages: n3m_points (points and scores), n3m_select (markers),
 n3m_pose (online); decisions where the paper is silent: docs/method.md, "N3M".
 
+:class:`SiftPoints` is what N3M shares with the SIFT + PnP baseline (sift_pnp.py, not
+in any paper): the 3-D points, the matching and the global test; :class:`N3MPose` adds
+the points' scores and the markers.
+
 Training frames are read for "rgb", "mask", "depth", "K" and (optionally) "sequence";
 test frames for "rgb", "mask", "K" only.
 """
 
 from __future__ import annotations
+
+from abc import abstractmethod
 
 import numpy as np
 
@@ -23,8 +29,12 @@ TRAIN_KEYS = ("rgb", "mask", "depth", "K")
 TEST_KEYS = ("rgb", "mask", "K")
 
 
-class N3MPose(PoseEstimator):
-    """N3M pose estimator. Parameters (keyword-only; pixels are the input image's):
+class SiftPoints(PoseEstimator):
+    """What N3M and SIFT + PnP share: SIFT keypoints of posed training views lifted to 3-D
+    points of their object (``fit``: :meth:`_lift_points`), and per test image its keypoints
+    matched to them and a pose that must explain ``min_inliers`` of all the matches
+    (:meth:`_pose`, each subclass's own). Their shared parameters (keyword-only; pixels are
+    the input image's):
 
     sift_side: images whose shorter side is below it are upsampled to it before SIFT.
     max_keypoints: SIFT keypoints kept per image (strongest).
@@ -32,61 +42,50 @@ class N3MPose(PoseEstimator):
     merge_pixels: observations closer than this many pixels (at the median training
         depth and focal length) are one 3-D point.
     descriptors_per_point: stored descriptors per 3-D point, spread over its views.
-    ratio: the nearest-descriptor ratio of matching and of distinctiveness.
-    marker_size: points per N3M (at least 4).
-    marker_radius: an N3M's points lie within this fraction of its object's extent.
-    min_relief: least flatness (smallest / largest singular value) of an N3M.
-    per_view: N3Ms each training view should see.
-    max_markers: N3Ms per object at most.
+    ratio: the nearest-descriptor ratio of matching (and of N3M's distinctiveness).
     reprojection_error: pixels, the inlier threshold of every geometric check.
     min_inliers: inliers the final pose needs (else a NaN row).
-    ransac_fallback: when no N3M passes, PnP with RANSAC over all matches proposes.
 
     No seed: the FLANN kd-trees are drawn with a fixed seed (n3m_points.TREE_SEED) and
     OpenCV's RANSAC with its own fixed one, so fit and predict repeat exactly on any
-    worker, and the benchmark fits N3M once when every run has the same splits.
+    worker, and the benchmark fits these methods once when every run has the same splits.
+    SIFT of an image is remembered (n3m_points.remembered_sift_features) under the same key
+    for every subclass: with equal sift_side and max_keypoints they extract it once.
     """
 
     DETERMINISTIC = True
     NEEDS = Needs(frames=2, depth=True)  # 3-D points are lifted from depth, seen in 2 views or more
 
-    FITTED = ("points_", "point_object_", "quality_", "descriptors_", "descriptor_point_",
-              "markers_", "merge_radius_")
+    FITTED = ("points_", "point_object_", "descriptors_", "descriptor_point_", "merge_radius_")
 
     def __init__(self, *, sift_side=256, max_keypoints=300, max_train_frames=1500, merge_pixels=1.5,
-                 descriptors_per_point=6, ratio=0.8, marker_size=5, marker_radius=0.3, min_relief=0.1,
-                 per_view=3, max_markers=150, reprojection_error=3.0, min_inliers=6,
-                 ransac_fallback=True):
+                 descriptors_per_point=6, ratio=0.8, reprojection_error=3.0, min_inliers=6):
         self.sift_side = sift_side
         self.max_keypoints = max_keypoints
         self.max_train_frames = max_train_frames
         self.merge_pixels = merge_pixels
         self.descriptors_per_point = descriptors_per_point
         self.ratio = ratio
-        self.marker_size = marker_size
-        self.marker_radius = marker_radius
-        self.min_relief = min_relief
-        self.per_view = per_view
-        self.max_markers = max_markers
         self.reprojection_error = reprojection_error
         self.min_inliers = min_inliers
-        self.ransac_fallback = ransac_fallback
 
     # ------------------------------------------------------------------ fit
-    def fit(self, frames, poses) -> "N3MPose":
-        """Learn the 3-D points and N3Ms from posed ``frames`` (keys TRAIN_KEYS, and
-        "sequence": one id per object/camera path, default 0) and ``poses`` (n, 6)."""
-        poses = _check_poses(frames, poses)
-        if int(self.marker_size) < 4:
-            raise ModelError(f"N3MPose: marker_size must be at least 4 (a pose needs 4 points), got {self.marker_size}")
+    def _lift_points(self, frames, poses) -> tuple[dict, list]:
+        """Learn the 3-D points from posed ``frames`` (keys TRAIN_KEYS, and "sequence": one id
+        per object/camera path, default 0) and checked ``poses`` (n, 6); sets every attribute
+        of SiftPoints.FITTED. Returns the observations and the per-object points (for N3M's
+        scores)."""
         obs = self._observe(frames, poses)
         if len(obs["xyz"]) == 0:
-            raise ModelError("N3MPose: SIFT found no keypoint on the objects of the training frames; "
-                             "check their masks and depth, or raise sift_side")
+            raise ModelError(f"{type(self).__name__}: SIFT found no keypoint on the objects of the training "
+                             "frames; check their masks and depth, or raise sift_side")
         radius = float(self.merge_pixels) * float(np.median(obs["footprint"]))
         parts = [self._object_points(obs, o, radius) for o in np.unique(obs["object"])]
-        self._assemble(parts, radius)
-        return self
+        self._store_points(parts, radius)
+        return obs, parts
+
+    def _checked_poses(self, frames, poses) -> np.ndarray:
+        return _check_poses(frames, poses, type(self).__name__)
 
     def _observe(self, frames, poses) -> dict:
         """Keypoints of the used training frames, lifted: per observation xyz, desc
@@ -99,7 +98,7 @@ class N3MPose(PoseEstimator):
         views = {"depth": [], "shape": [], "K": [], "R": Rs, "t": ts, "object": []}
         for j, i in enumerate(used):
             frame = frames[int(i)]
-            _check_keys(frame, TRAIN_KEYS, int(i), "training")
+            _check_keys(frame, TRAIN_KEYS, int(i), "training", type(self).__name__)
             K, depth = np.asarray(frame["K"], dtype=np.float64), np.asarray(frame["depth"], dtype=np.float32)
             obj = int(frame.get("sequence", 0))
             uv, desc = pts.remembered_sift_features(frame["rgb"], frame["mask"], side=self.sift_side,
@@ -122,8 +121,9 @@ class N3MPose(PoseEstimator):
         return obs
 
     def _object_points(self, obs, obj: int, radius: float) -> dict:
-        """One object's 3-D points (seen in at least 2 views): positions, repeatability,
-        visibility over its views, and stored descriptors (rows of obs)."""
+        """One object's 3-D points (seen in at least 2 views): positions, the views that
+        detected them (columns: ``view_ids``, the object's views) and stored descriptors
+        (rows of obs)."""
         rows = np.flatnonzero(obs["object"] == obj)
         labels = pts.merge_observations(obs["xyz"][rows], np.zeros(len(rows)), radius)
         view_ids = np.flatnonzero(np.asarray(obs["views"]["object"]) == obj)
@@ -144,45 +144,21 @@ class N3MPose(PoseEstimator):
             pick = np.linspace(0, len(members) - 1, min(len(members), int(self.descriptors_per_point)))
             desc_rows.append(members[np.unique(np.rint(pick).astype(int))])
         keep = np.array(keep, dtype=np.int64)
-        v = obs["views"]
-        visible = pts.visibility(position[keep], [v["depth"][i] for i in view_ids], [v["shape"][i] for i in view_ids],
-                                 [v["K"][i] for i in view_ids], v["R"][view_ids], v["t"][view_ids])
-        visible |= detected[keep]
-        repeat = detected[keep].sum(axis=1) / np.maximum(visible.sum(axis=1), 1)
-        return {"position": position[keep], "repeat": repeat, "visible": visible, "detected": detected[keep],
-                "desc_rows": desc_rows,
-                "object": obj, "desc": obs["desc"]}
+        return {"position": position[keep], "detected": detected[keep], "view_ids": view_ids,
+                "desc_rows": desc_rows, "object": obj, "desc": obs["desc"]}
 
-    def _assemble(self, parts, radius: float) -> None:
-        """Every object's points into one database; distinctiveness, quality, N3Ms."""
-        offsets = np.cumsum([0] + [len(p["position"]) for p in parts])
+    def _store_points(self, parts, radius: float) -> None:
+        """Every object's points into one database (the attributes of SiftPoints.FITTED)."""
+        offsets = _offsets(parts)
         points = np.concatenate([p["position"] for p in parts]).reshape(-1, 3)
         owner = [np.full(len(r), offsets[k] + i) for k, p in enumerate(parts) for i, r in enumerate(p["desc_rows"])]
         if len(points) < 4:
-            raise ModelError(f"N3MPose: only {len(points)} 3-D points were seen in 2 or more training views; "
-                             "give more (or closer) training views")
-        descriptor_point = np.concatenate(owner)
-        descriptors = np.concatenate([p["desc"][r] for p in parts for r in p["desc_rows"]])
-        distinct = pts.distinctiveness(descriptors.astype(np.float32), points[descriptor_point],
-                                       same_radius=2 * radius, ratio=float(self.ratio))
-        per_point = np.bincount(descriptor_point, distinct, len(points)) / np.bincount(descriptor_point,
-                                                                                        minlength=len(points))
-        quality = np.concatenate([p["repeat"] for p in parts]) * per_point
-        markers = []
-        for k, p in enumerate(parts):
-            pos = p["position"]
-            extent = float(np.linalg.norm(pos.max(axis=0) - pos.min(axis=0))) if len(pos) else 0.0
-            found = select_markers(pos, quality[offsets[k]:offsets[k + 1]], p["detected"],
-                                   size=int(self.marker_size), radius=float(self.marker_radius) * extent,
-                                   min_gap=2 * radius, min_relief=float(self.min_relief),
-                                   per_view=int(self.per_view), max_markers=int(self.max_markers))
-            markers.append(found + offsets[k])
+            raise ModelError(f"{type(self).__name__}: only {len(points)} 3-D points were seen in 2 or more "
+                             "training views; give more (or closer) training views")
         self.points_ = points
         self.point_object_ = np.repeat([p["object"] for p in parts], np.diff(offsets))
-        self.quality_ = quality
-        self.descriptors_ = descriptors
-        self.descriptor_point_ = descriptor_point
-        self.markers_ = np.concatenate(markers).reshape(-1, int(self.marker_size))
+        self.descriptors_ = np.concatenate([p["desc"][r] for p in parts for r in p["desc_rows"]])
+        self.descriptor_point_ = np.concatenate(owner)
         self.merge_radius_ = radius
 
     # ------------------------------------------------------------------ predict
@@ -199,14 +175,15 @@ class N3MPose(PoseEstimator):
                          for f in frames], dtype=bool)
 
     def predict_details(self, frames) -> tuple[np.ndarray, list]:
-        """(labels (n, 6), per frame "n3m", "ransac" or None: which level gave the pose)."""
+        """(labels (n, 6), per frame "n3m", "ransac" or None: what gave the pose, a marker
+        or PnP with RANSAC over all matches)."""
         self.check_fitted()
         index = self._index()
         sift = pts.make_sift(self.max_keypoints)
         out = np.full((len(frames), 6), np.nan)
         sources = []
         for i, frame in enumerate(frames):
-            _check_keys(frame, TEST_KEYS, i, "test")
+            _check_keys(frame, TEST_KEYS, i, "test", type(self).__name__)
             found = self._predict_one(frame, index, sift)
             sources.append(None if found is None else found[3])
             if found is not None:
@@ -219,9 +196,12 @@ class N3MPose(PoseEstimator):
         desc_xyz = self.points_[self.descriptor_point_]
         keypoint, point = match(index, desc_xyz, self.descriptor_point_, desc, ratio=float(self.ratio),
                                 same_radius=2 * self.merge_radius_)
-        return estimate(self.markers_, point, self.points_[point], uv[keypoint], frame["K"],
-                        tol=float(self.reprojection_error), min_inliers=int(self.min_inliers),
-                        fallback=bool(self.ransac_fallback))
+        return self._pose(point, self.points_[point], uv[keypoint], frame["K"])
+
+    @abstractmethod
+    def _pose(self, matched_point, xyz, uv, K):
+        """The pose of matches ``xyz`` (m, 3) -> ``uv`` (m, 2) of points ``matched_point`` (m,):
+        (R, t, inliers, source) or None (n3m_pose.estimate's)."""
 
     def _index(self):
         """The FLANN index over the stored descriptors, built once per fitted model."""
@@ -232,6 +212,92 @@ class N3MPose(PoseEstimator):
         return cached[1]
 
 
+class N3MPose(SiftPoints):
+    """N3M pose estimator. Parameters (keyword-only): those of :class:`SiftPoints`
+    (sift_side, max_keypoints, max_train_frames, merge_pixels, descriptors_per_point, ratio,
+    reprojection_error, min_inliers), and
+
+    marker_size: points per N3M (at least 4).
+    marker_radius: an N3M's points lie within this fraction of its object's extent.
+    min_relief: least flatness (smallest / largest singular value) of an N3M.
+    per_view: N3Ms each training view should see.
+    max_markers: N3Ms per object at most.
+    ransac_fallback: when no N3M passes, PnP with RANSAC over all matches proposes. Not in
+        the paper; off by default (the paper's method alone). That step on its own, for
+        every image, is the SIFT + PnP baseline (sift_pnp.SiftPnPPose).
+
+    Deterministic, no seed (:class:`SiftPoints`).
+    """
+
+    FITTED = SiftPoints.FITTED + ("quality_", "markers_")
+
+    def __init__(self, *, sift_side=256, max_keypoints=300, max_train_frames=1500, merge_pixels=1.5,
+                 descriptors_per_point=6, ratio=0.8, marker_size=5, marker_radius=0.3, min_relief=0.1,
+                 per_view=3, max_markers=150, reprojection_error=3.0, min_inliers=6,
+                 ransac_fallback=False):
+        super().__init__(sift_side=sift_side, max_keypoints=max_keypoints, max_train_frames=max_train_frames,
+                         merge_pixels=merge_pixels, descriptors_per_point=descriptors_per_point, ratio=ratio,
+                         reprojection_error=reprojection_error, min_inliers=min_inliers)
+        self.marker_size = marker_size
+        self.marker_radius = marker_radius
+        self.min_relief = min_relief
+        self.per_view = per_view
+        self.max_markers = max_markers
+        self.ransac_fallback = ransac_fallback
+
+    # ------------------------------------------------------------------ fit
+    def fit(self, frames, poses) -> "N3MPose":
+        """Learn the 3-D points and N3Ms from posed ``frames`` (keys TRAIN_KEYS, and
+        "sequence": one id per object/camera path, default 0) and ``poses`` (n, 6)."""
+        poses = self._checked_poses(frames, poses)
+        if int(self.marker_size) < 4:
+            raise ModelError(f"N3MPose: marker_size must be at least 4 (a pose needs 4 points), got {self.marker_size}")
+        obs, parts = self._lift_points(frames, poses)
+        self._select(obs, parts)
+        return self
+
+    def _select(self, obs, parts) -> None:
+        """The points' quality (repeatability x distinctiveness) and every object's N3Ms."""
+        offsets = _offsets(parts)
+        distinct = pts.distinctiveness(self.descriptors_.astype(np.float32), self.points_[self.descriptor_point_],
+                                       same_radius=2 * self.merge_radius_, ratio=float(self.ratio))
+        n = len(self.points_)
+        per_point = np.bincount(self.descriptor_point_, distinct, n) / np.bincount(self.descriptor_point_,
+                                                                                    minlength=n)
+        quality = np.concatenate([_repeatability(obs, p) for p in parts]) * per_point
+        markers = []
+        for k, p in enumerate(parts):
+            pos = p["position"]
+            extent = float(np.linalg.norm(pos.max(axis=0) - pos.min(axis=0))) if len(pos) else 0.0
+            found = select_markers(pos, quality[offsets[k]:offsets[k + 1]], p["detected"],
+                                   size=int(self.marker_size), radius=float(self.marker_radius) * extent,
+                                   min_gap=2 * self.merge_radius_, min_relief=float(self.min_relief),
+                                   per_view=int(self.per_view), max_markers=int(self.max_markers))
+            markers.append(found + offsets[k])
+        self.quality_ = quality
+        self.markers_ = np.concatenate(markers).reshape(-1, int(self.marker_size))
+
+    # ------------------------------------------------------------------ predict
+    def _pose(self, matched_point, xyz, uv, K):
+        return estimate(self.markers_, matched_point, xyz, uv, K, tol=float(self.reprojection_error),
+                        min_inliers=int(self.min_inliers), fallback=bool(self.ransac_fallback))
+
+
+def _repeatability(obs, part) -> np.ndarray:
+    """(n,) per point of ``part``: the views that detected it over the views that see it (a
+    depth test on the small depth maps; a detection counts as seen)."""
+    v, ids = obs["views"], part["view_ids"]
+    visible = pts.visibility(part["position"], [v["depth"][i] for i in ids], [v["shape"][i] for i in ids],
+                             [v["K"][i] for i in ids], v["R"][ids], v["t"][ids])
+    visible |= part["detected"]
+    return part["detected"].sum(axis=1) / np.maximum(visible.sum(axis=1), 1)
+
+
+def _offsets(parts) -> np.ndarray:
+    """(objects + 1,) where each object's points start in the database, and their total."""
+    return np.cumsum([0] + [len(p["position"]) for p in parts])
+
+
 def _spread(n: int, most: int) -> np.ndarray:
     """At most ``most`` of ``range(n)``, evenly spaced (every frame when n <= most)."""
     if n <= most or most <= 0:
@@ -239,24 +305,25 @@ def _spread(n: int, most: int) -> np.ndarray:
     return np.unique(np.rint(np.linspace(0, n - 1, most)).astype(np.int64))
 
 
-def _check_keys(frame, keys, i: int, kind: str) -> None:
-    """ModelError unless ``frame`` has ``keys``, an (H, W, 3) rgb and an (H, W) mask."""
+def _check_keys(frame, keys, i: int, kind: str, name: str) -> None:
+    """ModelError (from the estimator ``name``) unless ``frame`` has ``keys``, an (H, W, 3)
+    rgb and an (H, W) mask."""
     missing = [k for k in keys if k not in frame]
     if missing:
-        raise ModelError(f"N3MPose: {kind} frame {i} has no {', '.join(missing)}; expected keys {list(keys)}")
+        raise ModelError(f"{name}: {kind} frame {i} has no {', '.join(missing)}; expected keys {list(keys)}")
     rgb, mask = np.shape(frame["rgb"]), np.shape(frame["mask"])
     if len(rgb) != 3 or rgb[2] != 3 or mask != rgb[:2] or np.shape(frame["K"]) != (3, 3):
-        raise ModelError(f"N3MPose: {kind} frame {i} has rgb {rgb}, mask {mask}, K {np.shape(frame['K'])}; "
+        raise ModelError(f"{name}: {kind} frame {i} has rgb {rgb}, mask {mask}, K {np.shape(frame['K'])}; "
                          "expected rgb (H, W, 3), mask (H, W) and K (3, 3)")
 
 
-def _check_poses(frames, poses) -> np.ndarray:
+def _check_poses(frames, poses, name: str) -> np.ndarray:
     poses = np.asarray(poses, dtype=np.float64)
     if poses.ndim != 2 or poses.shape[1] != 6 or len(poses) == 0:
-        raise ModelError(f"N3MPose.fit: poses must be (n, 6) rx, ry, rz degrees and t metres with n >= 1, "
+        raise ModelError(f"{name}.fit: poses must be (n, 6) rx, ry, rz degrees and t metres with n >= 1, "
                          f"got shape {poses.shape}")
     if len(frames) != len(poses):
-        raise ModelError(f"N3MPose.fit: {len(frames)} frames but {len(poses)} poses; give one pose per frame")
+        raise ModelError(f"{name}.fit: {len(frames)} frames but {len(poses)} poses; give one pose per frame")
     if not np.all(np.isfinite(poses)):
-        raise ModelError("N3MPose.fit: poses contain NaN or inf; give finite training poses")
+        raise ModelError(f"{name}.fit: poses contain NaN or inf; give finite training poses")
     return poses

@@ -10,8 +10,10 @@ multi-level validation, and the pose.
 3. Global level (:func:`best_pose`): each surviving pose is scored by the matches of
    the whole model it reprojects within ``tol`` (its inliers); the best is refined
    (Levenberg-Marquardt on its inliers, twice) and accepted with at least
-   ``min_inliers`` inliers. Without a valid marker, PnP with RANSAC over all matches
-   proposes the pose instead (``fallback``), under the same global test.
+   ``min_inliers`` inliers.
+Not in the paper: without a valid marker, PnP with RANSAC over all matches may propose
+the pose instead (``fallback``, off in the benchmark's N3M), under the same global test
+(:func:`ransac_pose`); alone, that is the SIFT + PnP baseline (sift_pnp.py).
 Pixels are OpenCV centres of the image as given; 3-D points metres in the object frame;
 poses ``R`` (3, 3), ``t`` (3,) map object to camera (spm_data/core/poses.py).
 """
@@ -137,17 +139,31 @@ def best_pose(hypotheses, xyz, uv, K, *, tol: float, min_inliers: int):
 
 def estimate(markers, matched_point, xyz, uv, K, *, tol: float, min_inliers: int, fallback: bool):
     """The pose from matches ``xyz`` (m, 3) -> ``uv`` (m, 2), ``matched_point`` (m,) their
-    point ids: markers first, RANSAC if none passes (``fallback``). Returns
-    (R, t, inliers, source) with source "n3m" or "ransac", or None."""
-    xyz = np.ascontiguousarray(xyz, dtype=np.float64).reshape(-1, 3)
-    uv = np.ascontiguousarray(uv, dtype=np.float64).reshape(-1, 2)
-    K = np.asarray(K, dtype=np.float64)
+    point ids: markers first, then, only if none passes and ``fallback`` (not in the
+    paper), :func:`ransac_pose`. Returns (R, t, inliers, source) with source "n3m" or
+    "ransac", or None."""
+    xyz, uv, K = _as_float(xyz, uv, K)
     found = best_pose(marker_hypotheses(markers, matched_point, xyz, uv, K, tol=tol), xyz, uv, K,
                       tol=tol, min_inliers=min_inliers)
     if found is not None:
         return (*found, "n3m")
-    if not fallback or len(xyz) < min_inliers:   # fewer matches than the inliers a pose needs
+    return ransac_pose(xyz, uv, K, tol=tol, min_inliers=min_inliers) if fallback else None
+
+
+def ransac_pose(xyz, uv, K, *, tol: float, min_inliers: int):
+    """No markers: PnP with RANSAC over all matches ``xyz`` (m, 3) -> ``uv`` (m, 2)
+    (:func:`ransac_hypothesis`) proposes, the global level (:func:`best_pose`) accepts.
+    N3M's fallback, and the whole of SIFT + PnP (sift_pnp.py). Returns (R, t, inliers,
+    "ransac") or None."""
+    xyz, uv, K = _as_float(xyz, uv, K)
+    if len(xyz) < min_inliers:   # fewer matches than the inliers a pose needs
         return None
     found = best_pose(ransac_hypothesis(xyz, uv, K, tol=tol), xyz, uv, K, tol=tol,
                       min_inliers=min_inliers)
     return None if found is None else (*found, "ransac")
+
+
+def _as_float(xyz, uv, K):
+    """(xyz (m, 3), uv (m, 2), K (3, 3)) as contiguous float64 (OpenCV's PnP wants them so)."""
+    return (np.ascontiguousarray(xyz, dtype=np.float64).reshape(-1, 3),
+            np.ascontiguousarray(uv, dtype=np.float64).reshape(-1, 2), np.asarray(K, dtype=np.float64))

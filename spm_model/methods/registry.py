@@ -7,8 +7,10 @@ ModelError (spm_model/base/estimator.py).
 
 Built in: SPM and KNN on its re-projected vectors (the paper's Tables 1 and 2),
 the PCA- and LS-based raw-image baselines (§3.3-3.4), N3M and SMM (the paper's
-Fig. 5 comparisons, spm_model/methods/n3m*.py and smm*.py), the reference
-template matcher (spm_model/methods/template.py) and chance (a random training pose). Any class
+Fig. 5 comparisons, spm_model/methods/n3m*.py and smm*.py), SIFT + PnP (N3M's matching
+and robust PnP without its markers; ours, not in a paper: spm_model/methods/sift_pnp.py),
+the reference template matcher (spm_model/methods/template.py) and chance (a random
+training pose). Any class
 with the same contract joins them: ``spm train --estimator MODULE:CLASS``
 (docs/estimators.md).
 """
@@ -23,13 +25,15 @@ import numpy as np
 from spm_data.errors import ModelError
 from spm_model.methods.baselines import ChancePose, RawImagePose
 from spm_model.methods.n3m import N3MPose
+from spm_model.methods.sift_pnp import SiftPnPPose
 from spm_model.methods.smm import SMMPose
 from spm_model.methods.spm_pose import SPMNeighbours, SPMPose
 from spm_model.methods.template import TemplatePose
 from spm_model.spm.features import FeatureConfig
 
 METHOD_NAMES = {"spm": "SPM", "knn1": "KNN K=1", "knn3": "KNN K=3", "pca": "PCA-based", "ls": "LS-based",
-                "n3m": "N3M (Hinterstoisser et al. 2007)", "smm": "SMM (Mei et al. 2011)",
+                "n3m": "N3M (Hinterstoisser et al. 2007; marker levels only)",
+                "sift-pnp": "SIFT + PnP (all matches; not in a paper)", "smm": "SMM (Mei et al. 2011)",
                 "template": "HOG templates (reference)",
                 "chance": "chance (random training pose)"}
 
@@ -39,7 +43,7 @@ def builtin_methods(seed: int, features: FeatureConfig, model_params: dict | Non
     spm = SPMPose(seed=seed, features=features, params=model_params)
     return {"spm": spm, "knn1": SPMNeighbours(k=1, spm=spm), "knn3": SPMNeighbours(k=3, spm=spm),
             "pca": RawImagePose(kind="pca"), "ls": RawImagePose(kind="ls"), "n3m": N3MPose(),
-            "smm": SMMPose(seed=seed),
+            "sift-pnp": SiftPnPPose(), "smm": SMMPose(seed=seed),
             "template": TemplatePose(), "chance": ChancePose(seed=seed)}
 
 

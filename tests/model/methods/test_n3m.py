@@ -5,25 +5,8 @@ import pytest
 
 from spm_data.core.poses import label_to_pose, wrap_degrees
 from spm_data.errors import ModelError
-from spm_data.io.shards import read_shard
 from spm_model.methods.n3m import N3MPose
-
-
-def split(folder):
-    """Training frames (even path steps: a 10-degree grid) with depth, and test frames
-    (odd steps, 5 degrees off every training view) with only rgb, mask, K."""
-    train, train_poses, test, test_poses = [], [], [], []
-    for s, path in enumerate(sorted(folder.glob("*.h5"))):
-        data = read_shard(path, ("rgb", "mask", "depth", "K", "pose", "path_index"))
-        for i, step in enumerate(data["path_index"]):
-            frame = {"rgb": data["rgb"][i], "mask": data["mask"][i] > 0, "K": data["K"][i]}
-            if step % 2 == 0:
-                train.append({**frame, "depth": data["depth"][i], "sequence": s})
-                train_poses.append(data["pose"][i])
-            elif step % 6 == 1:
-                test.append(frame)
-                test_poses.append(data["pose"][i])
-    return train, np.array(train_poses), test, np.array(test_poses)
+from tests.helpers import grid_split as split
 
 
 def test_fit_predict_recovers_views_off_the_training_grid(model_shards):
@@ -37,7 +20,8 @@ def test_fit_predict_recovers_views_off_the_training_grid(model_shards):
     err = np.abs(wrap_degrees(pred[found, :3] - truth[found, :3]))
     within = np.zeros(len(test), bool)
     within[found] = np.all(err <= 5.0, axis=1)
-    assert within.mean() >= 0.8, (within.mean(), len(test))
+    # The paper's levels alone (no fallback): 19 of 24 within 5 degrees, 19 of the 21 posed.
+    assert within.mean() >= 0.75 and within[found].mean() >= 0.85, (within.mean(), found.mean(), len(test))
     Rp, tp = label_to_pose(pred[found])
     Rt, tt = label_to_pose(truth[found])
     geodesic = np.degrees(np.arccos(np.clip((np.einsum("nij,nij->n", Rp, Rt) - 1) / 2, -1, 1)))
@@ -106,3 +90,22 @@ def test_remembered_features_give_the_same_model_and_poses(model_shards, monkeyp
         np.testing.assert_array_equal(descriptors, runs[0][1])
         np.testing.assert_array_equal(pred, runs[0][2])
     assert np.isfinite(runs[0][2]).all(axis=1).sum() >= 6
+
+
+def test_the_default_is_the_papers_method_and_the_fallback_gives_no_pose_of_its_own(model_shards):
+    """ransac_fallback=False (the default, the benchmark's n3m): every pose comes from a marker,
+    and each is the pose N3M with the fallback gives that frame; the frames only the fallback
+    posed have none."""
+    train, poses, test, _ = split(model_shards)
+    assert N3MPose().ransac_fallback is False
+    paper = N3MPose(max_train_frames=500).fit(train, poses)
+    pred, sources = paper.predict_details(test)
+    with_fallback = N3MPose(max_train_frames=500, ransac_fallback=True).fit(train, poses)
+    pred_fb, sources_fb = with_fallback.predict_details(test)
+    assert set(sources) <= {"n3m", None} and sources.count("n3m") >= 15
+    assert sources_fb.count("ransac") >= 1                               # the fallback had frames here
+    for i, (src, src_fb) in enumerate(zip(sources, sources_fb)):
+        if src_fb == "ransac":
+            assert src is None and np.all(np.isnan(pred[i])), i
+        else:
+            assert src == src_fb and np.array_equal(pred[i], pred_fb[i], equal_nan=True), i

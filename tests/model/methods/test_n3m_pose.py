@@ -4,7 +4,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from spm_model.methods.n3m_points import build_index
-from spm_model.methods.n3m_pose import estimate, marker_hypotheses, match, reprojection_errors
+from spm_model.methods.n3m_pose import estimate, marker_hypotheses, match, ransac_pose, reprojection_errors
 
 K = np.array([[400.0, 0.0, 127.5], [0.0, 400.0, 127.5], [0.0, 0.0, 1.0]])
 R_TRUE = Rotation.from_euler("XYZ", [100.0, -20.0, 35.0], degrees=True).as_matrix()
@@ -78,6 +78,18 @@ def test_validation_rejects_random_and_degenerate_match_sets():
                     fallback=True) is None
     assert marker_hypotheses(np.array([[0, 1, 2, 3, 4]]), np.arange(3), xyz, noise_uv, K, tol=3.0) == []
 
+
+def test_ransac_pose_is_the_fallback_alone_and_estimate_without_it_stays_with_the_markers():
+    xyz, uv = scene(noise=0.5)
+    uv[:18] = np.random.default_rng(1).uniform(0, 255, (18, 2))      # 30% gross outliers
+    markers = np.array([[0, 1, 2, 3, 4]])                            # every point an outlier: fails
+    assert marker_hypotheses(markers, np.arange(60), xyz, uv, K, tol=3.0) == []
+    assert estimate(markers, np.arange(60), xyz, uv, K, tol=3.0, min_inliers=8, fallback=False) is None
+    R, t, inliers, source = ransac_pose(xyz, uv, K, tol=3.0, min_inliers=8)
+    assert source == "ransac" and angle_deg(R, R_TRUE) < 0.3 and 38 <= inliers <= 42
+    via = estimate(markers, np.arange(60), xyz, uv, K, tol=3.0, min_inliers=8, fallback=True)
+    assert np.array_equal(via[0], R) and np.array_equal(via[1], t) and via[2:] == (inliers, "ransac")
+    assert ransac_pose(xyz[:7], uv[:7], K, tol=3.0, min_inliers=8) is None   # fewer matches than inliers needed
 
 def test_match_keeps_distinct_matches_and_drops_ambiguous_ones():
     rng = np.random.default_rng(3)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from spm_data.errors import ModelError
+from spm_model.base.estimator import Needs, needs_of
 from spm_model.methods.registry import METHOD_NAMES, builtin_methods, check_predictions, load_estimator_class
 from spm_model.spm.features import FeatureConfig
 
@@ -14,11 +15,23 @@ from spm_model.spm.features import FeatureConfig
 def test_builtin_methods_in_report_order_knn_sharing_the_spm_model():
     features = FeatureConfig(ellipse="direct")
     methods = builtin_methods(3, features, {"projection_samples": 16})
-    assert list(methods) == ["spm", "knn1", "knn3", "pca", "ls", "n3m", "smm", "template", "chance"] == list(METHOD_NAMES)
+    assert list(methods) == ["spm", "knn1", "knn3", "pca", "ls", "n3m", "sift-pnp", "smm", "template",
+                             "chance"] == list(METHOD_NAMES)
     spm = methods["spm"]
     assert spm.seed == 3 and spm.features == features and spm.params == {"projection_samples": 16}
     assert methods["knn1"].spm is spm and methods["knn3"].spm is spm and methods["knn3"].k == 3
     assert (methods["pca"].kind, methods["ls"].kind, methods["chance"].seed) == ("pca", "ls", 3)
+
+
+def test_n3m_is_the_papers_method_and_sift_pnp_its_fallback_alone_each_named_for_it():
+    methods = builtin_methods(0, FeatureConfig(ellipse="direct"))
+    n3m, sift_pnp = methods["n3m"], methods["sift-pnp"]
+    assert type(n3m).__name__ == "N3MPose" and n3m.ransac_fallback is False
+    assert type(sift_pnp).__name__ == "SiftPnPPose"
+    for method in (n3m, sift_pnp):
+        assert needs_of(method) == Needs(frames=2, depth=True) and type(method).DETERMINISTIC is True
+    assert METHOD_NAMES["n3m"] == "N3M (Hinterstoisser et al. 2007; marker levels only)"
+    assert METHOD_NAMES["sift-pnp"] == "SIFT + PnP (all matches; not in a paper)"
 
 
 def test_load_estimator_class(tmp_path, monkeypatch):
