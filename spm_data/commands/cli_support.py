@@ -138,11 +138,12 @@ def executor_options(workers: str, recycle_after: int = 0, task_cpus: str = ""):
             return fn(*args, **kwargs)
 
         for option in reversed([
-            click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1),
-                         help=f"{workers} running at once (with --executor ray and no --address: the CPUs of the "
-                              "local Ray instance)."),
-            click.option("--recycle-after", default=recycle_after, show_default=True, type=click.IntRange(min=0),
-                         help="Replace each worker process after this many jobs (0: never); bounds leaks."),
+            click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1, max=1024),
+                         help=f"{workers} running at once, at most 1,024 (with --executor ray and no --address: the "
+                              "CPUs of the local Ray instance)."),
+            click.option("--recycle-after", default=recycle_after, show_default=True, type=click.IntRange(min=0, max=10**6),
+                         help="Replace each worker process after this many jobs (0: never; at most 1,000,000); "
+                              "bounds leaks."),
             click.option("--executor", "executor_name", type=click.Choice(["local", "ray"]), default="local",
                          show_default=True, help="Where the jobs run: local processes, or Ray tasks (docs/scaling.md)."),
             click.option("--address", default=None, help="Ray cluster address (auto or HOST:PORT); default: a local "

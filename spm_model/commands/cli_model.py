@@ -51,10 +51,12 @@ def _method_names(text):
 @click.option("--methods", "methods", default=None, metavar="NAME,...",
               help="Built-in methods to run (default all): spm, knn1, knn3, pca, ls, n3m, sift-pnp, smm, template, "
                    "chance.")
-@click.option("--runs", default=3, show_default=True, type=click.IntRange(min=1), help="Repeated runs (seeds) for sigma.")
+@click.option("--runs", default=3, show_default=True, type=click.IntRange(min=1, max=100),
+              help="Repeated runs (seeds) for sigma (at most 100).")
 @click.option("--ellipse", type=click.Choice(["pso", "direct"]), default="pso", show_default=True,
               help="Ellipse fit: Eq. 1 by particle swarm (the paper's) or the direct fit.")
-@click.option("--gamma", default=8, show_default=True, type=click.IntRange(min=5), help="EM clusters per frame.")
+@click.option("--gamma", default=8, show_default=True, type=click.IntRange(min=5, max=256),
+              help="EM clusters per frame (at most 256).")
 @click.option("--estimator", "estimators", multiple=True, metavar="MODULE:CLASS",
               help="Also evaluate your estimator (fit(frames, poses), predict(frames)); repeatable. docs/estimators.md")
 @ALLOW_PARTIAL

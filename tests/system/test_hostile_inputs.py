@@ -247,10 +247,14 @@ def test_a_class_name_render_would_refuse_is_refused_by_merge_and_the_importers(
     ("--limit", ["render", "--class", "cup", "--out", "{out}", "--limit", 10**7 + 1]),
     ("--frames-per-shard", ["merge", "{folder}", "--out", "{out}", "--frames-per-shard", 65537]),
     ("--frames", ["show", "{folder}/cup-00000.h5", "--out", "{out}", "--frames", 1025]),
+    ("--workers", ["occlude", "--in", "{folder}", "--out", "{out}", "--workers", 1025]),
+    ("--recycle-after", ["render", "--class", "cup", "--out", "{out}", "--recycle-after", 10**6 + 1]),
+    ("--runs", ["train", "{folder}", "--out", "{out}", "--runs", 101]),
+    ("--gamma", ["train", "{folder}", "--out", "{out}", "--gamma", 257]),
 ])
 def test_count_options_have_an_upper_bound_checked_before_work(folder, tmp_path, option, args):
     out = tmp_path / "out"
-    r = run(data_cli, *[str(a).format(folder=folder, out=out) for a in args])
+    r = run(model_cli if args[0] == "train" else data_cli, *[str(a).format(folder=folder, out=out) for a in args])
     assert r.exit_code == 2 and "Traceback" not in r.output, r.output
     assert f"Invalid value for '{option}'" in r.output and "is not in the range" in r.output
     assert not out.exists()
