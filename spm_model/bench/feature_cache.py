@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import hashlib
+import json
 import os
 import socket
 import warnings
@@ -34,6 +35,7 @@ from spm_data.io.files import PARTIAL_PREFIX, write_npz_atomic
 from spm_data.io.outputs import nearest_existing, unwritable
 from spm_data.io.shards import read_attrs, read_shard, shard_digest, shard_layout
 from spm_model.base.frames import visible_field
+from spm_model.base.model_files import model_seal
 from spm_model.bench.extract import frames_features
 from spm_model.spm.features import FeatureConfig
 
@@ -71,13 +73,40 @@ def _unwritable(folder: Path) -> str | None:
     return "a file is in the way" if problem[1] == "file" else os.strerror(errno.EACCES)
 
 
-def _whole(path: Path, digest: str) -> bool:
-    """Whether ``path`` is a cache file made from a shard whose content has SHA-256 ``digest``."""
+def cache_seal(identity: str, config_key: str, arrays: dict) -> str:
+    """The SHA-256 a cache file carries over what it was computed from (its shard's SHA-256 and
+    the feature configuration's key) and every array it holds (spm_model/base/model_files.py)."""
+    return model_seal(json.dumps({"shard_sha256": identity, "features": config_key}), arrays)
+
+
+_warned: list = [False]   # whether this process has said that a cache file was damaged
+
+
+def read_cache(path: Path, digest: str, config: FeatureConfig) -> dict | None:
+    """The arrays of the cache file ``path`` when it was made from the shard whose content has
+    SHA-256 ``digest`` under ``config`` and holds exactly what it was sealed with; None when it
+    is missing, of another shard or version (a rewritten shard: redone), or damaged, cut short
+    or foreign (redone, the first such file in a process said in one ``warning:`` line)."""
     try:
-        with np.load(path) as z:
-            return str(z["identity"]) == digest
-    except (OSError, KeyError, ValueError, EOFError):
-        return False
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except FileNotFoundError:
+        return None
+    except Exception:  # noqa: BLE001 - any damage of the bytes (zip, .npy header, data) means: redo it
+        arrays = {}
+    identity, key, seal = (str(arrays.pop(k, "")) for k in ("identity", "features_key", "seal"))
+    if seal and seal == cache_seal(identity, key, arrays):
+        return arrays if (identity, key) == (digest, config.key()) else None
+    if not _warned[0]:
+        _warned[0] = True
+        warnings.warn(f"feature cache {path} is damaged, cut short or not one this spm wrote; its features are "
+                      "extracted again (any further ones in this process silently)", SpmWarning)
+    return None
+
+
+def _whole(path: Path, digest: str, config: FeatureConfig) -> bool:
+    """Whether ``path`` is a sound cache file made from the shard with SHA-256 ``digest`` under ``config``."""
+    return read_cache(path, digest, config) is not None
 
 
 def cache_path(shard: Path, config: FeatureConfig, digest: str | None = None) -> Path:
@@ -89,7 +118,7 @@ def cache_path(shard: Path, config: FeatureConfig, digest: str | None = None) ->
     name = f"{shard.stem}-{config.key()}.npz"
     beside = shard.parent / CACHE_DIR
     why = _unwritable(beside)
-    if why is None or _whole(beside / name, digest or shard_digest(shard)):
+    if why is None or _whole(beside / name, digest or shard_digest(shard), config):
         return beside / name
     user = user_cache_folder(shard.parent)
     why_user = _unwritable(user)
@@ -110,7 +139,7 @@ def cached(shard: Path, config: FeatureConfig) -> Path | None:
     verified: a ShardError naming it when they fail)."""
     digest = shard_digest(shard)
     path = cache_path(shard, config, digest)
-    return path if _whole(path, digest) else None
+    return path if _whole(path, digest, config) else None
 
 
 def walks_in_steps(attrs: dict) -> bool:
@@ -149,8 +178,9 @@ def extract_shard(job, report=lambda n: None) -> str:
     tmp = out.parent / f"{PARTIAL_PREFIX}{out.name}.{socket.gethostname()}.{os.getpid()}.partial"
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        write_npz_atomic(out, tmp, identity=np.array(identity), **features,
-                         **{k: (v.astype(str) if v.dtype == object else v) for k, v in labels.items()})
+        arrays = {**features, **{k: (v.astype(str) if v.dtype == object else v) for k, v in labels.items()}}
+        write_npz_atomic(out, tmp, identity=np.array(identity), features_key=np.array(config.key()),
+                         seal=np.array(cache_seal(identity, config.key(), arrays)), **arrays)
     except OSError as exc:
         fix = "" if out.parent.name == CACHE_DIR else " or set SPM_CACHE_DIR to another folder"
         raise SpmError(f"could not write the feature cache {out}: {exc.strerror or exc}; "
@@ -283,8 +313,9 @@ def load_features(folder, config: FeatureConfig = FeatureConfig(), *, progress=N
     paths.update({Path(o.job[0]): Path(o.result) for o in outcomes})
     tables = []
     for shard in shards:
-        with np.load(paths[shard]) as z:
-            arrays = {k: z[k] for k in z.files if k != "identity"}
+        arrays = read_cache(paths[shard], shard_digest(shard), config)
+        if arrays is None:   # changed since it was checked (another process): one line, not a traceback
+            raise SpmError(f"the feature cache {paths[shard]} changed while it was read; run the command again")
         n = len(arrays["pose"])
         arrays["instance"] = np.char.add(np.char.add(arrays.pop("source"), ":"),
                                          np.char.add(np.char.add(arrays["class_name"], "/"),

@@ -28,8 +28,9 @@ from spm_model.spm.keypoints import sift_locations
 from spm_model.spm.manifold import ORDERS, initial_manifold
 
 # 5: template descriptors and K in the cache; 6: from the visible mask; 7: small images upsampled
-# (min_side) and which frames have depth (has_depth) in the cache.
-FEATURE_VERSION = 7
+# (min_side) and which frames have depth (has_depth) in the cache; 8: the cache file sealed (its arrays,
+# shard and configuration under one SHA-256: a damaged file is extracted again, never read).
+FEATURE_VERSION = 8
 
 
 @dataclass(frozen=True)

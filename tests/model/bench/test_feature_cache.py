@@ -3,6 +3,7 @@ shard changes; one-line errors; half-written cache files of dead processes remov
 
 import os
 import shutil
+import warnings
 
 import numpy as np
 import pytest
@@ -112,3 +113,64 @@ def test_a_refused_run_leaves_no_cache_folder(model_shards, tmp_path):
     with pytest.raises(ShardError, match="field 'rgb' fails its checksum"):
         load_features(folder, FeatureConfig(ellipse="direct"))
     assert not (folder / feature_cache.CACHE_DIR).exists()
+
+
+def _one_shard_folder(model_shards, root, n=2):
+    folder = root / "s"
+    folder.mkdir(parents=True)
+    for shard in sorted(model_shards.glob("*.h5"))[:n]:
+        shutil.copy(shard, folder / shard.name)
+    write_manifest(folder)
+    return folder
+
+
+def _same(a, b):
+    return all(np.array_equal(getattr(a, k), getattr(b, k), equal_nan=a.arrays[k].dtype.kind == "f")
+               for k in a.arrays)
+
+
+@pytest.mark.slow  # features of two shards extracted four times
+def test_a_damaged_swapped_or_cut_cache_file_is_extracted_again_never_read(model_shards, tmp_path):
+    """The audit: one flipped byte in a .spm-features file was a BadZipFile traceback on every
+    run, never rebuilt. Now the file is sealed (its shard, configuration and arrays): every
+    damage is recomputed with one warning, and the table equals a cache-less run bit for bit."""
+    from spm_data.errors import SpmWarning
+    from spm_data.io.shards import shard_digest
+
+    config = FeatureConfig(ellipse="direct")
+    folder = _one_shard_folder(model_shards, tmp_path)
+    truth = load_features(folder, config)                               # a run without any cache
+    shards = find_shards(folder)
+    files = [cache_path(s, config) for s in shards]
+    good = files[0].read_bytes()
+    # Every 401st byte flipped: refused (None) or, where zip ignores the byte, the same arrays.
+    expected = feature_cache.read_cache(files[0], shard_digest(shards[0]), config)
+    refused = 0
+    for i in range(0, len(good), 401):
+        bad = bytearray(good)
+        bad[i] ^= 1 << (i % 8)
+        files[0].write_bytes(bytes(bad))
+        feature_cache._warned[0] = True                                 # said once; not the point here
+        got = feature_cache.read_cache(files[0], shard_digest(shards[0]), config)
+        if got is None:
+            refused += 1
+        else:
+            assert all(np.array_equal(got[k], expected[k]) for k in expected), i
+    assert refused > 0.9 * len(range(0, len(good), 401))
+    other = files[1].read_bytes()
+    at = good.index(b"query_vector.npy") + 400     # inside an array's bytes
+    cases = {"cut short": (lambda: files[0].write_bytes(good[: len(good) // 2]), 1),
+             "a flipped byte": (lambda: files[0].write_bytes(good[:at] + bytes([good[at] ^ 4]) + good[at + 1:]), 1),
+             "swapped with another shard's": (lambda: (files[0].write_bytes(other), files[1].write_bytes(good)), 0)}
+    for what, (damage, warned) in cases.items():
+        files[0].write_bytes(good)
+        files[1].write_bytes(other)
+        damage()
+        feature_cache._warned[0] = False
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            table = load_features(folder, config)
+        said = [w for w in caught if issubclass(w.category, SpmWarning) and "feature cache" in str(w.message)]
+        assert len(said) == warned, (what, [str(w.message) for w in caught])   # a sound file of another shard: silent
+        assert _same(table, truth), what
+        assert files[0].read_bytes() == good and files[1].read_bytes() == other, what   # rewritten whole
