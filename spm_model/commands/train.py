@@ -7,8 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from spm_data.errors import ModelError, SpmError
+from spm_data.errors import ModelError, ShardError, SpmError
 from spm_data.io.folders import find_folders
+from spm_data.io.locking import OutputLock
 from spm_data.io.outputs import removing_created
 from spm_data.io.shards import MANIFEST, read_manifest
 from spm_model.base.estimator import needs_of
@@ -91,8 +92,31 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
     if test is not None and protocol not in ("offgrid", None):
         raise ModelError(f"--test goes with --protocol offgrid, got --protocol {protocol}; leave --protocol out "
                          "or give offgrid")
+    for folder in (shards, test):
+        if folder is not None and not Path(folder).exists():   # before a report folder is made inside it
+            raise ShardError(f"no such folder: {folder}")
     out = check_report_folder(report_dir if report_dir else Path(shards) / "report")  # before any work
     plugins = load_estimators(estimators)
+    # The report folder is locked for the whole run as a shard folder is: a second train (or
+    # fig5.py) into it is refused with the first one's pid and host, not raced; a folder this
+    # run made goes again if the run fails or is interrupted.
+    with removing_created(out / "model.npz"):
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+            lock = OutputLock(out)
+            lock.acquire()
+        except OSError as exc:
+            raise write_error(out, exc) from None
+        try:
+            return _train(shards, out, protocol, runs, features, model_params, progress, log, command,
+                          executor, plugins, allow_partial, test, train_occluded, builtins)
+        finally:
+            lock.release()
+
+
+def _train(shards, out, protocol, runs, features, model_params, progress, log, command, executor, plugins,
+           allow_partial, test, train_occluded, builtins) -> dict:
+    """train()'s work, in its locked report folder ``out``."""
     protocol = choose_protocol(protocol, test, shards, log)
     table = load_features(shards, features, progress=progress, executor=executor,
                           allow_partial=allow_partial)
@@ -125,13 +149,11 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
                                                             for name, cls in plugins.items()},
                "models": models}
     try:
-        with removing_created(out / "model.npz"):  # a report folder this run made goes again on failure
-            out.mkdir(parents=True, exist_ok=True)
-            model_path = _save(model, out / "model.npz")
-            reference_path = _save(reference, out / "reference-model.npz")
-            summary = write_report(evaluation, context, out)
+        model_path = _save(model, out / "model.npz")
+        reference_path = _save(reference, out / "reference-model.npz")
     except OSError as exc:
         raise write_error(out, exc) from None
+    summary = write_report(evaluation, context, out)
     return {"report": out, "model": model_path, "reference_model": reference_path, "summary": summary,
             "evaluation": evaluation, "text": summary_text(summary), "models": models}
 

@@ -204,3 +204,25 @@ def test_a_plug_in_with_a_wrong_needs_is_refused_before_any_work(tmp_path, monke
     monkeypatch.syspath_prepend(str(tmp_path))
     with pytest.raises(ModelError, match=r"^--estimator odd_pose:Odd: Odd.NEEDS must be a spm_model.base.estimator.Needs"):
         load_estimators(["odd_pose:Odd"])
+
+
+def test_a_second_train_into_a_locked_report_folder_is_refused_with_the_first_ones_pid(model_shards, tmp_path):
+    """Two spm train into one --out both exited 0 and the report was whichever ended last (4 of 4
+    pairs). Now the report folder is locked for the whole run, as a shard folder is."""
+    import os
+
+    from spm_data.io.locking import OutputLock
+
+    report = tmp_path / "report"
+    report.mkdir()
+    with OutputLock(report):   # a run of this host that is still going
+        r = CliRunner().invoke(model_cli, ["train", str(model_shards), "--out", str(report), "--runs", "1",
+                                           "--methods", "pca,chance", "--protocol", "views"])
+    assert r.exit_code == 1, r.output
+    line = r.output.strip().splitlines()[-1]
+    assert line.startswith(f"error: another run is writing to {report}/ (pid {os.getpid()} on ") and \
+        line.endswith("wait for it to finish or stop it")
+    assert sorted(p.name for p in report.iterdir()) == []          # nothing of the refused run, lock released
+    r = CliRunner().invoke(model_cli, ["train", str(model_shards), "--out", str(tmp_path / "new" / "r"), "--runs",
+                                       "1", "--methods", "spm,chance", "--protocol", "loco"])
+    assert r.exit_code == 0 and not list((tmp_path / "new" / "r").glob(".spm.lock*")), r.output
