@@ -83,6 +83,15 @@ def predict_images(model_path, images, *, roi=None, mask_path=None) -> list[dict
     return results
 
 
+def printable(name: str) -> str:
+    """A file name as one line of text: control characters (a newline, a tab, an escape) written
+    as Python escapes (\\n, \\t, \\x1b) and backslashes doubled, so a name can neither split a
+    result line nor forge another; other names unchanged. (--json keeps the name exact.)"""
+    if not any(ord(c) < 32 or ord(c) == 127 or c == "\\" for c in name):
+        return name
+    return repr(name)[1:-1].replace("\\'", "'")
+
+
 def format_predictions(results: list[dict], as_json: bool) -> str:
     """What ``spm predict`` prints on stdout: JSON of every result (failed images as
     {"image", "error"}), or one text line per image that got a pose ("" if none did)."""
@@ -93,11 +102,11 @@ def format_predictions(results: list[dict], as_json: bool) -> str:
         if "error" not in r:
             p = r["pose"]
             extra = f"  [{r['keypoints']} keypoints]" if "keypoints" in r else ""
-            lines.append(f"{r['image']}: rx {p['rx']:.1f} ry {p['ry']:.1f} rz {p['rz']:.1f} deg, "
+            lines.append(f"{printable(r['image'])}: rx {p['rx']:.1f} ry {p['ry']:.1f} rz {p['rz']:.1f} deg, "
                          f"t ({p['tx']:.3f}, {p['ty']:.3f}, {p['tz']:.3f}) m{extra}")
     return "\n".join(lines)
 
 
 def prediction_errors(results: list[dict]) -> list[str]:
     """One line per failed image, in order, for stderr: "IMAGE: reason" (the CLI adds "error: ")."""
-    return [f"{r['image']}: {r['error']}" for r in results if "error" in r]
+    return [f"{printable(r['image'])}: {r['error']}" for r in results if "error" in r]

@@ -319,3 +319,16 @@ def test_a_model_that_is_a_fifo_device_folder_or_too_big_is_refused_before_readi
         args = ["predict", "--model", str(model), str(image)] if command == "predict" else \
             ["evaluate", str(tmp_path / "no-shards"), "--model", str(model)]
         refused(CliRunner().invoke(model_cli, args), message)
+
+
+def test_a_file_name_with_a_newline_stays_on_its_line(models, tmp_path):
+    """A name with a newline split predict's output line (a forged second result); now control
+    characters print as escapes on stdout and stderr, and --json keeps the exact name."""
+    good = save(tmp_path / "a\nb: rx 0.0.png", textured(4))
+    missing = tmp_path / "c\rd.png"
+    r = predict(models["spm"], good, missing)
+    assert r.exit_code == 1 and r.stdout.count("\n") == 1, r.stdout
+    assert r.stdout.startswith(f"{tmp_path}/a\\nb: rx 0.0.png: rx ")
+    assert r.stderr == f"error: {tmp_path}/c\\rd.png: no such file\n"
+    r = predict(models["spm"], good, "--json")
+    assert r.exit_code == 0 and json.loads(r.stdout)[0]["image"] == str(good)
