@@ -4,7 +4,8 @@ Renders FRAMES frames of one class in one Blender renderer, in this process,
 moving only the camera and switching mesh instance every 936 frames as a real
 run does, and prints resident memory (VmRSS) and peak (VmHWM) after the first
 100 frames and at the end. Workers are also recycled after --recycle-after
-shards (default 16) in real runs, which bounds any growth further.
+shards (default 16) in real runs, which bounds any growth further. Progress on stderr (a bar on
+a terminal, a line every $SPM_PROGRESS_EVERY s, default 10, elsewhere).
 """
 
 import sys
@@ -13,6 +14,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from spm_data.commands.cli_support import stage  # noqa: E402
 from spm_data.core.paths import camera_path  # noqa: E402
 from spm_data.render import make_renderer  # noqa: E402
 from spm_data.core.instances import load_instance  # noqa: E402
@@ -36,13 +38,15 @@ def main(frames: int = 2000, samples: int = 4) -> None:
     R, t = path.poses()
     started = time.perf_counter()
     first = None
-    for k in range(frames):
-        inst, idx = divmod(k, len(path))
-        if idx == 0:
-            renderer.set_mesh(load_instance(spec, inst % spec.mesh.instances))
-        renderer.render(R[idx], t[idx])
-        if k == 99:
-            first = memory_mb()
+    with stage(f"blender_memory: rendering {frames} frames in Blender", frames, "frame") as progress:
+        for k in range(frames):
+            inst, idx = divmod(k, len(path))
+            if idx == 0:
+                renderer.set_mesh(load_instance(spec, inst % spec.mesh.instances))
+            renderer.render(R[idx], t[idx])
+            if k == 99:
+                first = memory_mb()
+            progress(1)
     last = memory_mb()
     growth = 100 * (last[0] - first[0]) / first[0]
     print(f"{frames} frames, Cycles {samples} samples, 128x128, {time.perf_counter() - started:.0f} s")

@@ -10,6 +10,8 @@ prints per method ("pso", "direct") how many manifold vectors and eccentricities
 are bit-for-bit equal, how many differ by more than 1e-9, the largest differences,
 and the per-call CPU time (time.process_time, best of ``--repeats`` interleaved
 passes over the first 200 inputs) of old and new.
+
+Progress on stderr (a bar on a terminal, a line every $SPM_PROGRESS_EVERY s, default 10, elsewhere).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from spm_data.commands.cli_support import stage  # noqa: E402
 from spm_model.spm import manifold as new_manifold  # noqa: E402
 from spm_model.spm.ellipse import EllipseError  # noqa: E402
 
@@ -32,23 +35,27 @@ def centres_from_shards(shards: Path) -> list[np.ndarray]:
     """(8, 2) EM centres of every frame's SIFT keypoints, as spm_model.spm.features makes them."""
     import cv2
 
-    from spm_data.io.shards import read_shard
+    from spm_data.io.shards import read_attrs, read_shard
     from spm_model.bench.feature_cache import find_shards
     from spm_model.spm.bunches import BunchError, fit_bunches
     from spm_model.spm.features import FeatureConfig, working_image
     from spm_model.spm.keypoints import sift_locations
 
     out = []
-    for path in find_shards(shards):
-        data = read_shard(path, ("rgb", "mask"))
-        for rgb, mask in zip(data["rgb"], data["mask"]):
-            big = cv2.resize(np.ascontiguousarray(rgb), (640, 480), interpolation=cv2.INTER_CUBIC)
-            for image, m in ((rgb, mask), (big, None)):
-                locations = sift_locations(*working_image(image, m, FeatureConfig().max_side))
-                try:
-                    out.append(fit_bunches(locations, gamma=8, seed=0).means)
-                except BunchError:
-                    pass
+    paths = find_shards(shards)
+    frames = sum(int(read_attrs(path)["frames"]) for path in paths)
+    with stage(f"ellipse_rate: keypoint centres of {shards}'s frames", frames, "frame") as progress:
+        for path in paths:
+            data = read_shard(path, ("rgb", "mask"))
+            for rgb, mask in zip(data["rgb"], data["mask"]):
+                big = cv2.resize(np.ascontiguousarray(rgb), (640, 480), interpolation=cv2.INTER_CUBIC)
+                for image, m in ((rgb, mask), (big, None)):
+                    locations = sift_locations(*working_image(image, m, FeatureConfig().max_side))
+                    try:
+                        out.append(fit_bunches(locations, gamma=8, seed=0).means)
+                    except BunchError:
+                        pass
+                progress(1)
     return out
 
 
@@ -77,10 +84,11 @@ def manifold(module, errors, points, method):
         return str(exc)
 
 
-def compare(old, old_errors, sets, method: str) -> str:
+def compare(old, old_errors, sets, method: str, progress=lambda n: None) -> str:
     equal = over = 0
     dv = de = 0.0
     for points in sets:
+        progress(1)
         a, b = manifold(old, old_errors, points, method), manifold(new_manifold, EllipseError, points, method)
         if isinstance(a, str) or isinstance(b, str):
             equal += a == b
@@ -121,10 +129,13 @@ def main() -> None:
         modules, errors = [old, new_manifold], [old_errors, EllipseError]
     for name, sets in groups.items():
         for method in ("pso", "direct"):
-            times = per_call(modules, errors, sets[:200], method, args.repeats)
+            with stage(f"ellipse_rate: {name} {method}, {args.repeats} timed passes over {len(sets[:200])} inputs"):
+                times = per_call(modules, errors, sets[:200], method, args.repeats)
             line = f"{name} {method}: " + ", ".join(f"{t:.3f} ms" for t in times) + " per call"
             if args.old:
-                line += f" (old/new {times[0] / times[1]:.2f}x); " + compare(old, old_errors, sets, method)
+                with stage(f"ellipse_rate: {name} {method}, old and new compared", len(sets), "input") as progress:
+                    line += f" (old/new {times[0] / times[1]:.2f}x); " + compare(old, old_errors, sets, method,
+                                                                                   progress)
             print(line, flush=True)
 
 

@@ -8,6 +8,8 @@ executor with one worker, per job, against the time one 256-frame pyrender
 shard (128x128) takes to render and write in this process (target: < 5%).
 Frames per second include starting the workers (and, for Ray, a local Ray
 instance), as a user's run does.
+
+Progress on stderr (a bar on a terminal, a line every $SPM_PROGRESS_EVERY s, default 10, elsewhere).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from pathlib import Path
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from spm_data.commands.cli_support import stage  # noqa: E402
 from spm_data.jobs import make_executor  # noqa: E402
 from spm_data.jobs.outcome import probe_job  # noqa: E402
 from spm_data.core.paths import AngleRange  # noqa: E402
@@ -74,8 +77,10 @@ def fps(renderer: str, executor: str, workers: int, frames: int, per_shard: int,
     out = tmp / f"{renderer}-{executor}-{workers}"
     spec = spec_for(renderer, frames, per_shard)
     started = time.perf_counter()
-    summary = render_dataset([spec], out, limit=frames,
-                             executor=make_executor(executor, workers=workers))
+    with stage(f"executor_scaling: {frames} {renderer} frames, {executor} executor, {workers} workers",
+               unit="frame") as progress:
+        summary = render_dataset([spec], out, limit=frames, executor=make_executor(executor, workers=workers),
+                                 progress=progress)
     assert not summary.failed, summary.failed
     return summary.frames / (time.perf_counter() - started)
 
@@ -87,10 +92,12 @@ def main() -> None:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        shard = shard_seconds(tmp)
+        with stage("executor_scaling: one 256-frame pyrender shard, in process"):
+            shard = shard_seconds(tmp)
         print(f"one 256-frame pyrender shard, in process: {shard:.2f} s")
         for name in ("local", "ray"):
-            per_job = overhead_per_job(name)
+            with stage(f"executor_scaling: {name} executor, 64 no-op shard jobs"):
+                per_job = overhead_per_job(name)
             print(f"{name}: overhead per shard job {1000 * per_job:.1f} ms = {100 * per_job / shard:.2f}% of a shard")
         print("\n| renderer | executor | workers | frames | frames/s |\n|---|---|---|---|---|")
         for renderer, frames, per_shard in (("pyrender", args.frames, 256), ("blender", args.blender_frames, 64)):

@@ -8,6 +8,8 @@ wrong reads (values differ, no error), reads equal to the original, and tracebac
 is the quick version run by the test suite.
 
     python benchmarks/flip_scan.py [--stride 1]
+
+Progress on stderr (a bar on a terminal, a line every $SPM_PROGRESS_EVERY s, default 10, elsewhere).
 """
 
 import argparse
@@ -21,6 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from spm_data.commands.cli_support import tracked  # noqa: E402
 from spm_data.errors import ShardError  # noqa: E402
 from spm_data.io.shards import read_shard, write_shard  # noqa: E402
 from tests.helpers import make_arrays, payload_positions  # noqa: E402
@@ -39,7 +42,7 @@ def main(stride: int) -> None:
     counts = collections.Counter()
     path = tmp / "flipped.h5"
     started = time.perf_counter()
-    for p in metadata:
+    for p in tracked(metadata, "flip_scan: flipping metadata bytes", "flip"):
         flipped = bytearray(data)
         flipped[p] ^= 1 << (p % 8)
         path.write_bytes(bytes(flipped))

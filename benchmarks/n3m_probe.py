@@ -19,6 +19,7 @@ methods (--methods): n3m (the paper's levels; --fallback adds the RANSAC fallbac
 before issue 34) and sift-pnp (that fallback alone, for every image); they share their SIFT.
 Targets (256 px): >= 95% within ±5°, geodesic median <= 1°, translation median <= 3 mm;
 40% occlusion >= 80% within ±5°. Figures seen: docs/method.md, "N3M" and "SIFT + PnP".
+Progress on stderr (a bar on a terminal, a line every $SPM_PROGRESS_EVERY s, default 10, elsewhere).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from spm_data.commands.cli_support import stage  # noqa: E402
 from spm_data.core.poses import label_to_pose, wrap_degrees  # noqa: E402
 from spm_data.io.shards import read_shard  # noqa: E402
 from spm_model.methods.n3m import N3MPose  # noqa: E402
@@ -105,9 +107,10 @@ def main(argv=None) -> int:
     if unknown or not methods:
         parser.error(f"--methods: unknown {', '.join(unknown) or 'empty list'}; choose from {', '.join(makers)}")
     root = Path(args.root)
-    frames, poses = load(root / f"train_{args.px}", with_depth=True)
-    tests = [(name, *load(root / f"{folder}_{args.px}", mask_field=mask))
-             for name, folder, mask in (("no occlusion", "test", "mask"), ("40% occlusion", "occ", "visible_mask"))]
+    with stage(f"n3m_probe: reading {root}'s {args.px} px sets"):
+        frames, poses = load(root / f"train_{args.px}", with_depth=True)
+        tests = [(name, *load(root / f"{folder}_{args.px}", mask_field=mask)) for name, folder, mask in
+                 (("no occlusion", "test", "mask"), ("40% occlusion", "occ", "visible_mask"))]
     for method in methods:
         probe(method, makers[method](), frames, poses, tests, args.px)
     return 0
@@ -116,14 +119,16 @@ def main(argv=None) -> int:
 def probe(method: str, model, frames, poses, tests, px: int) -> None:
     """Fit ``model`` and print its scores on each (name, frames, truth) of ``tests``."""
     start = time.perf_counter()
-    model.fit(frames, poses)
+    with stage(f"n3m_probe: fitting {method} on {len(frames)} frames"):
+        model.fit(frames, poses)
     fit_s = time.perf_counter() - start
     markers = f", {len(model.markers_)} N3Ms" if hasattr(model, "markers_") else ""
     print(f"{method}, {px} px: fit {len(frames)} frames in {fit_s:.1f} s; {len(model.points_)} points, "
           f"{len(model.descriptors_)} descriptors{markers}")
     for name, test, truth in tests:
         start = time.perf_counter()
-        pred, sources = model.predict_details(test)
+        with stage(f"n3m_probe: {method} on {len(test)} test frames, {name}"):
+            pred, sources = model.predict_details(test)
         rate = len(test) / (time.perf_counter() - start)
         s = scores(pred, truth)
         n3m = 100 * np.mean([src == "n3m" for src in sources])

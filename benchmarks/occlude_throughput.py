@@ -12,6 +12,8 @@ every input is hashed again, as in a fresh ``spm-data occlude``. Prints frames p
 second, the verification's share of the one-process command and the load average.
 
     python benchmarks/occlude_throughput.py [--in DIR | --keep DIR]
+
+Progress on stderr (a bar on a terminal, a line every $SPM_PROGRESS_EVERY s, default 10, elsewhere).
 """
 
 import argparse
@@ -30,6 +32,7 @@ def main(frames: int = 1024) -> None:
     # __mp_main__), and the renderer's imports (trimesh, scipy) would cost each worker ~1 s.
     import numpy as np
 
+    from spm_data.commands.cli_support import stage
     from spm_data.commands.occlude_jobs import occlude_dataset
     from spm_data.core.occlusion import apply_occlusion, occlude_mask
     from spm_data.io.shards import forget_checks, list_shards, read_shard, verify_shard
@@ -45,12 +48,15 @@ def main(frames: int = 1024) -> None:
         if args.source is None:
             from spm_data.commands.render_jobs import load_run_specs, render_dataset
 
-            render_dataset(load_run_specs(["cup"], renderer="pyrender"), source, limit=frames)
+            with stage(f"occlude_throughput: rendering {frames} frames", unit="frame") as progress:
+                render_dataset(load_run_specs(["cup"], renderer="pyrender"), source, limit=frames, progress=progress)
         data = [read_shard(p, ["rgb", "mask"]) for p in list_shards(source)]
         frames = sum(len(d["mask"]) for d in data)
         rng = np.random.default_rng(0)
         best = {"place": [], "verify": [], "one": [], "cpu": [], "two": []}
         for attempt in range(3):
+            print(f"occlude_throughput: pass {attempt + 1} of 3: verify, place, occlude with 1 and 2 workers",
+                  file=sys.stderr, flush=True)
             forget_checks()
             started = time.perf_counter()
             for p in list_shards(source):  # what occlude checks before writing anything
@@ -64,13 +70,16 @@ def main(frames: int = 1024) -> None:
             best["place"].append(time.perf_counter() - started)
             forget_checks()
             started, cpu = time.perf_counter(), time.process_time()
-            summary = occlude_dataset(source, tmp / f"out{attempt}", low=0.0, high=0.6)
+            with stage(f"occlude_throughput: occlude, one process (pass {attempt + 1})", unit="frame") as progress:
+                summary = occlude_dataset(source, tmp / f"out{attempt}", low=0.0, high=0.6, progress=progress)
             best["one"].append(time.perf_counter() - started)
             best["cpu"].append(time.process_time() - cpu)
             assert summary.frames == frames
             forget_checks()
             started = time.perf_counter()
-            occlude_dataset(source, tmp / f"out-2w{attempt}", low=0.0, high=0.6, executor=LocalExecutor(workers=2))
+            with stage(f"occlude_throughput: occlude, 2 workers (pass {attempt + 1})", unit="frame") as progress:
+                occlude_dataset(source, tmp / f"out-2w{attempt}", low=0.0, high=0.6, executor=LocalExecutor(workers=2),
+                                progress=progress)
             best["two"].append(time.perf_counter() - started)
             assert sorted(os.listdir(tmp / f"out-2w{attempt}")) == sorted(os.listdir(tmp / f"out{attempt}"))
             shutil.rmtree(tmp / f"out-2w{attempt}")

@@ -11,6 +11,7 @@ times after one warm-up pass. Prints, per model, the per-image time (median, mea
 90th percentile, in ms) and the rate (images/s from the median); the target is 100.
 ``--check OUT.json``: also write every pose, so two versions' outputs can be compared
 (``--compare A.json B.json`` prints the largest difference and exits).
+Progress on stderr (a bar on a terminal, a line every $SPM_PROGRESS_EVERY s, default 10, elsewhere).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from spm_data.commands.cli_support import stage  # noqa: E402
 from spm_data.io.shards import read_shard  # noqa: E402
 from spm_model.bench.feature_cache import find_shards  # noqa: E402
 from spm_model.commands.evaluate import load_model  # noqa: E402
@@ -45,7 +47,7 @@ def images(shards: Path, frames: int, size: tuple[int, int]) -> list[np.ndarray]
     return out[:frames]
 
 
-def time_model(model, imgs: list[np.ndarray], repeats: int) -> tuple[np.ndarray, list]:
+def time_model(model, imgs: list[np.ndarray], repeats: int, progress=lambda n: None) -> tuple[np.ndarray, list]:
     """Per-image seconds (len(imgs) * repeats,) and the poses of the last pass (None on failure)."""
     def one(rgb):
         try:
@@ -53,7 +55,9 @@ def time_model(model, imgs: list[np.ndarray], repeats: int) -> tuple[np.ndarray,
         except Exception as exc:  # noqa: BLE001 - a failed image is reported, not timed out
             return type(exc).__name__
 
-    [one(x) for x in imgs]  # warm-up: caches, lazy imports
+    for x in imgs:  # warm-up: caches, lazy imports
+        one(x)
+        progress(1)
     times, poses = [], []
     for _ in range(repeats):
         poses = []
@@ -61,6 +65,7 @@ def time_model(model, imgs: list[np.ndarray], repeats: int) -> tuple[np.ndarray,
             t0 = time.perf_counter()
             poses.append(one(rgb))
             times.append(time.perf_counter() - t0)
+            progress(1)
     return np.array(times), poses
 
 
@@ -89,12 +94,15 @@ def main() -> None:
     if not args.model or args.shards is None:
         parser.error("give --model (repeatable) and --shards")
     w, h = (int(v) for v in args.size.split("x"))
-    imgs = images(args.shards, args.frames, (w, h))
+    with stage(f"predict_rate: decoding {args.frames} images of {args.shards}"):
+        imgs = images(args.shards, args.frames, (w, h))
     print(f"{len(imgs)} images {w}x{h}, {args.repeats} passes each after a warm-up")
     out = {}
     for path in args.model:
         model = load_model(path)
-        times, poses = time_model(model, imgs, args.repeats)
+        with stage(f"predict_rate: {path.name}, a warm-up and {args.repeats} passes", len(imgs) * (args.repeats + 1),
+                   "image") as progress:
+            times, poses = time_model(model, imgs, args.repeats, progress)
         ms = times * 1e3
         med = float(np.median(ms))
         print(f"{path.name} ({type(model).__name__}): per image median {med:.2f} ms, mean {ms.mean():.2f} ms, "

@@ -11,7 +11,8 @@ issue's targets: all three protocols <= 10 min, loco <= 5 min (default dataset:
 `spm-data render --all --renderer pyrender`, features extracted once beforehand, e.g.
 by a first `spm train`). ``--compare`` prints, per protocol and method, the largest
 difference between two such folders' results.json summaries (0 when a change is
-exact).
+exact). Progress on stderr (a bar on a terminal, a line every
+$SPM_PROGRESS_EVERY s, default 10, elsewhere): each step of spm train.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from spm_data.commands.cli_support import stage  # noqa: E402
 from spm_data.jobs.executor import LocalExecutor  # noqa: E402
 from spm_model.commands.train import train  # noqa: E402
 
@@ -74,8 +76,9 @@ def main() -> None:
     times = {}
     for protocol in args.protocols.split(","):
         t0 = time.perf_counter()
-        train(args.shards, args.out / protocol, protocol=protocol, runs=args.runs, builtins=builtins,
-              executor=LocalExecutor(workers=args.workers))
+        with stage(f"protocol_times: spm train {args.shards} --protocol {protocol}") as progress:
+            train(args.shards, args.out / protocol, protocol=protocol, runs=args.runs, builtins=builtins,
+                  executor=LocalExecutor(workers=args.workers), progress=progress)
         times[protocol] = time.perf_counter() - t0
         print(f"{protocol}: {times[protocol]:.0f} s ({args.runs} runs, {args.workers} workers, "
               f"methods {args.methods or 'all'})", flush=True)

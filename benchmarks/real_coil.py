@@ -16,7 +16,9 @@ commands; the reports are in OUT/report-views and OUT/report-interleaved.
 
 COIL-20's processed set is ``coil-20-proc.zip`` from Columbia's CAVE pages (128 x 128 grey);
 copies of it at 32 x 32 circulate as ``COIL20.mat`` in public repositories, which
-scripts/coil_from_mat.py writes out in the original layout.
+scripts/coil_from_mat.py writes out in the original layout. The import and each spm train
+report their progress on stderr (a bar on a terminal, a line every $SPM_PROGRESS_EVERY s, default
+10, elsewhere).
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from pathlib import Path
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from spm_data.commands.cli_support import Progress  # noqa: E402
 from spm_data.errors import SpmError  # noqa: E402
 from spm_data.formats.coil100 import NAME, import_coil20, import_coil100, list_members  # noqa: E402
 from spm_data.io.files import atomic_file  # noqa: E402
@@ -103,7 +106,9 @@ def run(argv=None) -> int:
     layout = layout_of(args.folder) if args.layout == "auto" else args.layout
     shards = out / "shards"
     stamp(f"importing {args.folder} as {layout} into {shards}", start)
-    summary, problems = (import_coil20 if layout == "coil20" else import_coil100)(args.folder, shards)
+    with Progress("image", f"importing {layout}") as progress:
+        summary, problems = (import_coil20 if layout == "coil20" else import_coil100)(args.folder, shards,
+                                                                                     progress=progress)
     stamp(f"{summary.frames} frames imported ({len(problems)} problems listed by the importer)", start)
     lines = [f"# Real images: {layout} from `{args.folder}`", "",
              f"{datetime.date.today().isoformat()}, {platform.node()} ({os.cpu_count()} cores), "
@@ -113,9 +118,11 @@ def run(argv=None) -> int:
         report = out / f"report-{protocol}"
         stamp(f"spm train {shards} --protocol {protocol} --runs {args.runs} --workers {args.workers} "
               f"--out {report}", start)
-        train(shards, report, protocol=protocol, runs=args.runs, executor=make_executor(workers=args.workers),
-              log=lambda m: stamp(m, start), command=f"spm train {shards} --protocol {protocol} --runs {args.runs} "
-                                                     f"--workers {args.workers} --out {report}")
+        with Progress() as progress:
+            train(shards, report, protocol=protocol, runs=args.runs, executor=make_executor(workers=args.workers),
+                  log=lambda m: stamp(m, start), progress=progress,
+                  command=f"spm train {shards} --protocol {protocol} --runs {args.runs} --workers {args.workers} "
+                          f"--out {report}")
         rows, declined = method_rows(report)
         section = [f"## {protocol}", "", f"Command: `spm train {shards} --protocol {protocol} --runs {args.runs} "
                    f"--out {report}`", ""] + markdown_table(rows) + [""]

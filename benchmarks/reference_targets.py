@@ -9,6 +9,7 @@ the template matcher and chance (a random training pose) then run on each
 protocol, and one table prints the figures beside the targets:
 views >= 97% within ±5°; instances >= 60% within ±5° and geodesic median <= 6°;
 loco elevation median <= 5° and distance median <= 5 mm.
+Progress on stderr (a bar on a terminal, a line every $SPM_PROGRESS_EVERY s, default 10, elsewhere).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from spm_data.commands.cli_support import stage  # noqa: E402
 from spm_model.bench.feature_cache import load_features  # noqa: E402
 from spm_model.bench.protocols import evaluate  # noqa: E402
 from spm_model.spm.features import FeatureConfig  # noqa: E402
@@ -46,13 +48,16 @@ def main(argv=None) -> int:
         print("warning: --shards is deprecated; give the folder as the first argument", file=sys.stderr)
         args.shards = args.old_shards
     start = time.time()
-    table = load_features(args.shards, FeatureConfig(), executor=LocalExecutor(workers=args.workers))
+    with stage(f"reference_targets: features of {args.shards}") as progress:
+        table = load_features(args.shards, FeatureConfig(), executor=LocalExecutor(workers=args.workers),
+                              progress=progress)
     print(f"{len(table)} frames from {args.shards} (features {time.time() - start:.0f} s)")
     rows = []
     for protocol, targets in TARGETS.items():
         start = time.time()
-        evaluation = evaluate(table, protocol, args.runs, {"features": FeatureConfig()},
-                              builtins=("template", "chance"))
+        with stage(f"reference_targets: {protocol} protocol, {args.runs} runs") as progress:
+            evaluation = evaluate(table, protocol, args.runs, {"features": FeatureConfig()},
+                                  builtins=("template", "chance"), progress=progress)
         summary = aggregate(evaluation)
         ref, chance = summary["methods"]["template"], summary["chance"]
         for key, op, target in targets:

@@ -15,6 +15,9 @@ resident memory (VmHWM, /proc/self/status) and wall time:
   process that only imports spm_data.commands.render_jobs.
 
     python benchmarks/render_memory.py [--sizes 1024 2048 4096] [--frames 16] [--no-buffered]
+
+A line on stderr as each measurement starts, and every $SPM_PROGRESS_EVERY s (default 10) while
+it runs off a terminal (a bar on one).
 """
 
 import argparse
@@ -86,9 +89,13 @@ def child(mode: str, size: int, frames: int) -> dict:
 
 
 def measure(mode: str, size: int = 0, frames: int = 0) -> dict:
+    from spm_data.commands.cli_support import stage
+
     env = {**os.environ, "PYOPENGL_PLATFORM": os.environ.get("PYOPENGL_PLATFORM", "egl")}
-    out = subprocess.run([sys.executable, __file__, "--child", mode, str(size), str(frames)],
-                         capture_output=True, text=True, env=env, cwd=ROOT)
+    what = f"{mode}, {frames} frames of {size}x{size}" if size else mode
+    with stage(f"render_memory: {what}, in a child process"):
+        out = subprocess.run([sys.executable, __file__, "--child", mode, str(size), str(frames)],
+                             capture_output=True, text=True, env=env, cwd=ROOT)
     if out.returncode != 0:
         return {"error": (out.stderr.strip().splitlines() or ["exit status %d" % out.returncode])[-1]}
     return json.loads(out.stdout.strip().splitlines()[-1])

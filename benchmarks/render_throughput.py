@@ -13,6 +13,7 @@ written: Blender's own cost for the frame); ours = Renderer.render; whole =
 render_dataset with 1 and 2 worker processes; and, for the full set of shipped
 specs, an extrapolation (whole s/frame x frames), not a measurement.
 Targets: Cycles ours / bare <= 1.05 and the full set <= 12 min; Workbench ours / bare <= 1.3.
+Progress on stderr (a bar on a terminal, a line every $SPM_PROGRESS_EVERY s, default 10, elsewhere).
 """
 
 import argparse
@@ -24,6 +25,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from spm_data.commands.cli_support import stage  # noqa: E402
 from spm_data.core.paths import camera_path  # noqa: E402
 from spm_data.render import make_renderer  # noqa: E402
 from spm_data.core.instances import load_instance  # noqa: E402
@@ -36,11 +38,14 @@ from spm_data.jobs.executor import LocalExecutor  # noqa: E402
 def bench(spec, frames: int, renderer_name: str, repeats: int = 3) -> tuple[float, float]:
     """Best-of-``repeats`` seconds for the bare loop and the whole path, interleaved
     so that load from other users of a shared machine hits both alike."""
-    runs = [_bench_once(spec, frames, renderer_name) for _ in range(repeats)]
+    size = f"{spec.image.width}x{spec.image.height}"
+    with stage(f"render_throughput: {renderer_name} {size}, bare loop and whole path, {frames} frames, "
+               f"{repeats} rounds", 2 * frames * repeats, "frame") as progress:
+        runs = [_bench_once(spec, frames, renderer_name, progress) for _ in range(repeats)]
     return min(r[0] for r in runs), min(r[1] for r in runs)
 
 
-def _bench_once(spec, frames: int, renderer_name: str) -> tuple[float, float]:
+def _bench_once(spec, frames: int, renderer_name: str, progress=lambda n: None) -> tuple[float, float]:
     jobs = plan_shards(spec, "unused", limit=frames)
     path = camera_path(spec.camera, spec.seed)
     poses = [path.poses(job.path_indices) for job in jobs]  # outside the timed loop
@@ -60,10 +65,12 @@ def _bench_once(spec, frames: int, renderer_name: str) -> tuple[float, float]:
             draws, distractors = scene[k]
             renderer.render(R[k], t[k], draws=draws, distractors=distractors)
     bare = time.perf_counter() - started
+    progress(frames)
     with tempfile.TemporaryDirectory() as out:
         started = time.perf_counter()
         summary = render_dataset([spec], out, limit=frames)
         whole = time.perf_counter() - started
+    progress(frames)
     assert summary.frames == frames
     return bare, whole
 
@@ -122,6 +129,8 @@ def bench_blender(specs, engine: str, per_class: int, rounds: int = 2) -> dict:
     specs = [_blender_spec(spec, engine) for spec in specs]
     totals = {"bare": 0.0, "bare_border": 0.0, "ours": 0.0}
     frames = 0
+    progress = stage(f"render_throughput: Blender {engine}, bare and ours, {per_class} frames of each of "
+                     f"{len(specs)} specs", len(specs), "spec")
     for spec in specs:
         jobs = plan_shards(spec, "unused", limit=per_class)
         path = camera_path(spec.camera, spec.seed)
@@ -158,12 +167,15 @@ def bench_blender(specs, engine: str, per_class: int, rounds: int = 2) -> dict:
                     totals[kind] += best[kind] if best[kind] < float("inf") else 0.0
                 frames += len(ks)
         renderer.close()
+        progress(1)
+    progress.close()
     result = {"frames": frames, **{kind: total / frames for kind, total in totals.items()},
               "full_frames": sum(job.frames for spec in specs for job in plan_shards(spec, "unused"))}
     for workers in (1, 2):
-        with tempfile.TemporaryDirectory() as out:
+        with tempfile.TemporaryDirectory() as out, stage(f"render_throughput: Blender {engine}, whole path, "
+                                                         f"{workers} workers", unit="frame") as progress:
             executor = LocalExecutor(workers=workers, retries=1, recycle_after=RECYCLE_AFTER)
-            summary = render_dataset(specs, out, limit=per_class, executor=executor)
+            summary = render_dataset(specs, out, limit=per_class, executor=executor, progress=progress)
             assert summary.frames == frames and not summary.failed, summary.report()
             result[f"whole_{workers}"] = summary.seconds / frames
     return result

@@ -3,11 +3,13 @@ its bins, +-5 degree per-angle success, translation error, fit and predict speed
 
     PYOPENGL_PLATFORM=egl python benchmarks/smm_probe.py [--out /tmp/smm_probe] [--classes car,box,cup]
 
-Renders (pyrender, 128x128, once; reused when present) per class and instance a
+Renders (pyrender, 128x128, once; reused when made with the same --classes, --instances and
+--views, refused otherwise) per class and instance a
 training grid (azimuth 0-355 every 5 degrees, elevation 10-40 every 10: 288 views,
 one camera path each) and a test set of random views in the same range (the
 ``sphere`` sampler, off the grid). Trains on every grid view, tests on the random
 ones with only rgb, mask and K.
+Progress on stderr (a bar on a terminal, a line every $SPM_PROGRESS_EVERY s, default 10, elsewhere).
 """
 
 from __future__ import annotations
@@ -21,8 +23,11 @@ from pathlib import Path
 import numpy as np
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from spm_data.commands.cli_support import stage  # noqa: E402
+from out_options import claim  # noqa: E402
 from spm_data.commands.render_jobs import load_run_specs, render_dataset  # noqa: E402
 from spm_data.io.shards import read_shard  # noqa: E402
 from spm_model.methods.smm import SMMPose, pose_bins  # noqa: E402
@@ -46,12 +51,18 @@ RANDOM = GRID.replace('[camera]', '[camera]\nsampler = "sphere"\nviews = {views}
 
 
 def render(out: Path, classes, instances: int, views: int) -> None:
+    """Render (or resume) into ``out``; a folder made with other --classes, --instances or --views
+    is refused (out_options.py), and its specs are never rewritten under their shards."""
+    claim(out, {"--classes": list(classes), "--instances": instances, "--views": views}, record="smm-probe-options.json",
+          data=("grid", "random", "specs-grid", "specs-random"), script="smm_probe.py")
     for name, text in (("grid", GRID), ("random", RANDOM)):
         specs = out / f"specs-{name}"
         specs.mkdir(parents=True, exist_ok=True)
         for cls in classes:
-            (specs / f"{cls}.toml").write_text(text.format(cls=cls, instances=instances, views=views))
-        render_dataset(load_run_specs(all_classes=True, specs_dir=specs), out / name)
+            if not (specs / f"{cls}.toml").exists():
+                (specs / f"{cls}.toml").write_text(text.format(cls=cls, instances=instances, views=views))
+        with stage(f"smm_probe: rendering the {name} views into {out / name}", unit="frame") as progress:
+            render_dataset(load_run_specs(all_classes=True, specs_dir=specs), out / name, progress=progress)
 
 
 def load(folder: Path, fields=("rgb", "mask", "K", "pose", "path_index", "instance_id")):
@@ -84,8 +95,9 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     out = Path(args.out)
     render(out, args.classes.split(","), args.instances, args.views)
-    train, train_poses = load(out / "grid")
-    test, test_poses = load(out / "random")
+    with stage("smm_probe: reading the frames"):
+        train, train_poses = load(out / "grid")
+        test, test_poses = load(out / "random")
     if args.unseen:
         last = args.instances - 1
         keep = np.array([f["sequence"] % 1000 != last for f in train])
@@ -98,10 +110,12 @@ def main(argv=None) -> None:
     model = SMMPose(n_bins=args.bins, parts=args.parts, candidate_parts=args.candidate_parts,
                     alignment_weight=args.alignment_weight)
     start = time.perf_counter()
-    model.fit(train, train_poses)
+    with stage(f"smm_probe: fitting SMM on {len(train)} frames"):
+        model.fit(train, train_poses)
     fit_s = time.perf_counter() - start
     start = time.perf_counter()
-    pred = model.predict(test)
+    with stage(f"smm_probe: predicting {len(test)} frames"):
+        pred = model.predict(test)
     bins = pose_bins(pred, args.bins)
     predict_s = time.perf_counter() - start
     truth = pose_bins(test_poses, args.bins)

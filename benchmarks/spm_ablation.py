@@ -41,6 +41,9 @@ the model fitted on the training split), and chance (a random training frame's
 label, seeded). All on the frames that have a default
 vector (training rule for the training side, query rule for the test side);
 (a)-(c) are z-scored with training statistics.
+
+Stage lines on stderr, and progress (a bar on a terminal, a line every $SPM_PROGRESS_EVERY s,
+default 10, elsewhere) while rendering, finding keypoints and running the variants.
 """
 
 from __future__ import annotations
@@ -58,6 +61,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from spm_data.commands.cli_support import Progress  # noqa: E402
 from spm_data.io.shards import list_shards, read_shard  # noqa: E402
 from spm_model.spm.bunches import BunchError, fit_bunches  # noqa: E402
 from spm_model.spm.ellipse import EllipseError, fit_ellipse  # noqa: E402
@@ -117,14 +121,23 @@ def cmd_render(args) -> None:
     labels = read_labels(list_shards(args.shards))
     _, needed = subset_masks(labels, args.instances, args.azimuth_step, args.elevation_step)
     out = Path(args.hires)
+    # Shards already there are reused (a resume): only if made with these options (out_options.py).
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from out_options import claim
+
+    claim(out, {"shards": str(Path(args.shards).resolve()), "--instances": args.instances,
+                "--azimuth-step": args.azimuth_step, "--elevation-step": args.elevation_step, "--size": args.size},
+          record="ablation-render-options.json", data=("specs",), script="spm_ablation.py render")
     (out / "specs").mkdir(parents=True, exist_ok=True)
     start = time.time()
+    progress = Progress("frame", "spm_ablation: rendering", int(needed.sum()))
     for cls in sorted(set(labels["class_name"].tolist())):
         text = (ROOT / "render_specs" / f"{cls}.toml").read_text()
         text = re.sub(r"^width = \d+", f"width = {args.size}", text, flags=re.M)
         text = re.sub(r"^height = \d+", f"height = {args.size}", text, flags=re.M)
         spec_file = out / "specs" / f"{cls}.toml"
-        spec_file.write_text(text)
+        if not spec_file.exists():   # never rewritten under its shards
+            spec_file.write_text(text)
         spec = effective_spec(parse_spec(text, str(spec_file), base_dir=str(ROOT / "render_specs")),
                               renderer="pyrender")
         sel = needed & (labels["class_name"] == cls)
@@ -136,11 +149,13 @@ def cmd_render(args) -> None:
         for k, s in enumerate(range(0, len(inst), per)):
             name = f"{cls}-{k:05d}.h5"
             if (out / name).exists():
+                progress(len(inst[s:s + per]))
                 continue
             job = ShardJob(spec=spec, name=name, shard_index=k, instances=inst[s:s + per],
                            path_indices=pidx[s:s + per], plan_key=key, out_dir=str(out))
-            render_shard(job)
+            render_shard(job, progress)
             log(f"rendered {name} ({len(job.instances)} frames, {time.time() - start:.0f} s)")
+    progress.close()
     log(f"render done in {time.time() - start:.0f} s")
 
 
@@ -157,6 +172,7 @@ class FrameSet:
         subset, needed = subset_masks(labels, args.instances, args.azimuth_step, args.elevation_step, keys)
         idx = np.flatnonzero(needed)
         sift, box = {}, {}
+        progress = Progress("frame", f"spm_ablation: {name} keypoints", len(idx))
         for shard in sorted(set(labels["shard"][idx].tolist())):
             rows = idx[labels["shard"][idx] == shard]
             d = read_shard(shard, ("rgb", "mask"), frames=np.sort(labels["row"][rows]))
@@ -165,6 +181,8 @@ class FrameSet:
                 sift[i] = sift_keypoints(small, mask)
                 ys, xs = np.nonzero(mask)
                 box[i] = (xs.min(), ys.min(), xs.max() + 1, ys.max() + 1) if len(xs) else (0, 0, 1, 1)
+                progress(1)
+        progress.close()
         where = {(c, int(k), int(p)): i for i, (c, k, p) in enumerate(
             zip(labels["class_name"], labels["instance_id"], labels["path_index"])) if i in sift}
         sub = np.flatnonzero(subset)
@@ -449,8 +467,10 @@ def cmd_run(args) -> None:
             f"{res['instances']['spm']['median_deg']:.1f} deg ({time.time() - t0:.0f} s)")
         return res
 
+    progress = Progress("variant", "spm_ablation: variants", len(variants) + (not args.no_best))
     for v in variants:
         run_variant(*v)
+        progress(1)
 
     if not args.no_best:
         def mean_spm(name):
@@ -481,6 +501,8 @@ def cmd_run(args) -> None:
                  f"{'+ellipse, ' if best.append_ellipse else ''}gamma {best.gamma}, {fs.name}, "
                  f"regressor {reg or 'default'}")
         run_variant(label, fs, best_rule, best, reg)
+        progress(1)
+    progress.close()
 
     log("probe")
     stages = probe(lo, args.seed, cache)

@@ -10,7 +10,9 @@ feature vectors with small Gaussian jitter (sigma 0.005 on unit vectors); the
 timing depends on n, not on where the vectors came from. Targets: 250,000
 samples in under 30 minutes on this machine; the scalable solver (exact l1 for
 a 1,000-sample subset, Nystrom regressor) within one point of the exact l1
-solve over every sample; prediction at 25 images per second or better.
+solve over every sample; prediction at 25 images per second or better. A line on stderr as each
+step starts, and progress while it runs (a bar on a terminal, a line every $SPM_PROGRESS_EVERY s,
+default 10, elsewhere).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ import numpy as np
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from spm_data.commands.cli_support import stage, tracked  # noqa: E402
 from spm_data.commands.render_jobs import load_run_specs, render_dataset  # noqa: E402
 from spm_data.io.shards import read_shard  # noqa: E402
 from spm_model.bench.feature_cache import find_shards, load_features  # noqa: E402
@@ -50,7 +53,8 @@ def make_shards(folder: Path) -> Path:
     specs = [replace(s, camera=replace(s.camera, elevation=AngleRange(20, 30, 5)),
                      mesh=replace(s.mesh, instances=1),
                      render=replace(s.render, renderer="pyrender")) for s in specs]
-    render_dataset(specs, folder)
+    with stage(f"train_scaling: rendering {folder}", unit="frame") as progress:
+        render_dataset(specs, folder, progress=progress)
     return folder
 
 
@@ -60,8 +64,12 @@ def extraction_fps(shards: Path, frames: int = 256) -> tuple[float, float]:
     d = read_shard(shard, ("rgb", "mask", "instance_id", "path_index"), frames=slice(0, frames))
     out = []
     for ellipse in ("pso", "direct"):
+        progress = stage(f"train_scaling: features of {len(d['rgb'])} frames, one process, {ellipse} ellipse",
+                         len(d["rgb"]), "frame")
         started = time.perf_counter()
-        frames_features(d["rgb"], d["mask"], d["instance_id"], d["path_index"], FeatureConfig(ellipse=ellipse))
+        with progress:
+            frames_features(d["rgb"], d["mask"], d["instance_id"], d["path_index"], FeatureConfig(ellipse=ellipse),
+                            progress)
         out.append(len(d["rgb"]) / (time.perf_counter() - started))
     return out[0], out[1]
 
@@ -73,10 +81,11 @@ def ellipse_timing(table) -> tuple[float, float]:
     shard = find_shards(table)[0]
     d = read_shard(shard, ("rgb", "mask"), frames=slice(0, 100))
     centres = []
-    for rgb, mask in zip(d["rgb"], d["mask"]):
-        loc, _ = sift_keypoints(rgb, mask)
-        if len(loc) >= 16:
-            centres.append(fit_bunches(loc).means)
+    with stage("train_scaling: ellipse fits' cost"):
+        for rgb, mask in zip(d["rgb"], d["mask"]):
+            loc, _ = sift_keypoints(rgb, mask)
+            if len(loc) >= 16:
+                centres.append(fit_bunches(loc).means)
     times = []
     for method in ("pso", "direct"):
         started = time.perf_counter()
@@ -105,7 +114,7 @@ def accuracy_against_exact(table, subset: int = 1200, seeds=(0, 1, 2)) -> dict:
                          ("exact l1, 1,000-sample subset (default)", {}),
                          ("knn l1 (k=64), 1,000-sample subset", {"projection": "knn"})):
         rows = []
-        for seed in seeds:
+        for seed in tracked(seeds, f"train_scaling: {name}, {len(train)} training frames", "seed"):
             started = time.perf_counter()
             model = SPMEstimator(**params, seed=seed).fit(table.train_vector[train], table.pose[train])
             fit_s = time.perf_counter() - started
@@ -153,12 +162,14 @@ def main() -> None:
         for workers in (1, 2):
             for old in sample.glob(".spm-features/*"):
                 old.unlink()
-            started = time.perf_counter()
-            n = len(load_features(sample, executor=LocalExecutor(workers=workers)))
-            elapsed = time.perf_counter() - started
+            with stage(f"train_scaling: features of 4 shards, {workers} worker(s)") as progress:
+                started = time.perf_counter()
+                n = len(load_features(sample, executor=LocalExecutor(workers=workers), progress=progress))
+                elapsed = time.perf_counter() - started
             print(f"feature extraction of {n} frames (4 shards, no cache) with {workers} worker(s): "
                   f"{elapsed:.1f} s, {n / elapsed:.1f} frames/s")
-        table = load_features(shards, executor=LocalExecutor(workers=args.workers))  # cached after a first spm train
+        with stage(f"train_scaling: features of {shards}") as progress:   # cached after a first spm train
+            table = load_features(shards, executor=LocalExecutor(workers=args.workers), progress=progress)
         pso_ms, direct_ms = ellipse_timing(shards)
         print(f"ellipse fit per frame: PSO (Eq. 1) {pso_ms:.2f} ms, direct {direct_ms:.3f} ms "
               f"({pso_ms / direct_ms:.0f}x)")
@@ -178,9 +189,11 @@ def main() -> None:
         for n in (int(v) for v in args.sizes.split(",")):
             Xn, yn = resample(X, y, n, rng)
             started = time.perf_counter()
-            model = SPMEstimator().fit(Xn, yn)
+            with stage(f"train_scaling: SPM fitted on {n:,} samples"):
+                model = SPMEstimator().fit(Xn, yn)
             print(f"| {n:,} | {time.perf_counter() - started:.1f} |", flush=True)
-        fps = predict_fps(model, shards)
+        with stage("train_scaling: spm predict at 640x480"):
+            fps = predict_fps(model, shards)
         print(f"spm predict, 640x480 image (features + model, image in memory): {fps:.1f} images/s")
 
 

@@ -7,6 +7,8 @@ checks stay): ``read_shard`` of whole shards, ``ShardDataset`` a frame at a time
 the hash alone. Each pass starts with nothing verified (seal.forget). Best of 3.
 
     python benchmarks/verify_cost.py [--frames 1024]
+
+Progress on stderr (a bar on a terminal, a line every $SPM_PROGRESS_EVERY s, default 10, elsewhere).
 """
 
 import argparse
@@ -17,6 +19,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from spm_data.commands.cli_support import stage  # noqa: E402
 from spm_data.commands.render_jobs import load_run_specs, render_dataset  # noqa: E402
 from spm_data.io.loaders import ShardDataset  # noqa: E402
 from spm_data.io.shards import list_shards, read_shard, reader, seal  # noqa: E402
@@ -24,13 +27,15 @@ from spm_data.io.shards import list_shards, read_shard, reader, seal  # noqa: E4
 FIELDS = ["rgb", "depth", "mask", "pose", "K", "class_name"]
 
 
-def best(call, repeat=3) -> float:
+def best(call, what: str, repeat=3) -> float:
     times = []
-    for _ in range(repeat):
-        seal.forget()
-        started = time.perf_counter()
-        call()
-        times.append(time.perf_counter() - started)
+    with stage(f"verify_cost: {what}, best of {repeat}", repeat, "pass") as progress:
+        for _ in range(repeat):
+            seal.forget()
+            started = time.perf_counter()
+            call()
+            times.append(time.perf_counter() - started)
+            progress(1)
     return min(times)
 
 
@@ -43,7 +48,8 @@ def header_only(path) -> str:
 def main(frames: int) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "in"
-        render_dataset(load_run_specs(["cup"], renderer="pyrender"), folder, limit=frames)
+        with stage(f"verify_cost: rendering {frames} frames", unit="frame") as progress:
+            render_dataset(load_run_specs(["cup"], renderer="pyrender"), folder, limit=frames, progress=progress)
         shards = list_shards(folder)
         size = sum(p.stat().st_size for p in shards)
 
@@ -61,11 +67,13 @@ def main(frames: int) -> None:
             for p in shards:
                 seal.verified_digest(p)
 
-        checked = {"read_shard": best(whole), "ShardDataset": best(one_at_a_time), "hash": best(hash_only)}
+        checked = {"read_shard": best(whole, "read_shard, checked"),
+                   "ShardDataset": best(one_at_a_time, "ShardDataset, checked"), "hash": best(hash_only, "SHA-256")}
         real = reader.verified_digest
         reader.verified_digest = header_only
         try:
-            unchecked = {"read_shard": best(whole), "ShardDataset": best(one_at_a_time)}
+            unchecked = {"read_shard": best(whole, "read_shard, unchecked"),
+                         "ShardDataset": best(one_at_a_time, "ShardDataset, unchecked")}
         finally:
             reader.verified_digest = real
     print(f"{frames} frames of 128x128 in {len(shards)} shards, {size / 1e6:.1f} MB; best of 3")

@@ -90,7 +90,8 @@ def validate_cmd(folder):
     """Check every shard in FOLDER against the schema and the manifest against the files; exit 1 on any problem."""
     from spm_data.commands.validate import validate_folder, validation_report
 
-    problems = validate_folder(folder)
+    with Progress("shard") as progress:
+        problems = validate_folder(folder, progress)
     click.echo(validation_report(folder, problems))
     if problems:
         sys.exit(1)

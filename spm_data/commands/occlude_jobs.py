@@ -19,8 +19,9 @@ from spm_data.errors import ShardError, SpmError
 from spm_data.io.folders import open_folder
 from spm_data.io.outputs import check_out_name
 from spm_data.core.occlusion import black_out, check_range, occlude_mask
+from spm_data.jobs.plan_diff import first_difference
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
-from spm_data.io.shards import (ShardReader, ShardWriter, hash_ahead, manifest_entry, reuse_verification,
+from spm_data.io.shards import (ShardReader, ShardWriter, hash_ahead, manifest_entry, read_attrs, reuse_verification,
                                 verification)
 from spm_data.io.shards.chunks import runs
 
@@ -41,6 +42,22 @@ class OccludeJob:
     out_dir: str
     frames: int
     verified: tuple | None = None  # the parent's check of the source (seal.py): not hashed again in a worker
+
+    def options(self) -> dict:
+        """The options this copy is made with, as the command line names them."""
+        return {"--min": self.low, "--max": self.high, "--rects": self.rects, "--seed": self.seed, "copy": self.copy}
+
+    def plan_difference(self, attrs: dict) -> tuple | str | None:
+        """(key, old, new): the option (``--max``...) that the shard with ``attrs`` was made with
+        otherwise, or a phrase for another input (shard_runs' refusal); None if none is found."""
+        old = {"--min": attrs["occlusion_min"], "--max": attrs["occlusion_max"], "--rects": attrs["occlusion_rects"],
+               "--seed": attrs["occlusion_seed"], "copy": attrs["occlusion_copy"]}
+        found = first_difference(old, self.options())
+        was, now = str(attrs.get("source_plan_key", "")), str(read_attrs(self.source).get("plan_key", ""))
+        if found is None and was != now:
+            return (f"was made from another version of its input {Path(self.source).name} (made with plan "
+                    f"{was[:12] or 'unknown'}, which is now {now[:12] or 'unknown'})")
+        return found
 
 
 def occlusion_report(summary: RunSummary) -> str:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -26,10 +26,11 @@ from spm_data.render import RENDERERS, make_renderer
 from spm_data.commands.render_frames import FrameMaker
 from spm_data.core.distractors import pool_names
 from spm_data.jobs.executor import LocalExecutor
+from spm_data.jobs.plan_diff import first_difference, flatten
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
 from spm_data.io.outputs import check_out_name
 from spm_data.io.shards import SCHEMA_VERSION, ShardWriter, manifest_entry
-from spm_data.core.specs import RenderSpec, all_spec_paths, find_spec, load_spec, validate_spec
+from spm_data.core.specs import RenderSpec, all_spec_paths, find_spec, load_spec, parse_spec, validate_spec
 
 
 @dataclass(frozen=True, init=False)
@@ -47,9 +48,10 @@ class ShardJob:
     out_dir: str = ""
     frame_range: tuple = field(default=(), repr=False)  # (frames_from, frames_to, n_path), or ()
     _given: tuple = field(default=(), repr=False)       # (instances, path_indices), or ()
+    limit: int | None = None                            # the run's --limit (part of the plan)
 
     def __init__(self, spec, name, shard_index, instances=None, path_indices=None, plan_key="", out_dir="",
-                 frame_range=()):
+                 frame_range=(), limit=None):
         given = ()
         if instances is not None or path_indices is not None:
             given = (np.asarray(instances, dtype=np.int64), np.asarray(path_indices, dtype=np.int64))
@@ -59,7 +61,7 @@ class ShardJob:
             raise ValueError("ShardJob: give instances and path_indices, or frame_range")
         for key, value in (("spec", spec), ("name", name), ("shard_index", shard_index), ("plan_key", plan_key),
                            ("out_dir", out_dir), ("frame_range", tuple(int(v) for v in frame_range)),
-                           ("_given", given)):
+                           ("_given", given), ("limit", None if limit is None else int(limit))):
             object.__setattr__(self, key, value)
 
     @property
@@ -73,6 +75,17 @@ class ShardJob:
         first, stop, n_path = self.frame_range
         return np.divmod(np.arange(first, stop, dtype=np.int64), n_path)
 
+    def plan_difference(self, attrs: dict) -> tuple | None:
+        """(key, old, new): the first spec key, seed, renderer or --limit that the shard with
+        ``attrs`` was made with otherwise (shard_runs' refusal); None if none is found."""
+        old = parse_spec(str(attrs["spec"]), "the shard's spec", self.spec.base_dir).replace(seed=int(attrs["seed"]))
+        if attrs.get("renderer") in RENDERERS:   # --renderer changes the run's spec, not its text
+            old = old.replace(render=replace(old.render, renderer=str(attrs["renderer"])))
+        limit = int(attrs["frame_limit"]) or None if "frame_limit" in attrs else self.limit  # older: not kept
+        if old.fingerprint() == self.spec.fingerprint():   # the same pixels: only the plan's options differ
+            return first_difference({"--limit": limit}, {"--limit": self.limit})
+        return first_difference(plan_of(old, limit), plan_of(self.spec, self.limit))
+
     @property
     def instances(self) -> np.ndarray:
         """(n,) int64 instance ids."""
@@ -85,6 +98,15 @@ class ShardJob:
 
 
 # --------------------------------------------------------------------------- planning
+
+def plan_of(spec: RenderSpec, limit: int | None) -> dict:
+    """What a render plan is made from, flat: ``{"seed": 0, "camera.azimuth": [...], ..., "--limit": N}``."""
+    tree = asdict(spec)
+    for key in ("text", "base_dir", "class_name"):
+        tree.pop(key)
+    tree["mesh"].pop("symmetries")   # metadata, not pixels (RenderSpec.fingerprint)
+    return {**flatten(tree), "--limit": limit}
+
 
 def effective_spec(spec: RenderSpec, renderer: str | None = None, seed: int | None = None) -> RenderSpec:
     """``spec`` with command-line overrides applied."""
@@ -142,7 +164,7 @@ def plan_shards(spec: RenderSpec, out_dir, limit: int | None = None) -> list[Sha
     key = hashlib.sha256(json.dumps({"spec": spec.fingerprint(), "limit": limit,
                                      "schema": SCHEMA_VERSION}).encode()).hexdigest()
     per = spec.render.frames_per_shard
-    common = {"spec": spec, "plan_key": key, "out_dir": str(out_dir)}
+    common = {"spec": spec, "plan_key": key, "out_dir": str(out_dir), "limit": limit}
     if limit is None or limit >= total:
         return [ShardJob(name=f"{spec.class_name}-{i:05d}.h5", shard_index=i,
                          frame_range=(s, min(s + per, total), n_path), **common)
@@ -217,6 +239,7 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
             **per_frame,
         }
         attrs = {"spec": spec.text, "spec_fingerprint": spec.fingerprint(), "plan_key": job.plan_key,
+                 "frame_limit": job.limit or 0,  # 0: none; with the spec and seed, what the plan was
                  "seed": spec.seed, "class_name": spec.class_name, "shard_index": job.shard_index,
                  "renderer": renderer.name, "renderer_version": renderer.version(),
                  "renderer_settings": json.dumps(renderer.settings(), sort_keys=True),

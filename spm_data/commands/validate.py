@@ -69,13 +69,29 @@ def validate_shard(path) -> list[str]:
     return problems
 
 
-def validate_folder(folder) -> list[tuple[str, str]]:
-    """(where, problem) for every shard in ``folder`` and its manifest."""
+def _phase(progress, label: str, total: int) -> None:
+    """Start a step of ``progress`` (spm_data.commands.cli_support.Progress, or any callable with a
+    settable ``total``) counting ``total`` shards."""
+    if progress is not None:
+        if hasattr(progress, "phase"):
+            progress.phase(label, total, "shard")
+        else:
+            progress.total = total
+
+
+def validate_folder(folder, progress=None) -> list[tuple[str, str]]:
+    """(where, problem) for every shard in ``folder`` and its manifest. progress: a callable
+    taking shard deltas (two steps: every shard read whole, then the checksums)."""
     folder = Path(folder)
     shards = list_shards(folder)
     if not shards:
         raise no_shards(folder, "nothing to validate")
-    problems = [(p.name, msg) for p in shards for msg in validate_shard(p)]
+    _phase(progress, "validate", len(shards))
+    problems = []
+    for p in shards:
+        problems += [(p.name, msg) for msg in validate_shard(p)]
+        if progress is not None:
+            progress(1)
     try:
         manifest = read_manifest(folder) if folder.is_dir() else None
     except ShardError as exc:
@@ -91,7 +107,10 @@ def validate_folder(folder) -> list[tuple[str, str]]:
         problems.append((MANIFEST, f"lists {name}, which is not in the folder"))
     for name in sorted(set(on_disk) - set(listed)):
         problems.append((MANIFEST, f"does not list {name}"))
+    _phase(progress, "validate checksums", len(set(listed) & set(on_disk)))
     for name in sorted(set(listed) & set(on_disk)):
+        if progress is not None:
+            progress(1)
         entry, path = listed[name], on_disk[name]
         try:
             size = path.stat().st_size

@@ -204,6 +204,8 @@ def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=F
     made = top_created(tmp / "models")  # what this export creates: removed on failure
     try:
         export = _Export(tmp, split, ids, meshes_from)
+        if progress is not None:
+            progress.total = sum(int(read_attrs(path)["frames"]) for path in shards)
         for path in shards:
             attrs, data = read_attrs(path), read_shard(path)
             for i in range(len(data["pose"])):

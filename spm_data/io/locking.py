@@ -12,7 +12,10 @@ rebooted since, the pid is not running (or is a zombie), or the pid now runs
 another process (its start time differs). A lock of another host is never
 broken: spm cannot see that host's processes. A stale lock is removed under a
 short ``flock`` on ``.spm.lock.guard`` and only if it still holds the record
-judged stale, so two runs taking over the same stale lock cannot both win.
+judged stale, so two runs taking over the same stale lock cannot both win. The
+guard is removed by the run that made it, still under its flock, before that
+flock is freed (``_guarded`` says why that stays race-free), so no ``.spm.lock*``
+file outlives a run.
 
 Files of older spm versions hold only a pid: they are read as an owner on this
 host whose start time is unknown (the pid was reused if its process started
@@ -171,6 +174,47 @@ def lock_owner(folder) -> LockOwner | None:
     return None if _is_stale(rec, mtime) else rec.owner
 
 
+def _guarded(guard: Path, work, wait: bool) -> bool:
+    """Run ``work()`` holding an exclusive ``flock`` on the file ``guard``, then remove ``guard``
+    (still holding the flock), so that the guard does not outlive the takeover that made it.
+    ``wait``: create the guard if missing and wait for its flock; else do nothing (False) if
+    there is no guard or another run holds it.
+
+    Removing a file others may be waiting to flock needs one more step to stay race-free: a
+    run that waited on the guard's file may get its flock only after the holder has removed
+    it, while a third run has made a new guard and holds that one; both would then believe
+    they hold "the" guard. So whoever gets a flock checks that the name ``guard`` still
+    refers to the file it locked (same device and inode) and, if not, lets go and starts over
+    with the file now there. Only the holder of the file at the name removes it, so at most
+    one run at a time holds a flock on the file that is at the name: the mutual exclusion of
+    a guard that is never removed. (The flock is freed if its holder dies, as before; a guard
+    left that way is removed by the next takeover or release.)"""
+    while True:
+        try:
+            fd = os.open(guard, os.O_RDWR | (os.O_CREAT if wait else 0), 0o644)
+        except FileNotFoundError:
+            return False
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX if wait else fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return False   # another run is taking over a lock: it removes the guard after
+            held = os.fstat(fd)
+            try:
+                there = os.stat(guard)
+            except FileNotFoundError:
+                there = None
+            if there is None or (there.st_dev, there.st_ino) != (held.st_dev, held.st_ino):
+                if wait:
+                    continue   # the file we locked was removed by its holder: lock the one there now
+                return False
+            work()
+            guard.unlink(missing_ok=True)
+            return True
+        finally:
+            os.close(fd)   # frees the flock, after the unlink
+
+
 class OutputLock:
     """Context manager: ``with OutputLock(out): ...`` holds ``out/.spm.lock``.
 
@@ -238,13 +282,11 @@ class OutputLock:
     def _break(self, stale: bytes) -> None:
         """Remove the lock if it still holds ``stale``, under the guard so that of two
         runs which judged the same lock stale, only one removes it (not the other's)."""
-        fd = os.open(self.path.with_name(GUARD_NAME), os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX)   # held for one read and one unlink; freed if we die
+        def remove_if_stale():
             if _read(self.path)[0] == stale:
                 self.path.unlink(missing_ok=True)
-        finally:
-            os.close(fd)
+
+        _guarded(self.path.with_name(GUARD_NAME), remove_if_stale, wait=True)
 
     def release(self) -> None:
         if not self.held:
@@ -254,6 +296,8 @@ class OutputLock:
             return   # a forked child's copy: the lock is its parent's
         if _read(self.path)[0] == self._data:
             self.path.unlink(missing_ok=True)
+        # A guard left by a run killed inside _break: removed unless some run is using it now.
+        _guarded(self.path.with_name(GUARD_NAME), lambda: None, wait=False)
 
     def __enter__(self):
         self.acquire()

@@ -30,8 +30,22 @@ _pending: list = [False]
 BEFORE_WORK = "interrupted before any work began; nothing was written"
 
 
+def _in_finaliser(frame) -> bool:
+    """Whether the signal landed in a ``__del__`` (or code it called): an exception raised there
+    is printed as "Exception ignored … Traceback" and lost, so the signal is only recorded."""
+    for _ in range(64):
+        if frame is None:
+            return False
+        if frame.f_code.co_name == "__del__":
+            return True
+        frame = frame.f_back
+    return False
+
+
 def _raise_interrupt(signum, frame):
     _received[0], _pending[0] = signum, True
+    if _in_finaliser(frame):
+        return   # acted on at the next safe point (a pool's loop) or when the command ends
     raise KeyboardInterrupt
 
 

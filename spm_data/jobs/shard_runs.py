@@ -7,7 +7,8 @@ writes the shard atomically and returns ``{"entry": manifest entry, ...}``.
 The run holds the folder's lock, clears leftovers of killed runs, skips shards
 already complete for the same plan, refuses ones made for another plan, runs
 the rest (worker processes may crash; see executor.py), and writes the manifest
-last, also when interrupted.
+last, also when interrupted. A job may also offer ``plan_difference(attrs)``, so
+that a refusal names what differs (plan_diff.py).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from pathlib import Path
 from spm_data.errors import ShardError
 from spm_data.jobs.executor import LocalExecutor
 from spm_data.io.locking import GUARD_NAME, OutputLock
+from spm_data.jobs.plan_diff import refusal
 from spm_data.io.files import partial_path
 from spm_data.io.outputs import check_out_name
 from spm_data.io.shards import MANIFEST, MISSING, remove_partials, verify_shard, write_manifest
@@ -75,14 +77,13 @@ def _pending(jobs, summary: RunSummary) -> list:
             todo.append(job)
             continue
         try:
-            key = verify_shard(target).get("plan_key")
+            attrs = verify_shard(target)
         except ShardError as exc:
             summary.redone.append((job.name, str(exc).removeprefix(f"{target}: ")))
             todo.append(job)
             continue
-        if key != job.plan_key:
-            raise ShardError(f"{target} was made from another spec, input, seed or options; "
-                             f"write into a new --out folder or delete {target.parent}")
+        if attrs.get("plan_key") != job.plan_key:
+            raise ShardError(refusal(job, target, attrs))   # naming what differs, where the job can tell
         summary.skipped.append(job.name)
     return todo
 

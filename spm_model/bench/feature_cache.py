@@ -290,19 +290,37 @@ def _removing_empty_caches(shards):
         raise
 
 
+def progress_phase(progress, label: str, total=None, unit: str | None = "frame") -> None:
+    """Start the next step of ``progress`` (None: nothing): its ``phase(label, total, unit)``
+    (spm_data.commands.cli_support.Progress), else a new ``total`` (a callable with one)."""
+    if progress is not None:
+        if hasattr(progress, "phase"):
+            progress.phase(label, total, unit)
+        else:
+            progress.total = total
+
+
+def _each(items, progress):
+    for item in items:
+        yield item
+        if progress is not None:
+            progress(1)
+
+
 def load_features(folder, config: FeatureConfig = FeatureConfig(), *, progress=None, executor=None,
-                  allow_partial: bool = False) -> FeatureTable:
+                  allow_partial: bool = False, what: str = "features") -> FeatureTable:
     """Extract (or reuse) the features of every shard under ``folder``, one job per
     shard on ``executor`` (spm_data.jobs.make_executor; default: this process); progress is a
-    callable taking frame deltas, with a settable ``total`` (a tqdm bar).
-    allow_partial: read folders still being written (spm_data.io.folders.open_folder)."""
+    callable taking count deltas (progress_phase: "checking cached WHAT" and "reading WHAT"
+    count shards, "WHAT" the frames extracted). allow_partial: read folders still being written
+    (spm_data.io.folders.open_folder)."""
     shards = find_shards(folder, allow_partial)
     remove_stale_partials(shards)
     with _removing_empty_caches(shards):
-        paths = {s: cached(s, config) for s in shards}   # where each shard's features are, once decided
+        progress_phase(progress, f"checking cached {what}", len(shards), "shard")   # every shard's bytes verified
+        paths = {s: cached(s, config) for s in _each(shards, progress)}   # where each shard's features are
         todo = [(str(s), config) for s, p in paths.items() if p is None]
-        if progress is not None:
-            progress.total = sum(int(read_attrs(path)["frames"]) for path, _ in todo)
+        progress_phase(progress, what, sum(int(read_attrs(path)["frames"]) for path, _ in todo))
         executor = executor or LocalExecutor(workers=1, retries=1)
         outcomes = executor.run(extract_shard, todo, on_progress=progress)
         failed = [o for o in outcomes if o.error]
@@ -312,7 +330,8 @@ def load_features(folder, config: FeatureConfig = FeatureConfig(), *, progress=N
             raise SpmError(f"feature extraction failed for {len(failed)} shard(s); first: {where}{error}")
     paths.update({Path(o.job[0]): Path(o.result) for o in outcomes})
     tables = []
-    for shard in shards:
+    progress_phase(progress, f"reading {what}", len(shards), "shard")
+    for shard in _each(shards, progress):
         arrays = read_cache(paths[shard], shard_digest(shard), config)
         if arrays is None:   # changed since it was checked (another process): one line, not a traceback
             raise SpmError(f"the feature cache {paths[shard]} changed while it was read; run the command again")

@@ -24,18 +24,16 @@ a method whose needs the training frames do not meet, or whose ``fit`` or ``pred
 is *declined* in that split with its one-line reason; the others run and are scored. The
 test frames of a split a method declined count as frames without its estimate.
 
-Methods get training frames (spm_model/base/frames.py) with their poses, then
-test frames that hold only what a camera sees (image, visible mask, K), in a
-seeded random order, and return (n, 6) labels; a NaN row is a frame without an
-estimate and counts as a failure. ``train_occluded`` (the paper's Appendix,
-training with noise): whether frames with occlusion train too; by default they
-do under loco, views and instances (as before) and do not under offgrid.
-Runs differ in their seed: the model's random choices, the views split, the
-instances order and the test order (the features are extracted once, with a
-fixed seed, and cached). Under loco and offgrid the splits are the same in every
-run (and under interleaved), so a DETERMINISTIC method (no seed: pca, ls, n3m, sift-pnp, template;
-spm_model/base/estimator.py) is fitted in the first run only and its predictions are reused
-in the others: the same scores as fitting it again.
+Methods get training frames (spm_model/base/frames.py) with their poses, then test frames that
+hold only what a camera sees (image, visible mask, K), in a seeded random order, and return (n, 6)
+labels; a NaN row is a frame without an estimate and counts as a failure. ``train_occluded`` (the
+paper's Appendix, training with noise): whether frames with occlusion train too; by default they
+do under loco, views and instances (as before) and do not under offgrid. Runs differ in their
+seed: the model's random choices, the views split, the instances order and the test order (the
+features are extracted once, with a fixed seed, and cached). Under loco and offgrid the splits
+are the same in every run (and under interleaved), so a DETERMINISTIC method (no seed: pca, ls,
+n3m, sift-pnp, template; spm_model/base/estimator.py) is fitted in the first run only and its
+predictions are reused in the others: the same scores as fitting it again.
 """
 
 from __future__ import annotations
@@ -46,7 +44,7 @@ from spm_data.errors import ModelError
 from spm_model.base.feature_memo import use_folder
 from spm_model.base.frames import Frames
 from spm_model.bench.fitting import construct, failure, fit_predict, unmet_needs
-from spm_model.bench.feature_cache import FeatureTable, load_features, memo_folder, offgrid_table
+from spm_model.bench.feature_cache import FeatureTable, load_features, memo_folder, offgrid_table, progress_phase
 from spm_model.bench.scoring import eccentricity, frame_errors, run_summary
 from spm_model.bench.surface_metrics import mesh_keys
 from spm_model.bench.symmetry_errors import instance_symmetries
@@ -162,13 +160,12 @@ def make_methods(seed: int, model_params: dict, builtins=None, estimators=None) 
 
 
 def split_job(job, report=lambda n: None):
-    """One (run, split) on any worker: fit every method, predict the test frames.
-    job = (source, protocol, run, split index, model_params, builtins, estimators, train_occluded).
-    Returns (what was tested, training frames, test index, {method: per-frame errors}, notes):
-    the errors (scoring.frame_errors) are scored here, so the splits' scoring runs on the
-    workers too, and only the errors travel back; a declined method's errors are those of no
-    estimate. notes = {"declined": {method: why}, "featured": {method: test frames with its
-    features, or None}}."""
+    """One (run, split) on any worker: fit every method, predict the test frames. job = (source,
+    protocol, run, split index, model_params, builtins, estimators, train_occluded). Returns (what
+    was tested, training frames, test index, {method: per-frame errors}, notes): the errors
+    (scoring.frame_errors) are scored here, so the splits' scoring runs on the workers too, and only
+    the errors travel back; a declined method's errors are those of no estimate. notes =
+    {"declined": {method: why}, "featured": {method: test frames with its features, or None}}."""
     source, protocol, run, index, model_params, builtins, estimators, train_occluded = job
     table = _table(source)
     tested, train, test = splits(table, protocol, seed=run)[index]
@@ -194,20 +191,20 @@ def split_job(job, report=lambda n: None):
 
 def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_params: dict | None = None,
              estimators: dict | None = None, report=lambda message: None, builtins=None,
-             train_occluded: bool | None = None, executor=None, source=None, final: bool = False) -> dict:
-    """Every run x split for the built-in methods (``builtins``: their names, default
-    all) and ``estimators`` ({name: class}, instantiated fresh per split): per-class
-    and overall summaries per method, the geodesic accuracy curve and the occlusion
-    bins (offgrid: also per seen/unseen instance and occluder, "fig5").
-    train_occluded: None for the protocol's default (module docstring).
-    executor, source: the splits of every run as jobs on ``executor`` (spm_data.jobs), each
-    worker reading the table from the feature cache of ``source`` = (shards, test folder or
-    None, FeatureConfig, allow_partial); the results are those of one worker. Without them,
-    in this process.
-    final: also fit the final models (:func:`final_models`), as the first job, so they are
-    fitted while the splits run instead of after them.
-    Returns {"protocol", "runs": [...], "eccentricity", "classes", "methods", "train_occluded"},
-    and with ``final`` "final_models": final_models' result."""
+             train_occluded: bool | None = None, executor=None, source=None, final: bool = False,
+             progress=None) -> dict:
+    """Every run x split for the built-in methods (``builtins``: their names, default all) and
+    ``estimators`` ({name: class}, instantiated fresh per split): per-class and overall summaries
+    per method, the geodesic accuracy curve and the occlusion bins (offgrid: also per seen/unseen
+    instance and occluder, "fig5"). train_occluded: None for the protocol's default (module docstring).
+    executor, source: the splits of every run as jobs on ``executor`` (spm_data.jobs), each worker
+    reading the table from the feature cache of ``source`` = (shards, test folder or None,
+    FeatureConfig, allow_partial); the results are those of one worker. Without them, in this process.
+    final: also fit the final models (:func:`final_models`), as the first job, so they are fitted
+    while the splits run instead of after them. progress: a callable taking count deltas
+    (feature_cache.progress_phase): "fitting" counts the splits (the final models one more), "scoring" runs.
+    Returns {"protocol", "runs": [...], "eccentricity", "classes", "methods", "train_occluded"} (and
+    with ``final`` "final_models": final_models' result)."""
     if protocol not in PROTOCOLS:
         raise ModelError(f"protocol must be one of {PROTOCOLS}, got {protocol!r}")
     train_occluded = (protocol != "offgrid") if train_occluded is None else bool(train_occluded)
@@ -221,18 +218,22 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
              train_occluded) for run in range(runs) for i in range(len(splits(table, protocol, seed=run)))]
     wanted = tuple(m for m in FINAL_MODELS if builtins is None or m in builtins)   # only what was asked for
     finals = [("final", key, dict(model_params or {}), train_occluded, wanted)] if final else []
-    outputs = _run_jobs(finals + jobs, executor if source is not None else None, report)
+    progress = progress or (lambda n: None)
+    progress_phase(progress, "fitting", len(finals + jobs), "split")
+    outputs = _run_jobs(finals + jobs, executor if source is not None else None, report, progress)
     models, outputs = (outputs[0], outputs[1:]) if final else (None, outputs)
     if reused:
         first = {job[3]: outputs[i] for i, job in enumerate(jobs) if job[2] == 0}
         outputs = [_with_first_run(out, first[job[3]]) if job[2] else out for job, out in zip(jobs, outputs)]
     results = []
+    progress_phase(progress, "scoring", runs, "run")
     for run in range(runs):
         parts = [outputs[i] for i, job in enumerate(jobs) if job[2] == run and len(outputs[i][2])]
         if not parts:
             raise ModelError(f"{protocol} protocol, run {run + 1}: no frame was held out for testing "
                              f"({len(table)} frames); add views or instances, or use another protocol")
         results.append(run_summary(table, protocol, run, parts))
+        progress(1)
     return {"protocol": protocol, "runs": results, "eccentricity": eccentricity(table),
             "classes": sorted(set(table.class_name.tolist())), "methods": list(results[0]["overall"]),
             "train_occluded": train_occluded, **({"final_models": models} if final else {})}
@@ -243,9 +244,8 @@ SAME_SPLITS_EVERY_RUN = ("loco", "offgrid", "interleaved")
 
 
 def _reused_methods(protocol: str, runs: int, model_params, builtins, estimators) -> set:
-    """Names of the methods fitted in the first run only and reused in the others: the
-    DETERMINISTIC ones (spm_model/base/estimator.py) under a protocol whose splits are the
-    same in every run. Their predictions, and so their scores, are the same in every run."""
+    """Names of the methods fitted in the first run only and reused in the others (the same scores):
+    the DETERMINISTIC ones (spm_model/base/estimator.py) under a protocol whose splits are the same."""
     if protocol not in SAME_SPLITS_EVERY_RUN or runs < 2:
         return set()
     classes = {**_builtin_classes(model_params, builtins), **(estimators or {})}  # plug-ins: never built here
@@ -275,8 +275,7 @@ def _with_first_run(output: tuple, first: tuple) -> tuple:
         raise ModelError(f"internal: split {tested!r} differs between runs; cannot reuse its predictions")
     order = list(first[3]) + [name for name in errors if name not in first[3]]
     errors = {**first[3], **errors}
-    # Only the reused methods' notes come from the first run: the others ran here (and a method
-    # that declined in the first run may run in this one).
+    # Only the reused methods' notes come from the first run (one declined there may run here).
     notes = {k: {**{n: v for n, v in first[4][k].items() if n not in notes["featured"]}, **notes[k]}
              for k in ("declined", "featured")}
     return tested, n_train, test, {n: errors[n] for n in order}, notes
@@ -286,11 +285,11 @@ FINAL_MODELS = ("spm", "template")  # the methods whose model ``spm train`` save
 
 
 def final_models(table: FeatureTable, model_params: dict, train_occluded: bool, wanted=FINAL_MODELS) -> tuple:
-    """(SPMEstimator or None, TemplatePose or None, training frames of the SPM model, {name: why
-    it declined}): the models ``spm train`` saves, of the methods ``wanted`` names, fitted on every
-    training frame (offgrid: every frame of the training folder), without occluded ones unless
-    ``train_occluded``; SPM on the frames with training features. A model not wanted is None
-    without a reason; one that cannot be fitted is None, with its reason."""
+    """(SPMEstimator or None, TemplatePose or None, training frames of the SPM model, {name: why it
+    declined}): the models ``spm train`` saves, of the methods ``wanted`` names, fitted on every training
+    frame (offgrid: every frame of the training folder), without occluded ones unless ``train_occluded``;
+    SPM on the frames with training features. A model not wanted is None without a reason; one that
+    cannot be fitted is None, with its reason."""
     rows = np.flatnonzero(~table.test) if "test" in table.arrays else np.arange(len(table))
     rows = training_rows(table, rows, train_occluded)
     usable = rows[np.isfinite(table.train_vector[rows]).all(axis=1)]
@@ -327,9 +326,11 @@ def bench_job(job, report=lambda n: None):
         return split_job(job, report)
 
 
-def _run_jobs(jobs: list, executor, report) -> list:
-    """Outputs of bench_job for every job, in order; in this process without an executor."""
+def _run_jobs(jobs: list, executor, report, progress) -> list:
+    """Outputs of bench_job for every job, in order, ``progress(1)`` as each ends; in this process
+    without an executor."""
     def said(job, output):
+        progress(1)
         if job[0] != "final" and len(output[2]):
             declined = output[4]["declined"]
             reused = "; every method's predictions reused from run 1" if job[2] and not output[3] else ""
@@ -342,7 +343,7 @@ def _run_jobs(jobs: list, executor, report) -> list:
             outputs.append(bench_job(job))
             said(job, outputs[-1])
         return outputs
-    outcomes = executor.run(bench_job, jobs, on_outcome=lambda o: o.error or said(o.job, o.result))
+    outcomes = executor.run(bench_job, jobs, on_outcome=lambda o: progress(1) if o.error else said(o.job, o.result))
     failed = [o for o in outcomes if o.error]
     if failed:
         raise ModelError(failed[0].error if failed[0].error.count("\n") == 0 else failed[0].error.splitlines()[-1])

@@ -57,12 +57,13 @@ def built_in_set(folder: Path, progress=None):
     """Render the check's set into ``folder`` and return its feature table (FeatureTable)."""
     from spm_data.commands.render_jobs import render_dataset
     from spm_data.core.specs import parse_spec
-    from spm_model.bench.feature_cache import load_features
+    from spm_model.bench.feature_cache import load_features, progress_phase
     from spm_model.spm.features import FeatureConfig
 
     specs = [parse_spec(CHECK_SPEC.format(cls=c), name=f"check-{c}") for c in CLASSES]
+    progress_phase(progress, "rendering the check set")
     try:
-        render_dataset(specs, folder)
+        render_dataset(specs, folder, progress=progress)
     except SpmError as exc:
         raise SpmError(f"cannot render the built-in set with pyrender: {one_line(exc)}") from None
     return load_features(folder, FeatureConfig(), progress=progress)
@@ -203,12 +204,14 @@ class _Checks:
 def check_estimator(spec: str, *, progress=None, log=lambda line: None) -> list[Check]:
     """Run the plug-in ``spec`` ('MODULE:CLASS') through the contract; every Check, each also
     passed to ``log`` (one line) as it is made. ModelError (one line) when it cannot be loaded."""
+    from spm_model.bench.feature_cache import progress_phase
     from spm_model.methods.registry import load_estimator_class
 
     cls = load_estimator_class(spec)
     folder = Path(tempfile.mkdtemp(prefix="spm-check-estimator-"))
     try:
         checks = _Checks(cls, built_in_set(folder / "set", progress))
+        progress_phase(progress, "checks", None, None)
         _run(checks, log)
     finally:
         shutil.rmtree(folder, ignore_errors=True)

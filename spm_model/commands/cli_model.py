@@ -75,7 +75,7 @@ def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs,
     try:
         result = train(shards, report_dir, protocol=protocol, runs=runs,
                        features=FeatureConfig(gamma=gamma, ellipse=ellipse), progress=bar, executor=executor,
-                       log=lambda m: bar.bar.write(m), command="spm " + " ".join(sys.argv[1:]),
+                       log=bar.write, command="spm " + " ".join(sys.argv[1:]),
                        estimators=estimators, allow_partial=allow_partial, test=test,
                        train_occluded=train_occluded, builtins=_method_names(methods))
     except KeyboardInterrupt:
@@ -84,7 +84,8 @@ def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs,
         bar.close()
         click.echo("interrupted; features already cached are kept", err=True)
         sys.exit(exit_status())   # 130 after Ctrl-C, 143 after SIGTERM
-    bar.close()
+    finally:
+        bar.close()
     click.echo(result["text"])
     click.echo(f"report: {result['report']}/results.md, {_models_line(result)}")
 
@@ -108,7 +109,8 @@ def check_estimator_cmd(spec):
     built-in set (rendered with pyrender): one line a check; exit status 1 if any check fails."""
     from spm_model.commands.check_estimator import check_estimator, failed
 
-    checks = check_estimator(spec, log=click.echo)
+    with Progress() as bar:
+        checks = check_estimator(spec, progress=bar, log=bar.write)
     bad = failed(checks)
     click.echo(f"{len(checks)} checks, {len(bad)} failed" + ("" if bad else f"; {spec} can run in spm train"))
     if bad:
@@ -163,8 +165,9 @@ def predict_cmd(model_path, images, roi, mask_path, as_json):
     The other images still get their results; exit status 1 if any image failed."""
     from spm_model.commands.predict import format_predictions, prediction_errors, predict_images
 
-    results = predict_images(model_path, images, roi=None if roi is None else _parse_roi(roi),
-                             mask_path=mask_path)
+    with Progress("image") as bar:
+        results = predict_images(model_path, images, roi=None if roi is None else _parse_roi(roi),
+                                 mask_path=mask_path, progress=bar)
     out = format_predictions(results, as_json)
     if out:
         click.echo(out)

@@ -7,7 +7,7 @@ import numpy as np
 from spm_data.errors import ModelError, SpmError, one_line
 from spm_model.base.frames import Frames
 from spm_model.base.model_files import load_model_file
-from spm_model.bench.feature_cache import load_features
+from spm_model.bench.feature_cache import load_features, progress_phase
 from spm_model.bench.metrics import summarise
 from spm_model.bench.scoring import frame_errors
 from spm_model.bench.surface_metrics import mesh_keys
@@ -38,11 +38,14 @@ def load_model(path):
 def evaluate_model(model_path, shards, *, progress=None, executor=None,
                    allow_partial: bool = False) -> dict:
     """Score a saved model (SPM or reference) on every frame under ``shards``:
-    {"classes": {class: summary}, "all": summary} (summaries: spm_model/bench/metrics.py)."""
+    {"classes": {class: summary}, "all": summary} (summaries: spm_model/bench/metrics.py).
+    progress: a callable taking count deltas, told each step (feature_cache.progress_phase):
+    the features (load_features), "predicting", "scoring"."""
     model = load_model(model_path)
     features = model.features if isinstance(model, SPMEstimator) else FeatureConfig()
     table = load_features(shards, features, progress=progress, executor=executor,
                           allow_partial=allow_partial)
+    progress_phase(progress, "predicting", None, None)
     if isinstance(model, SPMEstimator):
         ok = np.isfinite(table.query_vector).all(axis=1)
         pred = np.full((len(table), 6), np.nan)
@@ -51,6 +54,7 @@ def evaluate_model(model_path, shards, *, progress=None, executor=None,
     else:
         pred = model.predict(Frames(table))
     index = np.arange(len(table))
+    progress_phase(progress, "scoring", None, None)
     errors = frame_errors(table, index, pred, mesh_keys(table.shard, table.instance_id))
     per_class = {}
     for c in sorted(set(table.class_name.tolist())):

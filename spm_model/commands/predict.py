@@ -8,6 +8,7 @@ import numpy as np
 
 from spm_data.errors import FeatureError, ImageError, ModelError, one_line
 from spm_data.io.images import decode_bytes, read_image_file
+from spm_model.bench.feature_cache import progress_phase
 from spm_model.commands.evaluate import load_model
 
 LABEL_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
@@ -54,15 +55,17 @@ def read_mask(path) -> np.ndarray:
     return mask
 
 
-def predict_images(model_path, images, *, roi=None, mask_path=None) -> list[dict]:
+def predict_images(model_path, images, *, roi=None, mask_path=None, progress=None) -> list[dict]:
     """One result per image, in order: {"image", "pose": {rx..tz}[, "keypoints", "eccentricity"]},
     or {"image", "error": reason} when that image cannot be read (missing, not an image,
     truncated, over Pillow's decompression-bomb limit), the region of interest does not fit
     it, or the model finds no pose in it. The model and ``mask_path`` are read first: a
-    problem with either raises ModelError (no image is read)."""
+    problem with either raises ModelError (no image is read). progress: a callable taking image
+    deltas (feature_cache.progress_phase: "predict", one per image)."""
     model = load_model(model_path)
     mask = read_mask(mask_path) if mask_path is not None else None
     results = []
+    progress_phase(progress, "predict", len(images), "image")
     for image in images:
         try:
             rgb = read_image(image)
@@ -80,6 +83,8 @@ def predict_images(model_path, images, *, roi=None, mask_path=None) -> list[dict
                                if "keypoints" in out else {})})
         except (ImageError, FeatureError, ModelError) as exc:
             results.append({"image": str(image), "error": one_line(exc)})
+        if progress is not None:
+            progress(1)
     return results
 
 

@@ -13,7 +13,7 @@ from spm_data.io.locking import OutputLock
 from spm_data.io.outputs import removing_created
 from spm_data.io.shards import MANIFEST, read_manifest
 from spm_model.base.estimator import needs_of
-from spm_model.bench.feature_cache import FeatureTable, load_features, offgrid_table
+from spm_model.bench.feature_cache import FeatureTable, load_features, offgrid_table, progress_phase
 from spm_model.bench.protocols import FINAL_MODELS, evaluate
 from spm_model.bench.report import (check_report_folder, declined_everywhere, summary_text, write_error,
                                     write_report)
@@ -85,7 +85,9 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
     all) and each ``estimators`` entry ('MODULE:CLASS'), final models on every
     training frame, and the report files. ``test``: the test folder of the offgrid
     protocol (given alone, it selects offgrid); ``train_occluded``: see
-    spm_model/bench/protocols.py.
+    spm_model/bench/protocols.py. progress: a callable taking count deltas, told each step
+    (feature_cache.progress_phase): the features (load_features), "fitting" and "scoring"
+    (protocols.evaluate), "report".
     Returns {"report": folder, "model", "reference_model": paths, "summary", "evaluation", "text"}."""
     if runs < 1:
         raise ModelError(f"--runs must be at least 1, got {runs}")
@@ -122,7 +124,7 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
                           allow_partial=allow_partial)
     if test is not None:
         table = offgrid_table(table, load_features(test, features, progress=progress, executor=executor,
-                                                   allow_partial=allow_partial))
+                                                   allow_partial=allow_partial, what="test features"))
     counts = class_counts(table)
     log(f"{len(table)} frames, {len(counts)} class{'es' if len(counts) != 1 else ''}: "
         + ", ".join(f"{c} {n}" for c, n in counts.items()) + " (frames with SPM's training features)")
@@ -133,7 +135,8 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
     model_params = dict(model_params or {}, features=features)
     source = (str(shards), None if test is None else str(test), features, allow_partial)
     evaluation = evaluate(table, protocol, runs, model_params, estimators=plugins, report=log, builtins=builtins,
-                          train_occluded=train_occluded, executor=executor, source=source, final=True)
+                          train_occluded=train_occluded, executor=executor, source=source, final=True,
+                          progress=progress)
     model, reference, train_features, final_declined = evaluation.pop("final_models")
     check_some_method_ran(evaluation)
     asked = [m for m in FINAL_MODELS if builtins is None or m in builtins]   # a model only of a method asked for
@@ -148,6 +151,7 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
                "features": asdict(features), "estimators": {name: f"{cls.__module__}:{cls.__qualname__}"
                                                             for name, cls in plugins.items()},
                "models": models}
+    progress_phase(progress, "report", None, None)
     try:
         model_path = _save(model, out / "model.npz")
         reference_path = _save(reference, out / "reference-model.npz")

@@ -58,3 +58,36 @@ def test_console_scripts_run_as_processes(small_specs_dir, tmp_path):
     assert read_manifest(tmp_path / "o")["frames"] == 4
     r = subprocess.run([sys.executable, "-c", "import cli; cli.model_cli()", "--help"], capture_output=True, text=True)
     assert r.returncode == 0 and "Sparse Pose Manifolds" in r.stdout
+
+
+def test_off_a_terminal_render_and_validate_print_progress_lines_on_stderr(small_specs_dir, tmp_path, monkeypatch):
+    """A run longer than $SPM_PROGRESS_EVERY prints "LABEL: done/total UNITs, rate, time left"
+    lines on stderr (CliRunner's stderr is not a terminal); stdout keeps only the summary."""
+    import re
+    import time
+
+    import spm_data.commands.validate as validate
+    from spm_data.commands.cli_support import Progress
+
+    monkeypatch.setenv("SPM_PROGRESS_EVERY", "0.01")   # rendering 10 frames takes far longer
+    r = run("render", "--class", "cup", "--specs-dir", small_specs_dir, "--out", tmp_path / "out", "--limit", 10)
+    assert r.exit_code == 0 and r.stdout.startswith("rendered 2 shards (10 frames)"), r.output
+    lines = r.stderr.splitlines()
+    assert any(re.fullmatch(r"render: \d+/10 frames, [\d.]+ frames/s(, \d+ s left)?", line) for line in lines), lines
+    assert all(line.startswith("render: ") for line in lines), lines
+
+    shown = []
+    checked = validate.validate_shard
+
+    def slow_validate_shard(path):   # lasts until a progress line was printed: a state, not a sleep
+        deadline = time.monotonic() + 30
+        while not shown and time.monotonic() < deadline:
+            time.sleep(0.005)
+        return checked(path)
+
+    line = Progress.line
+    monkeypatch.setattr(validate, "validate_shard", slow_validate_shard)
+    monkeypatch.setattr(Progress, "line", lambda self: shown.append(line(self)) or shown[-1])
+    r = run("validate", tmp_path / "out")
+    assert r.exit_code == 0 and r.stdout.endswith("all shards valid; manifest agrees with the files\n"), r.output
+    assert re.match(r"validate: 0/2 shards, 0 shards/s\n", r.stderr), r.stderr

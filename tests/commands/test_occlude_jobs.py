@@ -6,6 +6,7 @@ from click.testing import CliRunner
 
 from cli import data_cli
 from spm_data.commands.occlude_jobs import occlude_dataset
+from spm_data.errors import ShardError
 from spm_data.commands.render_jobs import load_run_specs, render_dataset
 from spm_data.io.files import file_sha256
 from spm_data.io.shards import list_shards, read_attrs, read_manifest, read_shard, write_manifest, write_shard
@@ -77,6 +78,39 @@ def test_resume_skips_complete_shards(rendered, tmp_path):
     (tmp_path / "occ" / "cup-00001.h5").unlink()
     again = occlude_dataset(rendered, tmp_path / "occ")
     assert again.skipped == ["cup-00000.h5"] and again.done == ["cup-00001.h5"]
+
+
+def test_a_refusal_names_the_option_that_differs_and_both_values(rendered, tmp_path):
+    out = tmp_path / "occ"
+    occlude_dataset(rendered, out, high=0.6, seed=1)
+    tail = f"; write into a new --out folder or delete {out}"
+    for options, what in [(dict(high=0.9, seed=1), "--max 0.6, not --max 0.9"),
+                          (dict(high=0.6, seed=2), "--seed 1, not --seed 2"),
+                          (dict(low=0.1, high=0.6, seed=1), "--min 0, not --min 0.1"),
+                          (dict(high=0.6, seed=1, rects=2), "--rects 1, not --rects 2")]:
+        with pytest.raises(ShardError) as e:
+            occlude_dataset(rendered, out, **options)
+        assert str(e.value) == f"{out / 'cup-00000.h5'} was made with {what}{tail}"
+    r = run("occlude", rendered, "--out", out, "--max", "0.6", "--seed", "3")
+    assert r.exit_code == 1 and r.output == (f"error: {out / 'cup-00000.h5'} was made with --seed 1, not --seed 3"
+                                             f"{tail}\n")
+    assert occlude_dataset(rendered, out, high=0.6, seed=1).skipped == ["cup-00000.h5", "cup-00001.h5"]
+
+
+def test_a_refusal_names_an_input_made_again_otherwise(rendered, tmp_path):
+    import shutil
+
+    source = tmp_path / "source"
+    shutil.copytree(rendered, source)
+    occlude_dataset(source, tmp_path / "occ", high=0.6)
+    spec = tmp_path / "cup.toml"
+    spec.write_text(read_attrs(list_shards(source)[0])["spec"])
+    shutil.rmtree(source)
+    render_dataset(load_run_specs(spec_files=[spec], seed=7), source)   # the same names, another plan
+    with pytest.raises(ShardError, match=r"occ/cup-00000.h5 was made from another version of its input "
+                                         r"cup-00000.h5 \(made with plan [0-9a-f]{12}, which is now [0-9a-f]{12}\); "
+                                         r"write into a new --out folder"):
+        occlude_dataset(source, tmp_path / "occ", high=0.6)
 
 
 def run(*args):

@@ -77,8 +77,33 @@ def test_rerun_resumes_and_a_changed_plan_is_refused(small_specs_dir, tmp_path):
     again = render_dataset(specs, out, limit=16)
     assert again.skipped == ["cup-00000.h5"] and again.done == ["cup-00001.h5"]
     assert read_manifest(out)["frames"] == 16
-    with pytest.raises(ShardError, match="made from another spec, input, seed or options"):
+    with pytest.raises(ShardError, match="made with seed = 3, not seed = 5"):
         render_dataset(load_run_specs(["cup"], specs_dir=small_specs_dir, seed=5), out, limit=16)
+
+
+def test_a_refusal_names_the_key_that_differs_and_both_values(small_specs_dir, tmp_path):
+    """A spec key, the seed, --limit: the first that differs, old value then new, in one line."""
+    out = tmp_path / "out"
+    render_dataset(load_run_specs(["cup"], specs_dir=small_specs_dir), out, limit=8)
+    shard, spec = out / "cup-00000.h5", small_specs_dir / "cup.toml"
+    text = spec.read_text()
+
+    def refusal(limit=8, seed=None, edit=("", "")):
+        spec.write_text(text.replace(*edit))
+        try:
+            with pytest.raises(ShardError) as e:
+                render_dataset(load_run_specs(["cup"], specs_dir=small_specs_dir, seed=seed), out, limit=limit)
+        finally:
+            spec.write_text(text)
+        return str(e.value)
+
+    tail = f"; write into a new --out folder or delete {out}"
+    assert refusal(edit=("azimuth = [0, 25, 5]", "azimuth = [0, 20, 10]")) == (
+        f"{shard} was made with camera.azimuth = [0, 25, 5], not camera.azimuth = [0, 20, 10]{tail}")
+    assert refusal(edit=("width = 64", "width = 32")) == f"{shard} was made with image.width = 64, not image.width = 32{tail}"
+    assert refusal(seed=4) == f"{shard} was made with seed = 3, not seed = 4{tail}"
+    assert refusal(limit=6) == f"{shard} was made with --limit 8, not --limit 6{tail}"
+    assert render_dataset(load_run_specs(["cup"], specs_dir=small_specs_dir), out, limit=8).skipped == [shard.name]
 
 
 def test_output_path_that_is_a_file_is_refused(small_specs_dir, tmp_path):

@@ -41,8 +41,8 @@ def plant(folder, pid, host=HOST, ticks=None, token="planted", **more):
 
 
 def leftovers(folder):
-    """What a lock leaves in a folder besides the lock: only the guard file may stay."""
-    return sorted(p.name for p in folder.iterdir() if p.name not in (LOCK_NAME, locking.GUARD_NAME))
+    """What a lock leaves in a folder besides the lock: nothing (not the guard either)."""
+    return sorted(p.name for p in folder.iterdir() if p.name != LOCK_NAME)
 
 
 def _racer(folders, barrier, results, me):
@@ -215,3 +215,64 @@ def test_the_record_names_the_owner_and_release_removes_only_its_own(tmp_path):
     with OutputLock(tmp_path) as again:
         assert again.held
     assert not again.held and list(tmp_path.iterdir()) == []
+
+
+def test_a_stale_lock_taken_over_leaves_no_guard(tmp_path):
+    """The guard made to take over a stale lock (as after kill -9) goes with the takeover."""
+    plant(tmp_path, dead_pid(), ticks=1)
+    with OutputLock(tmp_path):
+        assert sorted(p.name for p in tmp_path.iterdir()) == [LOCK_NAME]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_guard_left_by_a_killed_takeover_is_removed(tmp_path):
+    guard = tmp_path / locking.GUARD_NAME
+    guard.write_bytes(b"")   # a run killed between making the guard and removing it; or an older spm's
+    with OutputLock(tmp_path):
+        pass
+    assert list(tmp_path.iterdir()) == []
+    guard.write_bytes(b"")
+    plant(tmp_path, dead_pid(), ticks=1)
+    with OutputLock(tmp_path):
+        assert not guard.exists()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_guard_in_use_is_left_to_its_holder(tmp_path):
+    guard = tmp_path / locking.GUARD_NAME
+    fd = os.open(guard, os.O_RDWR | os.O_CREAT)
+    try:
+        locking.fcntl.flock(fd, locking.fcntl.LOCK_EX)   # another run, taking over a lock
+        with OutputLock(tmp_path):
+            pass
+        assert guard.exists()
+    finally:
+        os.close(fd)
+
+
+def test_a_waiter_whose_guard_was_removed_locks_the_new_one(tmp_path):
+    """The race removing the guard could open: B waits on the guard's file; its holder removes it
+    and a third run makes a new guard and holds it; B, given the old file's flock, must not run
+    beside that third run, but wait for the new guard."""
+    import threading
+    import time
+
+    guard = tmp_path / locking.GUARD_NAME
+    fcntl = locking.fcntl
+    old = os.open(guard, os.O_RDWR | os.O_CREAT)
+    fcntl.flock(old, fcntl.LOCK_EX)
+    ran = []
+    waiter = threading.Thread(target=lambda: ran.append(locking._guarded(guard, lambda: ran.append(time.monotonic()),
+                                                                          wait=True)))
+    waiter.start()
+    time.sleep(0.3)   # B has opened the old file and waits on its flock
+    guard.unlink()    # its holder removes it (under its flock), as _guarded does
+    new = os.open(guard, os.O_RDWR | os.O_CREAT)
+    fcntl.flock(new, fcntl.LOCK_EX)   # a third run's new guard
+    os.close(old)     # the old file's flock goes to B
+    time.sleep(0.3)
+    assert ran == []  # B saw that the file it locked is no longer the guard, and waits for the new one
+    freed = time.monotonic()
+    os.close(new)
+    waiter.join(timeout=30)
+    assert len(ran) == 2 and ran[0] >= freed and ran[1] is True and not guard.exists()

@@ -3,6 +3,7 @@ Ctrl-C turned into a flag."""
 
 import os
 import signal
+import sys
 import threading
 
 import pytest
@@ -75,3 +76,27 @@ def test_a_thread_or_a_caller_with_its_own_handler_keeps_its_handler(default_sig
     with deferred_interrupt() as stop:
         assert signal.getsignal(signal.SIGINT) is mine and not stop.is_set()
     assert signal.getsignal(signal.SIGINT) is mine
+
+
+def test_a_signal_landing_in_a_finaliser_is_recorded_not_raised_there():
+    """A KeyboardInterrupt raised inside __del__ is printed as "Exception ignored" and lost;
+    there the signal is only recorded, and the next deferred run stops at once."""
+    from spm_data.jobs import outcome
+
+    class Holder:
+        def __del__(self):
+            outcome._raise_interrupt(signal.SIGTERM, sys._getframe())
+
+    outcome.signals_for_work()
+    try:
+        Holder()   # collected at once: __del__ runs, nothing raised
+        assert outcome.received() == signal.SIGTERM and outcome.exit_status() == 143
+        with deferred_interrupt() as stop:
+            assert stop.is_set()
+        with pytest.raises(KeyboardInterrupt):
+            outcome._raise_interrupt(signal.SIGINT, sys._getframe())
+    finally:
+        outcome.signals_for_work()
+        outcome.end_of_command()
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)

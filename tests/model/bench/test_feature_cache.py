@@ -174,3 +174,22 @@ def test_a_damaged_swapped_or_cut_cache_file_is_extracted_again_never_read(model
         assert len(said) == warned, (what, [str(w.message) for w in caught])   # a sound file of another shard: silent
         assert _same(table, truth), what
         assert files[0].read_bytes() == good and files[1].read_bytes() == other, what   # rewritten whole
+
+
+def test_progress_phase_starts_a_step_or_sets_a_plain_callables_total():
+    """A Progress (spm_data.commands.cli_support) starts a labelled step; a callable with only a
+    ``total`` (benchmarks/fig5.py's log lines, a tqdm bar) gets a new total; None is nothing."""
+    from spm_model.bench.feature_cache import progress_phase
+
+    class Stepped:
+        def phase(self, label, total, unit):
+            self.step = (label, total, unit)
+
+    class Counted:
+        total = None
+
+    stepped, counted = Stepped(), Counted()
+    progress_phase(stepped, "features", 48)
+    progress_phase(counted, "features", 48)
+    progress_phase(None, "features", 48)
+    assert stepped.step == ("features", 48, "frame") and counted.total == 48

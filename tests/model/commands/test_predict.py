@@ -24,3 +24,27 @@ def test_predictions_print_one_line_per_pose_and_one_per_failure():
         "a.png: rx 1.0 ry 2.0 rz 3.0 deg, t (0.100, 0.200, 0.300) m  [40 keypoints]"
     assert prediction_errors(results) == ["b.png: no such file"]
     assert '"error": "no such file"' in format_predictions(results, as_json=True)
+
+
+def test_predict_counts_every_image_read_or_failed(tmp_path, monkeypatch):
+    import numpy as np
+    from PIL import Image
+
+    import spm_model.commands.predict as predict
+
+    class Model:
+        def predict_image(self, rgb, mask):
+            return {"pose": np.zeros(6)}
+
+    class Steps:
+        def phase(self, label, total, unit):
+            self.step = [label, total, unit, 0]
+
+        def __call__(self, n):
+            self.step[3] += n
+
+    Image.fromarray(np.zeros((8, 8, 3), np.uint8)).save(tmp_path / "a.png")
+    monkeypatch.setattr(predict, "load_model", lambda path: Model())
+    progress = Steps()
+    results = predict.predict_images("model.npz", [tmp_path / "a.png", tmp_path / "missing.png"], progress=progress)
+    assert [("error" in r) for r in results] == [False, True] and progress.step == ["predict", 2, "image", 2]

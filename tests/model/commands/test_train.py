@@ -226,3 +226,39 @@ def test_a_second_train_into_a_locked_report_folder_is_refused_with_the_first_on
     r = CliRunner().invoke(model_cli, ["train", str(model_shards), "--out", str(tmp_path / "new" / "r"), "--runs",
                                        "1", "--methods", "spm,chance", "--protocol", "loco"])
     assert r.exit_code == 0 and not list((tmp_path / "new" / "r").glob(".spm.lock*")), r.output
+
+
+class Steps:
+    """A progress callable recording each step (phase) and the counts fed to it."""
+
+    def __init__(self):
+        self.steps = []
+
+    def phase(self, label, total=None, unit="frame"):
+        self.steps.append([label, total, unit, 0])
+
+    def __call__(self, n=1):
+        self.steps[-1][3] += n
+
+
+def test_train_reports_each_step_features_first(tmp_path):
+    """spm train's long steps each say how far they are: every frame's features (24 frames a
+    class, none cached yet), the splits and final models fitted, the runs scored, the report."""
+    from spm_data.commands.render_jobs import load_run_specs, render_dataset
+    from spm_model.commands.train import train
+    from spm_model.spm.features import FeatureConfig
+
+    (tmp_path / "specs").mkdir()
+    for cls in ("cup", "box"):
+        (tmp_path / "specs" / f"{cls}.toml").write_text(TWO_CLASS_SPEC.format(cls=cls))
+    render_dataset(load_run_specs(all_classes=True, specs_dir=tmp_path / "specs"), tmp_path / "out")
+    progress = Steps()
+    train(tmp_path / "out", runs=1, features=FeatureConfig(ellipse="direct"), builtins=["knn1", "template"],
+          progress=progress)
+    assert progress.steps == [["checking cached features", 2, "shard", 2], ["features", 48, "frame", 48],
+                              ["reading features", 2, "shard", 2], ["fitting", 3, "split", 3],   # loco: 2 + final
+                              ["scoring", 1, "run", 1], ["report", None, None, 0]]
+    progress = Steps()   # again: every feature cached
+    train(tmp_path / "out", runs=1, features=FeatureConfig(ellipse="direct"), builtins=["knn1"], progress=progress)
+    assert progress.steps[:3] == [["checking cached features", 2, "shard", 2], ["features", 0, "frame", 0],
+                                  ["reading features", 2, "shard", 2]]
