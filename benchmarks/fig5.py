@@ -200,17 +200,20 @@ def _cell(row) -> str:
 
 
 def print_targets(summary: dict) -> None:
-    """The issue's N3M targets from the seen instances' rectangle curve."""
+    """The earlier issue's N3M targets (met with N3M's PnP fallback, now its own row) from the
+    seen instances' rectangle curve, for N3M (marker levels only) and SIFT + PnP side by side."""
     curves = (summary["fig5"].get("seen") or {}).get("rectangles") or {}
-    rows = curves.get("n3m")
-    if not rows:
-        print("\nN3M not run: no targets to print")
-        return
-    clean, at40 = rows[0], rows[4]
-    print(f"\nN3M targets (seen instances, rectangles): 0-10% occluded: ±5° {_pct(clean['success_tol5'])} "
-          f"(target >= 95), geodesic median {_num(clean['geodesic_median_deg'])}° (target <= 1), translation "
-          f"median {_num(clean.get('translation_median_mm'))} mm (target <= 3); 40-50% occluded: ±5° "
-          f"{_pct(at40['success_tol5'])} (target >= 80)")
+    for method, label in (("n3m", "N3M, marker levels only"), ("sift-pnp", "SIFT + PnP, all matches")):
+        rows = curves.get(method)
+        if not rows:
+            print(f"\n{label}: not run, no targets to print")
+            continue
+        clean, at40 = rows[0], rows[4]
+        print(f"\n{label} (seen instances, rectangles; targets set for N3M with the fallback): 0-10% occluded: "
+              f"±5° {_pct(clean['success_tol5'])} (n={clean['frames']}; target >= 95), geodesic median "
+              f"{_num(clean['geodesic_median_deg'])}° (target <= 1), translation median "
+              f"{_num(clean.get('translation_median_mm'))} mm (target <= 3); 40-50% occluded: ±5° "
+              f"{_pct(at40['success_tol5'])} (n={at40['frames']}; target >= 80)")
 
 
 def _pct(v):
