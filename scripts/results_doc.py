@@ -1,0 +1,708 @@
+"""docs/results.md, rendered from a template and the results.json snapshots it quotes.
+
+Every figure, version, date and frame count in docs/results.md comes from a placeholder of
+docs/results/results.md.in filled from a snapshot in docs/results/ (a trimmed copy of one
+report's results.json with a ``made`` block: date, machine, command, wall time, feature
+version). tests/system/test_results_doc.py renders the template from the committed snapshots
+and compares it with docs/results.md byte for byte, and fails on a figure typed by hand.
+
+    python scripts/results_doc.py                  # rewrite docs/results.md
+    python scripts/results_doc.py --check          # exit 1, naming the first difference
+    python scripts/results_doc.py snapshot views OUT/report-views/results.json \\
+        --command "spm train ... --out OUT/report-views" --wall-s 254   # write docs/results/views.json
+
+Placeholders, ``{{...}}`` (SNAP: a snapshot's name, its file docs/results/SNAP.json; PATH: keys
+joined by dots, a list index by its number; a PATH whose first key is not a top-level key of
+the snapshot is read under ``summary``):
+
+    {{SNAP:PATH[:FMT]}}            the value, formatted by FMT (a Python format spec; ``min``:
+                                   seconds as minutes, one decimal); None -> "–"
+    {{rate:SNAP:ENTRY[:KEY]}}      "97.5% (95% CI 97.1–97.9, 4,492 frames)": a success rate (KEY,
+                                   default success_tol5) of an entry: ENTRY is a method key,
+                                   ``chance``, or a PATH under summary (classes.car.template)
+    {{best:SNAP}}                  the headline: the method summary.best names, or that none beats
+                                   chance beyond both 95% intervals
+    {{runs:SNAP}}                  "3 runs" (summary.runs)
+    {{name:METHOD}}                a method's display name
+    {{range:SNAP:PATH[:FMT]}}      "lo–hi" over a PATH with ``*`` (every key or index there);
+    {{min:...}} / {{max:...}}      the smallest / largest of them
+    {{count:SNAP:PATH}}            how many keys (or items) the value at PATH has
+    {{paper:TABLE:COLUMN[:CLASS]}} the paper's Table 1 or 2 (spm_model/bench/report_tables.py):
+                                   one class's figure, or the range over the classes
+    {{table:KIND:ARGS}}            a generated table (TABLES below)
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import re
+import shutil
+import sys
+import textwrap
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from spm_model.bench.report_tables import PAPER_TABLE1, PAPER_TABLE2  # noqa: E402
+from spm_model.methods.registry import METHOD_NAMES  # noqa: E402
+
+SNAPSHOTS = ROOT / "docs" / "results"
+TEMPLATE = SNAPSHOTS / "results.md.in"
+DOC = ROOT / "docs" / "results.md"
+TOP = ("schema", "schema_version", "context", "summary", "evaluation", "made")
+PLACEHOLDER = re.compile(r"\{\{(.+?)\}\}")
+DASH = "–"
+
+# ---------------------------------------------------------------------------------------------
+# Snapshots: a trimmed results.json (what results.md quotes) and how it was made.
+
+ENTRY_KEYS = ("frames", "estimated", "coverage", "featured", "success_tol5", "success_sum5", "success_sum3",
+              "auc_45", "geodesic_median_deg", "pose_class_accuracy", "success_tol5_sym", "geodesic_median_sym_deg",
+              "translation_median_mm", "translation_axis_median_mm", "median_error", "surface", "ci95", "std")
+CLASS_KEYS = ("frames", "estimated", "success_tol5", "success_sum5", "success_sum3", "geodesic_median_deg", "ci95",
+              "std")
+INSTANCE_KEYS = ("frames", "estimated", "coverage", "success_tol5", "success_sum5", "success_sum3",
+                 "geodesic_median_deg", "translation_median_mm", "pose_class_accuracy", "ci95")
+SURFACE_KEYS = ("frames", "add_s_recall", "ar_mssd", "ar_mspd")
+STD_KEYS = ("coverage", "success_tol5", "success_sum5", "success_sum3", "auc_45", "geodesic_median_deg")
+BIN_KEYS = ("frames", "estimated", "low", "high", "success_tol5", "success_sum5", "success_sum3",
+            "geodesic_median_deg", "translation_median_mm", "ci95")
+FIG5_CURVES = (("seen", "rectangles"),)
+
+
+def _round(value):
+    """Floats to 4 decimals (the report shows at most 2), recursively."""
+    if isinstance(value, float):
+        return round(value, 4)
+    if isinstance(value, dict):
+        return {k: _round(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_round(v) for v in value]
+    return value
+
+
+def _entry(entry: dict | None, keys=ENTRY_KEYS, rates=None) -> dict | None:
+    """An entry with ``keys`` only (``rates``: the only rates whose ci95 and std are kept)."""
+    if entry is None:
+        return None
+    out = {k: entry[k] for k in keys if k in entry}
+    if rates is not None:
+        for k in ("ci95", "std"):
+            if isinstance(out.get(k), dict):
+                out[k] = {r: out[k][r] for r in rates if r in out[k]}
+    if isinstance(out.get("surface"), dict):
+        out["surface"] = {k: out["surface"][k] for k in SURFACE_KEYS if k in out["surface"]}
+    if isinstance(out.get("std"), dict):
+        out["std"] = {k: out["std"][k] for k in STD_KEYS if k in out["std"]}
+    return out
+
+
+def trim(results: dict, made: dict) -> dict:
+    """The snapshot of a results.json: schema, context, the summary's figures results.md quotes
+    (no accuracy curves or occlusion bins but Fig. 5's seen instances behind rectangles; per class
+    and per bin only the rates quoted), the evaluation's eccentricity and per-run ±5° rates, and ``made``."""
+    s = results["summary"]
+    summary = {"protocol": s["protocol"], "runs": s["runs"],
+               "methods": {m: _entry(e) for m, e in s["methods"].items()},
+               "chance": _entry(s.get("chance")), "best": s.get("best"), "declined": s.get("declined") or {},
+               "classes": {c: {m: _entry(e, CLASS_KEYS, ("success_tol5",)) for m, e in row.items()} for c, row in s["classes"].items()}}
+    if s.get("fig5"):
+        summary["fig5"] = {}
+        for group, kind in FIG5_CURVES:
+            curves = (s["fig5"].get(group) or {}).get(kind)
+            if curves:
+                summary["fig5"].setdefault(group, {})[kind] = {
+                    m: [_entry(b, BIN_KEYS, ("success_tol5", "success_sum5")) for b in rows] for m, rows in curves.items()}
+    if s.get("instances"):
+        summary["instances"] = {g: {m: _entry(e, INSTANCE_KEYS, ("success_tol5", "pose_class_accuracy"))
+                                     for m, e in row.items()} for g, row in s["instances"].items()}
+    ev = results.get("evaluation") or {}
+    evaluation = {"protocol": ev.get("protocol"), "eccentricity": ev.get("eccentricity") or {},
+                  "runs": [{"seed": r.get("seed"),
+                            "overall": {m: {"success_tol5": e.get("success_tol5")} for m, e in r["overall"].items()}}
+                           for r in ev.get("runs") or []]}
+    return _round({"schema": results["schema"], "schema_version": results["schema_version"],
+                   "context": results["context"], "summary": summary, "evaluation": evaluation, "made": made})
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def _number(text: str):
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def made_block(command: str, wall_s: float, date: str | None = None, note: str | None = None,
+               parameters: dict | None = None, before: list | None = None) -> dict:
+    """How a snapshot was made: ``parameters`` (the settings of the command it quotes, e.g. the
+    image size a benchmark's default gives) and ``before`` ([{command, wall_s, date}]: the steps
+    that made its input or filled its caches, e.g. the render) where given."""
+    from spm_model.spm.features import FEATURE_VERSION
+
+    made = {"date": date or datetime.date.today().isoformat(), "command": command, "wall_s": round(float(wall_s), 1),
+            "machine": {"nproc": os.cpu_count(), "cpu": _cpu_model(),
+                        "gpu": "none" if shutil.which("nvidia-smi") is None else "present (not used)"},
+            "feature_version": FEATURE_VERSION}
+    if parameters:
+        made["parameters"] = parameters
+    if before:
+        made["before"] = before
+    if note:
+        made["note"] = note
+    return made
+
+
+def dumps(obj, depth: int = 0, open_levels: int = 4) -> str:
+    """JSON with one key per line down to ``open_levels`` deep, each deeper value on one line."""
+    if depth >= open_levels or not isinstance(obj, (dict, list)) or not obj:
+        return json.dumps(obj, separators=(",", ":"), ensure_ascii=False)
+    pad = " " * (depth + 1)
+    if isinstance(obj, dict):
+        items = [f"{pad}{json.dumps(k, ensure_ascii=False)}:{dumps(v, depth + 1, open_levels)}" for k, v in obj.items()]
+        return "{\n" + ",\n".join(items) + "\n" + " " * depth + "}"
+    items = [f"{pad}{dumps(v, depth + 1, open_levels)}" for v in obj]
+    return "[\n" + ",\n".join(items) + "\n" + " " * depth + "]"
+
+
+def write_snapshot(name: str, results_json: Path, command: str, wall_s: float, date: str | None = None,
+                   note: str | None = None, folder: Path = SNAPSHOTS, parameters: dict | None = None,
+                   before: list | None = None) -> Path:
+    results = json.loads(Path(results_json).read_text())
+    path = folder / f"{name}.json"
+    path.write_text(dumps(trim(results, made_block(command, wall_s, date, note, parameters, before))) + "\n")
+    return path
+
+
+def load_snapshots(folder: Path = SNAPSHOTS) -> dict:
+    return {p.stem: json.loads(p.read_text()) for p in sorted(folder.glob("*.json"))}
+
+
+# ---------------------------------------------------------------------------------------------
+# Values and their formats.
+
+class PlaceholderError(ValueError):
+    pass
+
+
+def _snap(snaps: dict, name: str) -> dict:
+    if name not in snaps:
+        raise PlaceholderError(f"no snapshot {name!r} (have: {', '.join(sorted(snaps))})")
+    return snaps[name]
+
+
+def _keys(path: str) -> list[str]:
+    keys = path.split(".")
+    return keys if keys[0] in TOP else ["summary", *keys]
+
+
+def _step(node, key: str, where: str):
+    if isinstance(node, list):
+        try:
+            return node[int(key)]
+        except (ValueError, IndexError):
+            raise PlaceholderError(f"{where}: no index {key!r}") from None
+    if isinstance(node, dict) and key in node:
+        return node[key]
+    raise PlaceholderError(f"{where}: no key {key!r}")
+
+
+def value(snaps: dict, name: str, path: str):
+    node = _snap(snaps, name)
+    for key in _keys(path):
+        node = _step(node, key, f"{name}:{path}")
+    return node
+
+
+def values(snaps: dict, name: str, path: str) -> list:
+    """Every value a PATH with ``*`` reaches (None left out)."""
+    nodes = [_snap(snaps, name)]
+    for key in _keys(path):
+        if key == "*":
+            nodes = [v for n in nodes for v in (n.values() if isinstance(n, dict) else n)]
+        else:
+            nodes = [_step(n, key, f"{name}:{path}") for n in nodes]
+    return [v for v in nodes if v is not None]
+
+
+def fmt(v, spec: str = "") -> str:
+    if v is None:
+        return DASH
+    if spec == "min":
+        return f"{v / 60:.1f}"
+    if isinstance(v, float) and not spec:
+        raise PlaceholderError(f"a float ({v}) needs a format")
+    return format(v, spec) if spec else str(v)
+
+
+def name(method: str) -> str:
+    return METHOD_NAMES.get(method, method)
+
+
+def _ci(entry: dict, key: str):
+    return (entry.get("ci95") or {}).get(key)
+
+
+def rate(entry: dict | None, key: str = "success_tol5") -> str:
+    """"97.5% (95% CI 97.1–97.9, 4,492 frames)"."""
+    v = (entry or {}).get(key)
+    if v is None:
+        return DASH
+    ci = _ci(entry, key)
+    if ci is None:
+        return f"{v:.1f}%"
+    return f"{v:.1f}% (95% CI {ci['low']:.1f}–{ci['high']:.1f}, {_frames_text(ci['n'])})"
+
+
+def _frames_text(n) -> str:
+    return f"{n:,.0f} frame" + ("" if round(n) == 1 else "s")
+
+
+def _entry_of(snaps: dict, snap: str, ref: str) -> dict:
+    if "." in ref:
+        return value(snaps, snap, ref)
+    if ref == "chance":
+        return value(snaps, snap, "summary.chance")
+    return value(snaps, snap, f"summary.methods.{ref}")
+
+
+def _span(vals: list, spec: str) -> str:
+    if not vals:
+        return DASH
+    lo, hi = fmt(min(vals), spec), fmt(max(vals), spec)
+    return lo if lo == hi else f"{lo}–{hi}"
+
+
+PAPER_COLUMNS = {"table1": (PAPER_TABLE1, {"success": (0, ".1f"), "success_std": (1, ".1f"), "ecc": (2, ".2f"),
+                                           "ecc_std": (3, ".2f")}),
+                 "table2": (PAPER_TABLE2, {"k1": (0, ".1f"), "k1_std": (1, ".1f"), "k3": (2, ".1f"),
+                                           "k3_std": (3, ".1f")})}
+
+
+def paper(table: str, column: str, cls: str | None = None) -> str:
+    rows, columns = PAPER_COLUMNS[table]
+    i, spec = columns[column]
+    if cls:
+        return fmt(rows[cls][i], spec)
+    return _span([r[i] for r in rows.values()], spec)
+
+
+def best(snaps: dict, snap: str) -> str:
+    s = value(snaps, snap, "summary")
+    chance = rate(s.get("chance"))
+    if s.get("best"):
+        return (f"**{name(s['best'])}** is best, {rate(s['methods'][s['best']])} within ±5°, above chance's "
+                f"{chance} beyond both 95% intervals")
+    if not s.get("chance"):
+        return "no method is called best (chance did not run)"
+    return f"**no method beats chance** beyond both 95% intervals (chance {chance} within ±5°)"
+
+
+# ---------------------------------------------------------------------------------------------
+# Tables.
+
+def _table(header: list, rows: list) -> str:
+    return "\n".join(["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+                     + ["| " + " | ".join(str(c) for c in r) + " |" for r in rows])
+
+
+def _entries(s: dict) -> dict:
+    """Methods in report order, then chance."""
+    return {**s["methods"], **({"chance": s["chance"]} if s.get("chance") else {})}
+
+
+def _f(v, digits=1) -> str:
+    return DASH if v is None else f"{v:.{digits}f}"
+
+
+def _ci_cell(entry: dict, key: str = "success_tol5") -> str:
+    """"97.5 (97.1–97.9)"."""
+    v, ci = entry.get(key), _ci(entry, key)
+    if v is None:
+        return DASH
+    return f"{v:.1f}" if ci is None else f"{v:.1f} ({ci['low']:.1f}–{ci['high']:.1f})"
+
+
+def _cov(entry: dict) -> str:
+    frames, est = entry.get("frames") or 0, entry.get("estimated")
+    return "" if est is None or not frames or est >= frames else f" · {100 * est / frames:.0f}% est."
+
+
+def _bin(row: dict) -> str:
+    return f"{row['low'] * 100:.0f}–{row['high'] * 100:.0f}%"
+
+
+def table_fig5_bins(snaps, snap, curve):
+    """Success per occlusion bin: sum<5 / sum<3 / ±5 %; frames per bin in the header."""
+    group, kind = curve.split(".")
+    curves = value(snaps, snap, f"summary.fig5.{group}.{kind}")
+    first = next(iter(curves.values()))
+    bins = [i for i, r in enumerate(first) if r["frames"]]
+    header = ["method"] + [f"{_bin(first[i])} ({first[i]['frames']:,})" for i in bins]
+    rows = [[name(m)] + ["/".join(_f(r[i][k], 0) for k in ("success_sum5", "success_sum3", "success_tol5"))
+                         for i in bins] for m, r in curves.items()]
+    return _table(header, rows)
+
+
+def table_fig5_overall(snaps, snap):
+    """Every occlusion level together, seen and unseen instances."""
+    inst = value(snaps, snap, "summary.instances")
+    seen, unseen = inst["seen"], inst.get("unseen") or {}
+    n_seen = next(iter(seen.values()))["frames"]
+    n_unseen = next(iter(unseen.values()))["frames"] if unseen else 0
+    header = [f"method ({n_seen:,} seen / {n_unseen:,} unseen frames)", "seen: ±5° % (95% CI)",
+              "seen: sum<5° / sum<3° %", "seen: coverage %", "seen: geodesic median °",
+              "seen: translation median mm", "seen: pose class % (SMM's 8 bins)", "unseen: ±5° % (95% CI)",
+              "unseen: coverage %", "unseen: pose class %"]
+    rows = []
+    for m, e in seen.items():
+        u = unseen.get(m) or {}
+        rows.append([name(m), _ci_cell(e), f"{_f(e.get('success_sum5'))} / {_f(e.get('success_sum3'))}",
+                     _f(e.get("coverage"), 0), _f(e.get("geodesic_median_deg")), _f(e.get("translation_median_mm")),
+                     _f(e.get("pose_class_accuracy")), _ci_cell(u) if u else DASH, _f(u.get("coverage"), 0),
+                     _f(u.get("pose_class_accuracy"))])
+    return _table(header, rows)
+
+
+def table_methods(snaps, snap):
+    """One protocol: coverage, features found, ±5° with its interval, σ and the range over runs."""
+    s = value(snaps, snap, "summary")
+    runs = value(snaps, snap, "evaluation.runs")
+    header = ["Method", "Coverage %", "Features (test frames)", "±5° % (95% CI)", "σ over runs",
+              "runs min–max"]
+    rows = []
+    for m, e in _entries(s).items():
+        per_run = [r["overall"][m]["success_tol5"] for r in runs if m in r["overall"]
+                   and r["overall"][m]["success_tol5"] is not None]
+        featured = e.get("featured")
+        rows.append([name(m), _f(e.get("coverage")), DASH if featured is None else f"{featured:,}/{e['frames']:,}",
+                     _ci_cell(e), _f((e.get("std") or {}).get("success_tol5")),
+                     _span(per_run, ".1f") if per_run else DASH])
+    return _table(header, rows)
+
+
+def table_declined(snaps, snap):
+    """One bullet per method that declined, with its reason."""
+    declined = value(snaps, snap, "summary.declined")
+    if not declined:
+        return "- No method declined."
+    return "\n".join(f"- {name(m)} declined ({d['splits']} of {d['of']} splits): {d['reason']}"
+                     for m, d in declined.items())
+
+
+def _protocols(snaps, arg):
+    return [(p, value(snaps, p, "summary")) for p in arg.split(",")]
+
+
+def _methods(protocols) -> list:
+    out = []
+    for _, s in protocols:
+        out += [m for m in _entries(s) if m not in out]
+    if "chance" in out:  # chance last
+        out.remove("chance")
+        out.append("chance")
+    return out
+
+
+def _frames(s: dict) -> int:
+    return (s.get("chance") or next(iter(s["methods"].values())))["frames"]
+
+
+def table_protocols(snaps, arg):
+    """Every method under every protocol: ±5° (95% CI) / sum<5° / geodesic median / AUC."""
+    ps = _protocols(snaps, arg)
+    header = ["Method"] + [f"{p} ({_frames(s):,} test frames): ±5° % (95% CI) / sum<5° % / geodesic median ° / AUC"
+                           for p, s in ps]
+    rows = []
+    for m in _methods(ps):
+        cells = []
+        for _, s in ps:
+            e = _entries(s).get(m)
+            cells.append(DASH if e is None else
+                         f"{_ci_cell(e)}{_cov(e)} / {_f(e.get('success_sum5'))} / {_f(e.get('geodesic_median_deg'))}"
+                         f" / {_f(e.get('auc_45'))}")
+        rows.append([name(m)] + cells)
+    return _table(header, rows)
+
+
+def table_dof(snaps, arg):
+    ps = _protocols(snaps, arg)
+    header = ["Method"] + [f"{p}: azimuth / az. mod 180 / elevation ° / distance mm" for p, _ in ps]
+    keys = ("azimuth_deg", "azimuth_mod180_deg", "elevation_deg", "distance_mm")
+    rows = []
+    for m in _methods(ps):
+        cells = []
+        for _, s in ps:
+            e = _entries(s).get(m)
+            med = (e or {}).get("median_error") or {}
+            cells.append(DASH if e is None else " / ".join(_f(med.get(k)) for k in keys))
+        rows.append([name(m)] + cells)
+    return _table(header, rows)
+
+
+def table_surface(snaps, arg):
+    ps = _protocols(snaps, arg)
+    header = ["Method"] + [f"{p}: ADD(-S) % / AR MSSD % / AR MSPD %" for p, _ in ps]
+    rows = []
+    for m in _methods(ps):
+        cells = []
+        for _, s in ps:
+            e = _entries(s).get(m)
+            surf = (e or {}).get("surface") or {}
+            cells.append(DASH if not surf else " / ".join(_f(surf.get(k)) for k in ("add_s_recall", "ar_mssd",
+                                                                                     "ar_mspd")))
+        rows.append([name(m)] + cells)
+    return _table(header, rows)
+
+
+def table_classes(snaps, snap):
+    """Per class: ±5° % (geodesic median °); frames per class in the first column."""
+    classes = value(snaps, snap, "summary.classes")
+    methods = []
+    for row in classes.values():
+        methods += [m for m in row if m not in methods]
+    header = ["Class (test frames)"] + [name(m) for m in methods]
+    rows = []
+    for c, row in classes.items():
+        frames = next(iter(row.values()))["frames"]
+        rows.append([f"{c} ({frames:,})"] + [DASH if m not in row else
+                                             f"{_f(row[m].get('success_tol5'))} ({_f(row[m].get('geodesic_median_deg'), 0)})"
+                                             for m in methods])
+    return _table(header, rows)
+
+
+def table_paper1(snaps, snap):
+    """SPM per class (±5°, its interval, sum criteria, eccentricity) beside the paper's Table 1."""
+    classes = value(snaps, snap, "summary.classes")
+    ecc = value(snaps, snap, "evaluation.eccentricity")
+    rows = []
+    for c, row in classes.items():
+        if "spm" not in row:
+            continue
+        e, ec, p = row["spm"], ecc.get(c) or {}, PAPER_TABLE1.get(c)
+        rows.append([c, f"{e['frames']:,}", _ci_cell(e) + _cov(e), _f((e.get("std") or {}).get("success_tol5")),
+                     _f(e.get("success_sum5")), _f(e.get("success_sum3")), _f(ec.get("mean"), 2), _f(ec.get("std"), 2),
+                     _f(p[0]) if p else DASH, _f(p[2], 2) if p else DASH])
+    return _table(["Class", "Frames", "±5° % (95% CI)", "σ", "sum<5° %", "sum<3° %", "Mean eccentricity", "σ",
+                   "Paper success %", "Paper ecc."], rows)
+
+
+def table_paper2(snaps, snap):
+    """KNN on SPM's vectors per class beside the paper's Table 2."""
+    classes = value(snaps, snap, "summary.classes")
+    rows = []
+    for c, row in classes.items():
+        if "knn1" not in row or "knn3" not in row:
+            continue
+        k1, k3, p = row["knn1"], row["knn3"], PAPER_TABLE2.get(c)
+        rows.append([c, f"{k1['frames']:,}", _ci_cell(k1) + _cov(k1), _ci_cell(k3) + _cov(k3),
+                     _f(p[0]) if p else DASH, _f(p[2]) if p else DASH])
+    return _table(["Class", "Frames", "K=1 ±5° % (95% CI)", "K=3 ±5° % (95% CI)", "Paper K=1 %", "Paper K=3 %"],
+                  rows)
+
+
+TABLES = {"fig5-bins": table_fig5_bins, "fig5-overall": table_fig5_overall, "methods": table_methods,
+          "declined": table_declined, "protocols": table_protocols, "dof": table_dof, "surface": table_surface,
+          "classes": table_classes, "paper1": table_paper1, "paper2": table_paper2}
+
+
+# ---------------------------------------------------------------------------------------------
+# Rendering.
+
+def resolve(expr: str, snaps: dict) -> str:
+    head, *args = expr.split(":")
+    if head == "rate":
+        return rate(_entry_of(snaps, args[0], args[1]), *args[2:3])
+    if head == "best":
+        return best(snaps, args[0])
+    if head == "runs":
+        n = value(snaps, args[0], "summary.runs")
+        return f"{n} run" + ("" if n == 1 else "s")
+    if head == "name":
+        return name(args[0])
+    if head in ("range", "min", "max"):
+        vals = values(snaps, args[0], args[1])
+        spec = args[2] if len(args) > 2 else ""
+        if not vals:
+            return DASH
+        return _span(vals, spec) if head == "range" else fmt((min if head == "min" else max)(vals), spec)
+    if head == "count":
+        return str(len(value(snaps, args[0], args[1])))
+    if head == "paper":
+        return paper(*args)
+    if head == "table":
+        if args[0] not in TABLES:
+            raise PlaceholderError(f"no table {args[0]!r} (have: {', '.join(TABLES)})")
+        return TABLES[args[0]](snaps, *args[1:])
+    if not args:
+        raise PlaceholderError("expected SNAP:PATH[:FMT]")
+    return fmt(value(snaps, head, args[0]), args[1] if len(args) > 1 else "")
+
+
+SNAP_FIRST = ("rate", "best", "runs", "range", "min", "max", "count")  # placeholders whose first argument is SNAP
+
+
+def used_snapshots(template: str) -> set[str]:
+    """The snapshots a template reads."""
+    used = set()
+    for expr in PLACEHOLDER.findall(template):
+        head, *args = expr.split(":")
+        if head in SNAP_FIRST:
+            used.add(args[0])
+        elif head == "table":
+            used.update(args[1].split(","))
+        elif head not in ("name", "paper"):
+            used.add(head)
+    return used
+
+
+LIST_ITEM = re.compile(r"^(\s*)([-*]|\d+\.)\s+")
+KEEP = ("|", "#", "![", "<!--", "```")  # table rows, headings, images, comments, fences: as they are
+
+
+def reflow(text: str, width: int = 100) -> str:
+    """Paragraphs and list items re-wrapped to ``width`` columns (placeholders make lines of any
+    length); tables, headings, images, comments and fenced code kept line for line."""
+    out, block, fenced = [], [], False
+
+    def flush():
+        if block:
+            first = block[0]
+            item = LIST_ITEM.match(first)
+            indent = " " * len(item.group(0)) if item else ""
+            words = " ".join(line.strip() for line in block)
+            out.extend(textwrap.wrap(words, width, initial_indent=first[:len(first) - len(first.lstrip())],
+                                     subsequent_indent=indent, break_long_words=False, break_on_hyphens=False))
+            block.clear()
+
+    for line in text.split("\n"):
+        if line.startswith("```"):
+            flush()
+            fenced = not fenced
+            out.append(line)
+        elif fenced or not line.strip() or line.lstrip().startswith(KEEP):
+            flush()
+            out.append(line)
+        else:
+            if LIST_ITEM.match(line):
+                flush()
+            block.append(line)
+    flush()
+    return "\n".join(out)
+
+
+def render(template: str, snaps: dict) -> str:
+    def one(match):
+        try:
+            return resolve(match.group(1), snaps)
+        except PlaceholderError as exc:
+            line = template.count("\n", 0, match.start()) + 1
+            raise PlaceholderError(f"line {line}: {{{{{match.group(1)}}}}}: {exc}") from None
+        except (KeyError, IndexError, TypeError, ValueError) as exc:
+            line = template.count("\n", 0, match.start()) + 1
+            raise PlaceholderError(f"line {line}: {{{{{match.group(1)}}}}}: {type(exc).__name__}: {exc}") from None
+    return reflow(PLACEHOLDER.sub(one, template))
+
+
+# Figures typed by hand: what the template may not hold outside placeholders.
+FIGURE = re.compile(r"\d+(?:[.,]\d+)+"                              # 1.5, 1,200, 0.6/0.7 (each part)
+                    r"|\d+\s*(?:%|°|mm\b|px\b|pixels?\b|percent\b|ms\b|s\b|min\b|minutes?\b|seconds?\b|h\b|hours?\b"
+                    r"|MB\b|GB\b)"
+                    r"|\b(?:version|schema|v)\s*\d+"                 # version 7, schema 5, v2
+                    r"|\b\d+\s+(?:frames|runs|views|images|splits|objects)\b"
+                    r"|\b(?:19|20)\d\d\b", re.IGNORECASE)            # years, dates
+# Criteria and fixed design, not results: the success criteria's names, SMM's 45° classes and the
+# AUC's 0–45° range, a half turn, the ten 10%-wide occlusion bins, the intervals' confidence.
+ALLOWED = re.compile(r"±5°|sum ?< ?[35]°|0–45°|45°|180°|\b\d0–\d{2,3}%|\b95% (?:Wilson )?interval|\b95% CI")
+
+
+def hand_written(template: str) -> list[tuple[int, str]]:
+    """(line, text) of every figure outside placeholders that the allowlist does not name."""
+    found = []
+    for number, line in enumerate(template.splitlines(), 1):
+        prose = ALLOWED.sub(" ", PLACEHOLDER.sub(" ", line))
+        found += [(number, m.group(0)) for m in FIGURE.finditer(prose)]
+    return found
+
+
+def first_difference(expected: str, actual: str) -> str | None:
+    if expected == actual:
+        return None
+    a, b = expected.splitlines(keepends=True), actual.splitlines(keepends=True)
+    for i, (x, y) in enumerate(zip(a, b), 1):
+        if x != y:
+            return f"line {i}: rendered {x.rstrip()!r}, file has {y.rstrip()!r}"
+    i = min(len(a), len(b)) + 1
+    return (f"line {i}: rendered {'(end)' if i > len(a) else repr(a[i - 1].rstrip())}, "
+            f"file has {'(end)' if i > len(b) else repr(b[i - 1].rstrip())}")
+
+
+def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["snapshot"]:
+        p = argparse.ArgumentParser(prog="results_doc.py snapshot", description="Write docs/results/NAME.json.")
+        p.add_argument("name")
+        p.add_argument("results_json", type=Path)
+        p.add_argument("--command", required=True, help="the command that made it, as a reader would run it")
+        p.add_argument("--wall-s", type=float, required=True, help="its wall time, seconds")
+        p.add_argument("--date", default=None)
+        p.add_argument("--note", default=None)
+        p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
+                       help="a setting of the command (made.parameters); repeatable")
+        p.add_argument("--before", action="append", default=[],
+                       help="a command that made the input or filled its caches (made.before); repeatable")
+        p.add_argument("--before-wall-s", action="append", type=float, default=[], help="its wall time, each --before")
+        p.add_argument("--before-date", default=None, help="their date (default --date)")
+        p.add_argument("--folder", type=Path, default=SNAPSHOTS)
+        a = p.parse_args(argv[1:])
+        parameters = {k: _number(v) for k, _, v in (x.partition("=") for x in a.param)}
+        if len(a.before) != len(a.before_wall_s):
+            p.error("give one --before-wall-s for each --before")
+        day = a.before_date or a.date or datetime.date.today().isoformat()
+        before = [{"command": c, "wall_s": w, "date": day} for c, w in zip(a.before, a.before_wall_s)] or None
+        path = write_snapshot(a.name, a.results_json, a.command, a.wall_s, a.date, a.note, a.folder, parameters,
+                              before)
+        print(f"{path} ({path.stat().st_size:,} bytes)")
+        return 0
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--check", action="store_true", help="compare instead of writing; exit 1 on a difference")
+    p.add_argument("--template", type=Path, default=TEMPLATE)
+    p.add_argument("--snapshots", type=Path, default=SNAPSHOTS)
+    p.add_argument("--doc", type=Path, default=DOC)
+    a = p.parse_args(argv)
+    try:
+        text = render(a.template.read_text(), load_snapshots(a.snapshots))
+    except PlaceholderError as exc:
+        print(f"{a.template}: {exc}", file=sys.stderr)
+        return 2
+    if a.check:
+        diff = first_difference(text, a.doc.read_text() if a.doc.exists() else "")
+        if diff:
+            print(f"{a.doc} is not what {a.template} renders ({diff}); run python scripts/results_doc.py",
+                  file=sys.stderr)
+            return 1
+        print(f"{a.doc}: up to date")
+        return 0
+    a.doc.write_text(text)
+    print(f"wrote {a.doc}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
