@@ -6,9 +6,7 @@
 the image border included), ``scene_gt_coco.json``; rgb as JPEG in ``*_pbr`` splits, PNG
 otherwise; written to ``OUT.partial`` and renamed.
 
-Object ids: the export's objects sorted by (class name, instance number, instance name)
-are numbered 1, 2, ...; with ``ids_from`` (a previous export, or its objects.json), the
-objects it lists keep their ids and new ones are numbered after its largest.
+Object ids, scenes and image ids: bop_ids.py (the rule the results file shares).
 
 K: BOP counts the principal point from the pixel corner (cx = W / 2 for a centred
 camera), our shards from the first pixel's centre (OpenCV): export adds 0.5 to cx and
@@ -28,6 +26,7 @@ import numpy as np
 from spm_data.errors import SpmError
 from spm_data.core.instances import shard_mesh
 from spm_data.core.poses import K_to_corner_origin
+from spm_data.formats.bop_ids import frame_names, object_ids
 from spm_data.formats.bop_gt import (DEPTH_SCALES, depth_scale_for, depth_units, depth_with_occluders,
                                      full_silhouette, gt_info)
 from spm_data.formats.bop_models import save_bop_model, save_models_info
@@ -77,19 +76,6 @@ def read_objects(path) -> dict[int, dict]:
     except (OSError, ValueError, TypeError, KeyError, AttributeError) as exc:
         raise SpmError(f"{path}: not an {OBJECTS_FILE} (obj_id -> class, instance, instance_id): "
                        f"{type(exc).__name__}: {exc}") from None
-
-
-def object_ids(objects, ids_from=None) -> dict[tuple, int]:
-    """(class name, instance name) -> obj_id for ``objects``, an iterable of (class name, instance
-    number, instance name), by the module's rule (sorted; ``ids_from`` keeps a previous export's)."""
-    given = {(v["class"], v["instance"]): k for k, v in read_objects(ids_from).items()} if ids_from else {}
-    ids, next_id = {}, max(given.values(), default=0) + 1
-    for cls, _, name in sorted(set(objects)):
-        if (cls, name) in given:
-            ids[(cls, name)] = given[(cls, name)]
-        elif (cls, name) not in ids:
-            ids[(cls, name)], next_id = next_id, next_id + 1
-    return ids
 
 
 class _Export:
@@ -174,13 +160,6 @@ class _Export:
         save_models_info(self.root / "models_eval" / "models_info.json", self.models_info)
 
 
-def _objects(shards):
-    """(class name, instance number, instance name) of every frame of ``shards``."""
-    for path in shards:
-        d = read_shard(path, ["class_name", "instance_id", "instance_name"])
-        yield from zip(map(str, d["class_name"]), map(int, d["instance_id"]), map(str, d["instance_name"]))
-
-
 def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=False, meshes_from=None,
                ids_from=None) -> dict:
     """Write the shards of ``in_dir`` as a BOP dataset at ``out_dir``. Returns counts.
@@ -198,7 +177,7 @@ def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=F
     # Every shard read below is verified as it is read; the export is built in OUT.partial, so a
     # corrupt shard (or a full disk) leaves nothing behind.
     shards = open_folder(in_dir, allow_partial=allow_partial).shards
-    ids = object_ids(_objects(shards), ids_from)
+    ids = object_ids(frame_names(shards), ids_from)
     tmp = out_dir.with_name(out_dir.name + ".partial")
     shutil.rmtree(tmp, ignore_errors=True)
     made = top_created(tmp / "models")  # what this export creates: removed on failure
