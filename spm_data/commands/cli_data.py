@@ -150,21 +150,25 @@ export_group = Group("export", help="Hand shards to other tools in their formats
               help="Split folder name; rgb is JPEG in *_pbr splits (as BOP's), PNG otherwise.")
 @click.option("--meshes-from", "meshes_from", type=click.Path(), default=None,
               help="The folder the rendered spec's mesh paths start from (the spec's folder), if it has "
-                   "moved since the render.")
+                   "moved since the render (shards made before the mesh store only).")
+@click.option("--ids-from", "ids_from", type=click.Path(), default=None,
+              help="A previous export (or its objects.json): the objects it lists keep their obj_ids, new "
+                   "ones are numbered after its largest.")
 @ALLOW_PARTIAL
 @handle_errors
-def export_bop_cmd(folder, out_dir, split, meshes_from, allow_partial):
+def export_bop_cmd(folder, out_dir, split, meshes_from, ids_from, allow_partial):
     """Write the shard folder FOLDER as a BOP dataset in --out (one scene per object instance)."""
     from spm_data.formats.bop import export_bop
 
     bar = Progress()
     try:
         counts = export_bop(folder, out_dir, split=split, progress=bar, allow_partial=allow_partial,
-                            meshes_from=meshes_from)
+                            meshes_from=meshes_from, ids_from=ids_from)
     finally:
         bar.close()
     click.echo(f"exported {counts['frames']} frames of {counts['objects']} objects in {counts['scenes']} scenes "
                f"-> {out_dir}/")
     if counts["without_model"]:
-        click.echo(f"  no mesh for {len(counts['without_model'])} objects (imported, not rendered): "
-                   f"{', '.join(counts['without_model'][:10])}")
+        click.echo(f"  no mesh for {len(counts['without_model'])} objects (imported, not rendered):")
+        for name in counts["without_model"]:   # one line each: which objects have no model in models/
+            click.echo(f"  {name}: no model; ground truth image-only (objects.json \"ground_truth\")")

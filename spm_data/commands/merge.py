@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from spm_data.core.shard_meshes import FrameMeshes
 from spm_data.core.specs import class_name_problem
 from spm_data.errors import SpmError
 from spm_data.io.folders import open_folder
@@ -93,8 +94,6 @@ def plan_merge(inputs, out_dir, *, sources=None, renames=None, frames_per_shard=
             frames_from = tuple((p, tuple(ix)) for p, ix in by_shard.items())
             optional = tuple(f for f in OPTIONAL_FIELDS
                              if all(f in info[Path(p)]["fields"] for p, _ in frames_from))
-            if len({info[Path(p)]["distractor_meshes"] for p, _ in frames_from}) > 1:
-                optional = tuple(f for f in optional if f != "distractor_mesh")  # indices into different lists
             stamp = [(p, info[Path(p)]["sha256"]) for p, _ in frames_from]
             key = hashlib.sha256(json.dumps([stamp, frames_from, sorted(renames.items()), optional]).encode())
             jobs.append(MergeJob(f"merged-{tag}-{k:05d}.h5", key.hexdigest(), str(out_dir), frames_from,
@@ -113,11 +112,18 @@ def _shard_info(path) -> dict:
 
 
 def merge_shard(job: MergeJob, report=lambda n: None) -> dict:
-    parts = []
-    fields = list(FIELDS) + list(job.optional)
+    parts, pools = [], []
+    fields = list(FIELDS) + [f for f in job.optional if f != "mesh"]
     for path, frames in job.frames_from:
-        parts.append(read_shard(path, fields, frames=np.asarray(frames)))
+        part = read_shard(path, fields + (["mesh"] if "mesh" in shard_layout(path) else []),
+                          frames=np.asarray(frames))
+        attrs, meshes = read_attrs(path), FrameMeshes(Path(path).parent)
+        part["mesh"] = np.asarray(meshes.targets(attrs, part), dtype=object)   # older shards: rebuilt
+        pools.append(meshes.pool(attrs) if "distractor_mesh" in job.optional else [])
+        meshes.carry(list(part["mesh"]) + pools[-1], job.out_dir)   # the store travels with its frames
+        parts.append(part)
         report(len(frames))
+    fields.append("mesh")
     arrays = {}
     for f in fields:
         values = [p[f] for p in parts]
@@ -129,13 +135,56 @@ def merge_shard(job: MergeJob, report=lambda n: None) -> dict:
         arrays[f] = np.concatenate(values)
     renames = dict(job.renames)
     arrays["class_name"] = np.asarray([renames.get(c, c) for c in arrays["class_name"]], dtype=object)
-    attrs = {"plan_key": job.plan_key, "renderer": "merged", "seed": 0, "source": "merged",
-             **({"distractor_meshes": read_attrs(job.frames_from[0][0])["distractor_meshes"]}
-                if "distractor_mesh" in job.optional else {}),
+    pool = {}
+    if "distractor_mesh" in job.optional:
+        arrays["distractor_mesh"], pool = _one_pool(job, parts, pools)
+    attrs = {"plan_key": job.plan_key, "renderer": "merged", "seed": 0, "source": "merged", **pool,
              "merged_from": json.dumps([[Path(p).parent.name + "/" + Path(p).name, len(ix)]
                                         for p, ix in job.frames_from])}
     target = write_shard(Path(job.out_dir) / job.name, arrays, attrs)
     return {"entry": manifest_entry(target)}
+
+
+def _one_pool(job: MergeJob, parts: list, pools: list) -> tuple[np.ndarray, dict]:
+    """The merged shard's distractor_mesh (indices into one pool: every source pool's meshes, each
+    once, by digest) and its pool attributes."""
+    names, digests, index = [], [], {}
+    remapped = []
+    for (path, _), part, pool in zip(job.frames_from, parts, pools):
+        source_names = json.loads(read_attrs(path).get("distractor_meshes") or "[]")
+        lookup = np.full(len(source_names) + 1, -1, np.int64)   # the last entry: -1 stays -1
+        for k, name in enumerate(source_names):
+            digest = pool[k] if k < len(pool) else ""
+            key = digest or name
+            if key not in index:
+                index[key] = len(names)
+                names.append(name)
+                digests.append(digest)
+            lookup[k] = index[key]
+        remapped.append(lookup[part["distractor_mesh"]])
+    width = max(r.shape[1] for r in remapped)
+    merged = np.concatenate([np.pad(r, [(0, 0), (0, width - r.shape[1])], constant_values=-1) for r in remapped])
+    return merged, {"distractor_meshes": json.dumps(names), "distractor_mesh_digests": json.dumps(digests)}
+
+
+def _warn_shared_names(out_dir) -> None:
+    """One warning when two different meshes carry one class and instance name: they become two
+    objects (bop_ids.py), which a user reading names alone would not expect."""
+    import warnings
+
+    from spm_data.errors import SpmWarning
+
+    seen: dict[tuple, set] = {}
+    for path in open_folder(out_dir).shards:
+        d = read_shard(path, ["class_name", "instance_name", "mesh"])
+        for cls, name, digest in zip(d["class_name"], d["instance_name"], d["mesh"]):
+            if digest:
+                seen.setdefault((str(cls), str(name)), set()).add(str(digest))
+    shared = sorted(f"{c}/{n} ({len(d)} meshes)" for (c, n), d in seen.items() if len(d) > 1)
+    if shared:
+        warnings.warn(SpmWarning(f"{len(shared)} name(s) stand for different meshes: {', '.join(shared[:5])}"
+                                 f"{' …' if len(shared) > 5 else ''}; each mesh is its own object "
+                                 "(export bop gives each its own obj_id); rename with --rename to tell them apart"))
 
 
 def merge_folders(inputs, out_dir, *, sources=None, renames=None, frames_per_shard=256,
@@ -147,5 +196,8 @@ def merge_folders(inputs, out_dir, *, sources=None, renames=None, frames_per_sha
     record = {"sources": [{"folder": str(Path(f)), "shards": sum(p.parent == Path(f) for p in read)}
                           for f in inputs],
               "filters": {"sources": list(sources or []), "classes": renames or {}}}
-    return run_shard_jobs(merge_shard, jobs, out_dir, executor=executor, progress=progress, verb="merged",
-                          manifest_extra=record)
+    summary = run_shard_jobs(merge_shard, jobs, out_dir, executor=executor, progress=progress, verb="merged",
+                             manifest_extra=record)
+    if not (summary.failed or summary.interrupted):
+        _warn_shared_names(out_dir)
+    return summary

@@ -21,6 +21,7 @@ from spm_data.io.outputs import check_out_name
 from spm_data.core.occlusion import black_out, check_range, occlude_mask
 from spm_data.jobs.plan_diff import first_difference
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
+from spm_data.core.mesh_store import carry_meshes
 from spm_data.io.shards import (ShardReader, ShardWriter, hash_ahead, manifest_entry, read_attrs, reuse_verification,
                                 verification)
 from spm_data.io.shards.chunks import runs
@@ -153,6 +154,8 @@ def occlude_shard(job: OccludeJob, report=lambda n: None) -> dict:
         out_attrs.update(plan_key=job.plan_key, occlusion_seed=job.seed, occlusion_min=job.low,
                          occlusion_max=job.high, occlusion_rects=job.rects, occlusion_copy=job.copy,
                          occlusion_source=Path(job.source).name, source_plan_key=attrs.get("plan_key", ""))
+        if "mesh" in layout:   # the meshes the frames name travel with them, before the shard lands
+            carry_meshes(set(map(str, reader.read(["mesh"])["mesh"])), [Path(job.source).parent], job.out_dir)
         with ShardWriter(Path(job.out_dir) / job.name, frames=n, height=h, width=w, images=IMAGES) as writer:
             images = {"rgb": np.empty(layout["rgb"][0], np.uint8), "visible_mask": np.zeros((n, h, w), np.uint8)}
             reached = _place(job, data, images, labels, writer, report)

@@ -25,6 +25,8 @@ from spm_data.core.poses import pose_to_label
 from spm_data.render import RENDERERS, make_renderer
 from spm_data.commands.render_frames import FrameMaker
 from spm_data.core.distractors import pool_names
+from spm_data.core.mesh_store import save_mesh
+from spm_data.core.shard_meshes import store_pool
 from spm_data.jobs.executor import LocalExecutor
 from spm_data.jobs.plan_diff import first_difference, flatten
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
@@ -212,7 +214,7 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
     per = max(1, min(n, block_frames(h, w, maker.bytes_per_pixel())))
     frame_labels = []
     with ShardWriter(Path(job.out_dir) / job.name, frames=n, height=h, width=w, images=maker.image_fields) as writer:
-        current, names, records = None, {}, {}
+        current, names, records, digests = None, {}, {}, {}
         for start in range(0, n, per):
             k = min(per, n - start)
             for i in range(start, start + k):
@@ -222,6 +224,7 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
                     renderer.set_mesh(mesh)
                     current, names[int(inst)] = inst, mesh.name
                     records[int(inst)] = mesh_record(spec, int(inst))
+                    digests[int(inst)] = save_mesh(job.out_dir, mesh)  # before the shard that names it
                 images, labels = maker.make(mesh, int(inst), int(pidx), R[i], t[i])  # new arrays every frame
                 writer.encode_ahead(i, images)  # compressed while the next renders
                 frame_labels.append(labels)
@@ -235,6 +238,7 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
             "path_index": path_indices.astype(np.int64), "instance_id": instances.astype(np.int64),
             "instance_name": [names[int(i)] for i in instances], "class_name": [spec.class_name] * n,
             "source": ["synthetic"] * n, "label_measured": np.ones((n, 6), bool),
+            "mesh": [digests[int(i)] for i in instances],
             "occlusion_fraction": np.zeros(n, np.float32), "occlusion_rects": np.zeros((n, 1, 4), np.int32),
             **per_frame,
         }
@@ -247,6 +251,7 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
                  **mesh_attrs(spec, records)}
         if maker.distractors:
             attrs["distractor_meshes"] = json.dumps(pool_names(spec))
+            attrs["distractor_mesh_digests"] = json.dumps(store_pool(spec, job.out_dir, labels["distractor_mesh"]))
         target = writer.finish(labels, attrs)
     return {"entry": manifest_entry(target, writer.written)}
 

@@ -3,20 +3,23 @@
 Returns problems as (shard or "manifest.json", message); none means valid. A
 flipped byte is caught by the checksum (and, inside compressed chunks, by the
 decoder), a truncated file by HDF5, a newer schema by its version, a manifest
-that disagrees with the files by comparing the two.
+that disagrees with the files by comparing the two, a mesh a frame names that the folder's
+store (meshes/) lacks or holds damaged by the store's own check.
 """
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 
-from spm_data.errors import ShardError
+from spm_data.errors import MeshError, ShardError
+from spm_data.core.mesh_store import STORE, load_mesh
 from spm_data.core.poses import pose_to_label
 from spm_data.io.files import file_sha256
 from spm_data.io.shards import (FIELDS, MANIFEST, MISSING, OPTIONAL_FIELDS, check_arrays, list_shards, no_shards,
-                                 read_attrs, read_manifest, read_shard)
+                                 read_attrs, read_manifest, read_shard, shard_layout)
 
 
 def _angle_difference(a, b):
@@ -92,6 +95,7 @@ def validate_folder(folder, progress=None) -> list[tuple[str, str]]:
         problems += [(p.name, msg) for msg in validate_shard(p)]
         if progress is not None:
             progress(1)
+    problems += _store_problems(shards)
     try:
         manifest = read_manifest(folder) if folder.is_dir() else None
     except ShardError as exc:
@@ -131,6 +135,26 @@ def validate_folder(folder, progress=None) -> list[tuple[str, str]]:
     total = sum(int(e.get("frames", 0)) for e in manifest["shards"])
     if manifest.get("frames") != total:
         problems.append((MANIFEST, f"total frames {manifest.get('frames')} is not the sum of its shards ({total})"))
+    return problems
+
+
+def _store_problems(shards) -> list[tuple[str, str]]:
+    """(meshes/DIGEST, problem) for each mesh a frame names that its folder's store lacks or holds damaged."""
+    named: set = set()
+    for path in shards:
+        try:
+            layout, attrs = shard_layout(path), read_attrs(path)
+            if "mesh" in layout:
+                named |= set(map(str, read_shard(path, ["mesh"])["mesh"]))
+            named |= set(json.loads(attrs.get("distractor_mesh_digests") or "[]"))
+        except (ShardError, ValueError):
+            continue   # the shard's own problem is reported above
+    problems = []
+    for digest in sorted(named - {""}):
+        try:
+            load_mesh(shards[0].parent, digest)
+        except MeshError as exc:
+            problems.append((f"{STORE}/{digest[:12]}…", str(exc).split(": ", 1)[-1]))
     return problems
 
 

@@ -24,22 +24,20 @@ from pathlib import Path
 import numpy as np
 
 from spm_data.errors import SpmError
-from spm_data.core.instances import shard_mesh
+from spm_data.core.meshes import TexturedMesh
 from spm_data.core.poses import K_to_corner_origin
-from spm_data.formats.bop_ids import frame_names, object_ids
+from spm_data.formats.bop_ids import OBJECTS_FILE, folder_objects, read_objects  # noqa: F401 (read_objects: bop.py's)
 from spm_data.formats.bop_gt import (DEPTH_SCALES, depth_scale_for, depth_units, depth_with_occluders,
                                      full_silhouette, gt_info)
 from spm_data.formats.bop_models import save_bop_model, save_models_info
 from spm_data.formats.coco import FILE_NAME as COCO_FILE
 from spm_data.formats.coco import save_scene_gt_coco, scene_coco
-from spm_data.io.folders import open_folder
 from spm_data.io.outputs import check_creatable, check_out_name, space_fix, top_created
-from spm_data.io.shards import read_attrs, read_shard
+from spm_data.io.shards import read_shard
 
 SPLIT_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")  # one folder inside the dataset, never a path
 RGB_SUFFIX = {True: ".jpg", False: ".png"}  # keyed by "a PBR split": BOP stores PBR renders as JPEG
 JPEG_QUALITY = 95  # BlenderProc's BOP writer's setting
-OBJECTS_FILE = "objects.json"  # obj_id -> {"class", "instance", "instance_id"}, at the dataset's root
 
 
 def _encode(path: Path, array: np.ndarray) -> None:
@@ -62,45 +60,43 @@ def _check_out(out_dir: Path) -> None:
                     "give --out a folder in a writable place")
 
 
-def read_objects(path) -> dict[int, dict]:
-    """obj_id -> {"class", "instance", "instance_id"} from an export's objects.json (``path``: the
-    file or the export folder); SpmError naming the file when it is missing or malformed."""
-    path = Path(path)
-    path = path / OBJECTS_FILE if path.is_dir() else path
-    try:
-        table = json.loads(path.read_text())
-        return {int(k): {"class": str(v["class"]), "instance": str(v["instance"]),
-                         "instance_id": int(v["instance_id"])} for k, v in table.items()}
-    except FileNotFoundError:
-        raise SpmError(f"{path}: no such file; give an export folder or its {OBJECTS_FILE}") from None
-    except (OSError, ValueError, TypeError, KeyError, AttributeError) as exc:
-        raise SpmError(f"{path}: not an {OBJECTS_FILE} (obj_id -> class, instance, instance_id): "
-                       f"{type(exc).__name__}: {exc}") from None
-
-
 class _Export:
     """The BOP dataset being written into ``root`` (OUT.partial): one scene per object."""
 
-    def __init__(self, root: Path, split: str, ids: dict, meshes_from=None):
-        self.root, self.split, self.ids, self.meshes_from = root, split, ids, meshes_from
+    def __init__(self, root: Path, split: str, found, meshes):
+        self.root, self.split, self.found, self.meshes = root, split, found, meshes
+        self.ids = found.ids
         self.rgb_suffix = RGB_SUFFIX[split.endswith("_pbr")]
-        self.meshes: dict[int, object] = {}
+        self.models: dict[int, object] = {}   # obj_id -> its mesh (None: no mesh, image-only ground truth)
         self.scenes: dict[int, dict] = {}
         self.models_info, self.no_model, self.frames, self.scales = {}, set(), 0, {DEPTH_SCALES[0]}
         self.names: dict[int, dict] = {}
         for sub in ("models", "models_eval"):
             (root / sub).mkdir(parents=True)
 
-    def object_id(self, key: tuple, attrs: dict, instance_id: int) -> int:
-        obj_id = self.ids[key]
-        if obj_id not in self.meshes:
-            self.names[obj_id] = {"class": key[0], "instance": key[1], "instance_id": int(instance_id)}
-            mesh = self.meshes[obj_id] = shard_mesh(attrs, instance_id, spec_dir=self.meshes_from)
+    def object_id(self, identity: tuple) -> int:
+        """The obj_id of ``identity`` (bop_ids.py), its model written the first time it is met."""
+        obj_id = self.ids[identity]
+        if obj_id not in self.models:
+            entry = dict(self.found.entries[identity])
+            mesh = self.models[obj_id] = self._mesh(identity)
             if mesh is None:
-                self.no_model.add(key)
+                entry["ground_truth"] = "image-only"   # no model: px_count_all etc. from the image alone
+                self.no_model.add(f"{entry['class']}/{entry['instance']}")
             else:
                 self.models_info[obj_id] = save_bop_model(self.root, obj_id, mesh)
+            self.names[obj_id] = entry
         return obj_id
+
+    def _mesh(self, identity: tuple):
+        if identity[0] == "name":
+            return None
+        mesh = self.meshes.mesh(identity[1])
+        if identity[0] == "distractor":   # drawn at its own size: that size is the model's
+            size = identity[2]
+            mesh = TexturedMesh(mesh.name, mesh.vertices * size, mesh.faces, mesh.normals, mesh.uv, mesh.texture,
+                                mesh.symmetries)
+        return mesh
 
     def add_frame(self, data: dict, i: int, obj_id: int) -> None:
         scene = self.scenes.setdefault(obj_id, {"camera": {}, "gt": {}, "info": {}, "coco": []})
@@ -125,7 +121,7 @@ class _Export:
         scene["camera"][str(im)] = {"cam_K": K_to_corner_origin(data["K"][i]).ravel().tolist(),
                                     "cam_R_w2c": R, "cam_t_w2c": t_mm, "depth_scale": scale}
         scene["gt"][str(im)] = [{"cam_R_m2c": R, "cam_t_m2c": t_mm, "obj_id": obj_id}]
-        canvas = full_silhouette(mask, self.meshes[obj_id], data["K"][i], data["R"][i], data["t"][i])
+        canvas = full_silhouette(mask, self.models[obj_id], data["K"][i], data["R"][i], data["t"][i])
         info = gt_info(canvas, visible, depth)
         scene["info"][str(im)] = [info]
         # Masks kept a bit a pixel until the scene's COCO file is written.
@@ -176,20 +172,21 @@ def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=F
     _check_out(out_dir)
     # Every shard read below is verified as it is read; the export is built in OUT.partial, so a
     # corrupt shard (or a full disk) leaves nothing behind.
-    shards = open_folder(in_dir, allow_partial=allow_partial).shards
-    ids = object_ids(frame_names(shards), ids_from)
+    shards, meshes, found = folder_objects(in_dir, ids_from, allow_partial=allow_partial, spec_dir=meshes_from,
+                                           distractors=False)
     tmp = out_dir.with_name(out_dir.name + ".partial")
     shutil.rmtree(tmp, ignore_errors=True)
     made = top_created(tmp / "models")  # what this export creates: removed on failure
     try:
-        export = _Export(tmp, split, ids, meshes_from)
+        export = _Export(tmp, split, found, meshes)
         if progress is not None:
-            progress.total = sum(int(read_attrs(path)["frames"]) for path in shards)
+            progress.total = len(found.targets)
+        frame = 0
         for path in shards:
-            attrs, data = read_attrs(path), read_shard(path)
+            data = read_shard(path)
             for i in range(len(data["pose"])):
-                key = (str(data["class_name"][i]), str(data["instance_name"][i]))
-                export.add_frame(data, i, export.object_id(key, attrs, int(data["instance_id"][i])))
+                export.add_frame(data, i, export.object_id(found.targets[frame]))
+                frame += 1
                 if progress:
                     progress(1)
         export.finish(shards[0])
@@ -204,4 +201,4 @@ def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=F
                            f"{fix}") from None
         raise
     return {"frames": export.frames, "objects": len(export.scenes), "scenes": len(export.scenes),
-            "without_model": sorted(f"{c}/{n}" for c, n in export.no_model)}
+            "without_model": sorted(export.no_model)}

@@ -25,7 +25,8 @@ def rendered(tmp_path_factory, request):
 
 
 def hashes(folder):
-    return {p.name: file_sha256(p) for p in sorted(folder.iterdir())}
+    """Every file's hash, the mesh store's included."""
+    return {str(p.relative_to(folder)): file_sha256(p) for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
 def test_fractions_lie_in_range_and_input_is_untouched(rendered, tmp_path):
@@ -67,8 +68,11 @@ def test_same_seed_same_bytes_other_seed_other_bytes(rendered, tmp_path):
     occlude_dataset(rendered, tmp_path / "c", seed=5, copies=2)
     a, b, c = hashes(tmp_path / "a"), hashes(tmp_path / "b"), hashes(tmp_path / "c")
     assert a == b
-    assert sorted(a) == ["cup-00000-occ0.h5", "cup-00000-occ1.h5", "cup-00001-occ0.h5", "cup-00001-occ1.h5",
-                         "manifest.json"]
+    shards = sorted(k for k in a if not k.startswith("meshes/"))
+    assert shards == ["cup-00000-occ0.h5", "cup-00000-occ1.h5", "cup-00001-occ0.h5", "cup-00001-occ1.h5",
+                      "manifest.json"]
+    assert sorted(k for k in a if k.startswith("meshes/")) == sorted(   # the meshes travel with the frames
+        f"meshes/{p.name}" for p in (rendered / "meshes").iterdir())
     assert a["cup-00000-occ0.h5"] != c["cup-00000-occ0.h5"]
     assert a["cup-00000-occ0.h5"] != a["cup-00000-occ1.h5"]  # copies differ
 

@@ -1,5 +1,7 @@
 """Rendered frames with [randomize], [distractors] and [outputs], through the whole render path."""
 
+import json
+
 import numpy as np
 import pytest
 import trimesh
@@ -8,6 +10,7 @@ from scipy.spatial import cKDTree
 from spm_data.commands.occlude_jobs import occlude_dataset
 from spm_data.commands.render_jobs import load_run_specs, render_dataset
 from spm_data.core.instances import load_instance
+from spm_data.core.mesh_store import has_mesh
 from spm_data.errors import ShardError
 from spm_data.io.files import file_sha256
 from spm_data.io.shards import list_shards, read_attrs, read_shard
@@ -172,7 +175,16 @@ def test_a_spec_without_lights_renders(tmp_path):
     assert read_shard(list_shards(tmp_path / "out")[0], ["lights"])["lights"].shape[1:] == (1, 7)
 
 
-def test_merge_of_datasets_with_different_distractor_pools(tmp_path):
+def _frame_pool_names(folder):
+    """Per frame of every shard in ``folder``: the pool names its distractor_mesh indices stand for."""
+    out = []
+    for path in list_shards(folder):
+        pool = json.loads(read_attrs(path)["distractor_meshes"])
+        out += [[pool[k] if k >= 0 else None for k in row] for row in read_shard(path)["distractor_mesh"]]
+    return out
+
+
+def test_merge_of_datasets_with_different_distractor_pools_makes_one_pool(tmp_path):
     from spm_data.commands.merge import merge_folders
 
     for name, cls in (("a", "box"), ("b", "ball")):
@@ -184,10 +196,14 @@ def test_merge_of_datasets_with_different_distractor_pools(tmp_path):
     summary = merge_folders([tmp_path / "a", tmp_path / "b"], tmp_path / "merged")
     assert summary.failed == []
     merged = read_shard(list_shards(tmp_path / "merged")[0])
-    assert merged["distractor_R"].shape[:2] == (8, 2) and "distractor_mesh" not in merged  # indices of two pools
+    assert merged["distractor_R"].shape[:2] == (8, 2) and merged["distractor_mesh"].shape == (8, 2)
+    # Each frame's distractors still name the meshes they were drawn from, now in one pool.
+    assert _frame_pool_names(tmp_path / "merged") == _frame_pool_names(tmp_path / "a") + _frame_pool_names(tmp_path / "b")
+    digests = json.loads(read_attrs(list_shards(tmp_path / "merged")[0])["distractor_mesh_digests"])
+    assert all(has_mesh(tmp_path / "merged", d) for d in digests if d)
 
 
-def test_merge_keeps_pool_indices_only_when_pool_and_seed_agree(tmp_path):
+def test_merge_keeps_same_named_meshes_of_other_seeds_apart(tmp_path):
     from spm_data.commands.merge import merge_folders
 
     for name, seed in (("a", 1), ("b", 2)):
@@ -196,5 +212,11 @@ def test_merge_keeps_pool_indices_only_when_pool_and_seed_agree(tmp_path):
         (folder / f"{name}.toml").write_text(CLUTTERED.format(cls=name).replace("seed = 4", f"seed = {seed}"))
         render_dataset(load_run_specs(all_classes=True, specs_dir=folder), tmp_path / name, limit=4)
     merge_folders([tmp_path / "a", tmp_path / "b"], tmp_path / "merged")
-    merged = read_shard(list_shards(tmp_path / "merged")[0])
-    assert "distractor_mesh" not in merged and merged["distractor_t"].shape[:2] == (8, 2)  # same names, other meshes
+    path = list_shards(tmp_path / "merged")[0]
+    merged, attrs = read_shard(path), read_attrs(path)
+    names, digests = json.loads(attrs["distractor_meshes"]), json.loads(attrs["distractor_mesh_digests"])
+    assert merged["distractor_t"].shape[:2] == (8, 2) and len(names) == len(digests)
+    used = {int(k) for k in merged["distractor_mesh"][4:].ravel() if k >= 0}   # b's frames
+    first = {int(k) for k in merged["distractor_mesh"][:4].ravel() if k >= 0}
+    assert not used & first   # same names, other meshes: other pool entries
+    assert {digests[k] for k in used}.isdisjoint({digests[k] for k in first})

@@ -102,3 +102,19 @@ def test_bad_values_inside_a_shard_are_caught(good, tmp_path):
 def test_folder_without_shards(tmp_path):
     r = CliRunner().invoke(data_cli, ["validate", str(tmp_path)])
     assert r.exit_code == 1 and "no shards (*.h5) in" in r.output and "nothing to validate" in r.output
+
+
+def test_a_missing_or_damaged_mesh_store_entry_is_a_problem(good, tmp_path):
+    folder = tmp_path / "copy"
+    shutil.copytree(good, folder)
+    assert validate_folder(folder) == []
+    entries = sorted((folder / "meshes").iterdir())
+    assert len(entries) == 2   # the cup's 2 instances
+    data = bytearray(entries[0].read_bytes())
+    data[len(data) // 2] ^= 0x10
+    entries[0].write_bytes(bytes(data))
+    entries[1].unlink()
+    problems = validate_folder(folder)
+    assert sorted(where for where, _ in problems) == sorted(f"meshes/{e.name[:12]}…" for e in entries[:2])
+    said = " ".join(msg for _, msg in problems)
+    assert "missing from the folder's mesh store" in said and ("damaged" in said)

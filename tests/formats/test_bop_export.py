@@ -2,6 +2,7 @@
 COCO, exact meshes, object ids)."""
 
 import json
+import shutil
 
 import cv2
 import numpy as np
@@ -18,7 +19,8 @@ from spm_data.formats.ply import load_ply
 from spm_data.core.poses import cv_to_gl_camera_to_world
 from spm_data.render.pyrender_backend import _offscreen
 from spm_data.commands.render_jobs import load_run_specs, render_dataset
-from spm_data.io.shards import list_shards, read_shard
+from spm_data.io.folders import open_folder
+from spm_data.io.shards import list_shards, read_attrs, read_shard, write_shard
 from tests.helpers import write_small_specs
 
 
@@ -198,7 +200,35 @@ renderer = "pyrender"
     return folder / "user.toml"
 
 
-def test_export_finds_meshes_by_the_spec_folder_and_refuses_changed_ones(tmp_path, monkeypatch):
+def _as_older_shard(folder, out_file):
+    """The folder's first shard as spm wrote it before the mesh store: no ``mesh`` field, no meshes/."""
+    shard = open_folder(folder).shards[0]
+    arrays = read_shard(shard)
+    arrays.pop("mesh")
+    attrs = {k: v for k, v in read_attrs(shard).items() if k not in ("schema_version", "frames", "height", "width")}
+    out_file.parent.mkdir(parents=True, exist_ok=True)
+    return write_shard(out_file, arrays, attrs)
+
+
+def test_export_reads_the_rendered_mesh_from_the_store_whatever_happens_to_the_file(tmp_path):
+    spec = mesh_spec(tmp_path / "project", ["meshes/*.glb"], 'symmetries = ["z/90"]')
+    (tmp_path / "project" / "meshes").mkdir()
+    glb_box(tmp_path / "project" / "meshes" / "a.glb", [0.2, 0.3, 0.2])
+    render_dataset(load_run_specs(spec_files=[spec]), tmp_path / "r")
+    glb_box(tmp_path / "project" / "meshes" / "a.glb", [0.2, 0.3, 0.25])   # edited after the render
+    export_bop(tmp_path / "r", tmp_path / "bop")
+    info = json.loads((tmp_path / "bop" / "models" / "models_info.json").read_text())["1"]
+    # The glTF box as rendered, 0.3 tall (y up), stands 250 mm tall on its z axis; its declared 4-fold turn is exported.
+    assert info["size_z"] == pytest.approx(250.0) and info["size_x"] == pytest.approx(250 * 2 / 3)
+    assert len(info["symmetries_discrete"]) == 3 and "symmetries_continuous" not in info
+    shutil.rmtree(tmp_path / "r" / "meshes")   # a folder copied without its store is not whole
+    r = CliRunner().invoke(data_cli, ["export", "bop", str(tmp_path / "r"), "--out", str(tmp_path / "bop2")])
+    assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1
+    assert "missing from the folder's mesh store" in r.output and str(tmp_path / "r" / "meshes") in r.output
+    assert not (tmp_path / "bop2").exists() and not (tmp_path / "bop2.partial").exists()
+
+
+def test_older_shards_find_meshes_by_the_spec_folder_and_refuse_changed_ones(tmp_path, monkeypatch):
     spec = mesh_spec(tmp_path / "project", ["meshes/*.glb"], 'symmetries = ["z/90"]')
     (tmp_path / "project" / "meshes").mkdir()
     glb_box(tmp_path / "project" / "meshes" / "a.glb", [0.2, 0.3, 0.2])
@@ -206,30 +236,33 @@ def test_export_finds_meshes_by_the_spec_folder_and_refuses_changed_ones(tmp_pat
     (tmp_path / "elsewhere" / "meshes").mkdir(parents=True)
     glb_box(tmp_path / "elsewhere" / "meshes" / "a.glb", [0.5, 0.1, 0.1])
     render_dataset(load_run_specs(spec_files=[spec]), tmp_path / "r")
+    old = _as_older_shard(tmp_path / "r", tmp_path / "old" / "a.h5")
     monkeypatch.chdir(tmp_path / "elsewhere")
-    export_bop(tmp_path / "r", tmp_path / "bop")
+    export_bop(old, tmp_path / "bop")
     info = json.loads((tmp_path / "bop" / "models" / "models_info.json").read_text())["1"]
-    # The glTF box, 0.3 tall (y up), stands 250 mm tall on its z axis; its declared 4-fold turn is exported.
     assert info["size_z"] == pytest.approx(250.0) and info["size_x"] == pytest.approx(250 * 2 / 3)
-    assert len(info["symmetries_discrete"]) == 3 and "symmetries_continuous" not in info
     glb_box(tmp_path / "project" / "meshes" / "a.glb", [0.2, 0.3, 0.25])   # edited after the render
-    r = CliRunner().invoke(data_cli, ["export", "bop", str(tmp_path / "r"), "--out", str(tmp_path / "bop2")])
+    r = CliRunner().invoke(data_cli, ["export", "bop", str(old), "--out", str(tmp_path / "bop2")])
     assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1
     assert str(tmp_path / "project" / "meshes" / "a.glb") in r.output and "has changed since it was rendered" in r.output
     assert str(tmp_path / "project") in r.output and "'meshes/a.glb'" in r.output
     assert not (tmp_path / "bop2").exists() and not (tmp_path / "bop2.partial").exists()
 
 
-def test_export_spec_dir_points_at_moved_meshes(tmp_path):
+def test_export_spec_dir_points_at_moved_meshes_of_older_shards(tmp_path):
     spec = mesh_spec(tmp_path / "project", ["meshes/a.glb"])
     (tmp_path / "project" / "meshes").mkdir()
     glb_box(tmp_path / "project" / "meshes" / "a.glb", [0.2, 0.3, 0.2])
     render_dataset(load_run_specs(spec_files=[spec]), tmp_path / "r")
+    old = _as_older_shard(tmp_path / "r", tmp_path / "old" / "a.h5")
     (tmp_path / "project").rename(tmp_path / "moved")
+    export_bop(tmp_path / "r", tmp_path / "from-store")   # the store needs no spec folder
     with pytest.raises(MeshError, match="not found .*'meshes/a.glb' relative to the spec folder"):
-        export_bop(tmp_path / "r", tmp_path / "bop")
-    export_bop(tmp_path / "r", tmp_path / "bop", meshes_from=tmp_path / "moved")
+        export_bop(old, tmp_path / "bop")
+    export_bop(old, tmp_path / "bop", meshes_from=tmp_path / "moved")
     assert (tmp_path / "bop" / "models" / "obj_000001.ply").is_file()
+    assert (tmp_path / "bop" / "models" / "obj_000001.ply").read_bytes() == \
+        (tmp_path / "from-store" / "models" / "obj_000001.ply").read_bytes()
 
 
 def test_split_must_be_one_folder_name_and_meshes_from_a_folder(small_specs_dir, tmp_path):

@@ -46,6 +46,7 @@ OPTIONAL_FIELDS: dict[str, tuple[str, tuple]] = {
     "visible_mask": ("uint8", ("H", "W")),   # object minus occluders (spm-data occlude)
     "source_shard": ("str", ()),             # the shard a derived frame came from
     "source_frame": ("int64", ()),           # its frame index there
+    "mesh": ("str", ()),                     # SHA-256 of the target's mesh in the folder's meshes/; "" none
     # [outputs] (opt-in)
     "instances": ("uint8", ("H", "W")),      # 0 nothing, 1 the target, 2 + k distractor k
     "normals": ("float16", ("H", "W", 3)),   # camera frame (OpenCV), unit; 0 where nothing was hit
