@@ -20,6 +20,9 @@ from spm_data.io.shards import (FIELDS, OPTIONAL_FIELDS, SIZED_FIELDS, listed_tw
                                 read_shard, shard_digest, shard_layout, verify_shard, write_shard)
 
 
+PLACED = ("distractor_mesh", "distractor_R", "distractor_t", "distractor_size")   # per-frame lists of 3-D distractors
+
+
 @dataclass(frozen=True)
 class MergeJob:
     name: str
@@ -93,7 +96,9 @@ def plan_merge(inputs, out_dir, *, sources=None, renames=None, frames_per_shard=
                 by_shard.setdefault(p, []).append(i)
             frames_from = tuple((p, tuple(ix)) for p, ix in by_shard.items())
             optional = tuple(f for f in OPTIONAL_FIELDS
-                             if all(f in info[Path(p)]["fields"] for p, _ in frames_from))
+                             if all(f in info[Path(p)]["fields"] for p, _ in frames_from)
+                             # 3-D distractors: kept when any source has them (frames without: none, -1)
+                             or (f in PLACED and any(set(PLACED) <= info[Path(p)]["fields"] for p, _ in frames_from)))
             stamp = [(p, info[Path(p)]["sha256"]) for p, _ in frames_from]
             key = hashlib.sha256(json.dumps([stamp, frames_from, sorted(renames.items()), optional]).encode())
             jobs.append(MergeJob(f"merged-{tag}-{k:05d}.h5", key.hexdigest(), str(out_dir), frames_from,
@@ -115,11 +120,15 @@ def merge_shard(job: MergeJob, report=lambda n: None) -> dict:
     parts, pools = [], []
     fields = list(FIELDS) + [f for f in job.optional if f != "mesh"]
     for path, frames in job.frames_from:
-        part = read_shard(path, fields + (["mesh"] if "mesh" in shard_layout(path) else []),
+        layout = shard_layout(path)
+        part = read_shard(path, [f for f in fields if f in layout] + (["mesh"] if "mesh" in layout else []),
                           frames=np.asarray(frames))
+        for f in set(fields) - set(part):   # a distractor field this source lacks: no distractors
+            dtype, shape = OPTIONAL_FIELDS[f]
+            part[f] = np.zeros((len(frames), 0) + tuple(d for d in shape[1:]), dtype=dtype)
         attrs, meshes = read_attrs(path), FrameMeshes(Path(path).parent)
         part["mesh"] = np.asarray(meshes.targets(attrs, part), dtype=object)   # older shards: rebuilt
-        pools.append(meshes.pool(attrs) if "distractor_mesh" in job.optional else [])
+        pools.append(meshes.pool(attrs) if "distractor_mesh" in job.optional and "distractor_mesh" in layout else [])
         meshes.carry(list(part["mesh"]) + pools[-1], job.out_dir)   # the store travels with its frames
         parts.append(part)
         report(len(frames))

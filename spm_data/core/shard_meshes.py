@@ -41,7 +41,7 @@ class FrameMeshes:
 
     def __init__(self, folder, spec_dir=None):
         self.folder, self.spec_dir = Path(folder), spec_dir
-        self.rebuilt: dict[str, object] = {}   # digest -> mesh, for shards older than the store
+        self.rebuilt: dict[str, object] = {}   # digest -> mesh: rebuilt (shards older than the store) or read
 
     def targets(self, attrs: dict, data: dict) -> list[str]:
         """The target's digest of every frame of ``data`` (read with ``instance_id`` and, when the
@@ -83,9 +83,9 @@ class FrameMeshes:
         """The mesh ``digest`` (None for ""): rebuilt in this process, or from the folder's store."""
         if not digest:
             return None
-        if digest in self.rebuilt:
-            return self.rebuilt[digest]
-        return load_mesh(self.folder, digest)
+        if digest not in self.rebuilt:   # kept: an export meets each mesh in many frames
+            self.rebuilt[digest] = load_mesh(self.folder, digest)
+        return self.rebuilt[digest]
 
     def carry(self, digests, folder) -> None:
         """Put the meshes ``digests`` into ``folder``'s store (verified on the way)."""

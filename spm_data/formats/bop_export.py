@@ -1,10 +1,11 @@
-"""Our shards out as a BOP dataset (Hodaň et al.): one scene per object instance.
+"""Our shards out as a BOP dataset (Hodaň et al.): one scene per target object.
 
-``camera.json``, ``models/`` and ``models_eval/`` (bop_models.py, for rendered meshes),
-``objects.json`` (obj_id -> class and instance), and per scene ``scene_camera.json``,
-``scene_gt.json``, ``scene_gt_info.json`` (bop_gt.py: calc_gt_info's rules, objects cut by
-the image border included), ``scene_gt_coco.json``; rgb as JPEG in ``*_pbr`` splits, PNG
-otherwise; written to ``OUT.partial`` and renamed.
+``camera.json``, ``models/`` and ``models_eval/`` (bop_models.py, from the folder's mesh
+store), ``objects.json`` (obj_id -> class, instance, mesh digest), ``test_targets_bop19.json``,
+and per scene (bop_scene.py) ``scene_camera.json``, ``scene_gt.json``, ``scene_gt_info.json``
+and the masks (bop_gt.py: what bop_toolkit's calc_gt_info and calc_gt_masks compute from the
+export, every object in the frame: the target and its 3-D distractors), ``scene_gt_coco.json``;
+rgb as JPEG in ``*_pbr`` splits, PNG otherwise; written to ``OUT.partial`` and renamed.
 
 Object ids, scenes and image ids: bop_ids.py (the rule the results file shares).
 
@@ -27,11 +28,9 @@ from spm_data.errors import SpmError
 from spm_data.core.meshes import TexturedMesh
 from spm_data.core.poses import K_to_corner_origin
 from spm_data.formats.bop_ids import OBJECTS_FILE, folder_objects, read_objects  # noqa: F401 (read_objects: bop.py's)
-from spm_data.formats.bop_gt import (DEPTH_SCALES, depth_scale_for, depth_units, depth_with_occluders,
-                                     full_silhouette, gt_info)
+from spm_data.formats.bop_gt import DEPTH_SCALES
 from spm_data.formats.bop_models import save_bop_model, save_models_info
-from spm_data.formats.coco import FILE_NAME as COCO_FILE
-from spm_data.formats.coco import save_scene_gt_coco, scene_coco
+from spm_data.formats.bop_scene import SceneWriter
 from spm_data.io.outputs import check_creatable, check_out_name, space_fix, top_created
 from spm_data.io.shards import read_shard
 
@@ -68,8 +67,9 @@ class _Export:
         self.ids = found.ids
         self.rgb_suffix = RGB_SUFFIX[split.endswith("_pbr")]
         self.models: dict[int, object] = {}   # obj_id -> its mesh (None: no mesh, image-only ground truth)
-        self.scenes: dict[int, dict] = {}
         self.models_info, self.no_model, self.frames, self.scales = {}, set(), 0, {DEPTH_SCALES[0]}
+        self.writer = SceneWriter(root / split, self.rgb_suffix, _encode, self.scales)   # bop_scene.py
+        self.scenes = self.writer.scenes
         self.names: dict[int, dict] = {}
         for sub in ("models", "models_eval"):
             (root / sub).mkdir(parents=True)
@@ -84,7 +84,8 @@ class _Export:
                 entry["ground_truth"] = "image-only"   # no model: px_count_all etc. from the image alone
                 self.no_model.add(f"{entry['class']}/{entry['instance']}")
             else:
-                self.models_info[obj_id] = save_bop_model(self.root, obj_id, mesh)
+                unit, size = (self.meshes.mesh(identity[1]), identity[2]) if identity[0] == "distractor" else (None, 1.0)
+                self.models_info[obj_id] = save_bop_model(self.root, obj_id, mesh, unit, size)
             self.names[obj_id] = entry
         return obj_id
 
@@ -99,52 +100,17 @@ class _Export:
         return mesh
 
     def add_frame(self, data: dict, i: int, obj_id: int) -> None:
-        scene = self.scenes.setdefault(obj_id, {"camera": {}, "gt": {}, "info": {}, "coco": []})
-        im = len(scene["gt"])
-        sdir = self.root / self.split / f"{obj_id - 1:06d}"
-        if im == 0:
-            for sub in ("rgb", "depth", "mask", "mask_visib"):
-                (sdir / sub).mkdir(parents=True)
-        mask = data["mask"][i] > 0
-        visible = data["visible_mask"][i] > 0 if "visible_mask" in data else mask
-        rgb_name = f"rgb/{im:06d}{self.rgb_suffix}"
-        _encode(sdir / rgb_name, data["rgb"][i])
-        # Rendered distractors are in the depth already; only 2-D rectangles need a stand-in.
-        depth = data["depth"][i] if "distractor_mesh" in data else depth_with_occluders(data["depth"][i], mask, visible)
-        scale = depth_scale_for(depth)
-        self.scales.add(scale)
-        _encode(sdir / "depth" / f"{im:06d}.png", depth_units(depth, scale))
-        _encode(sdir / "mask" / f"{im:06d}_000000.png", mask.astype(np.uint8) * 255)
-        _encode(sdir / "mask_visib" / f"{im:06d}_000000.png", visible.astype(np.uint8) * 255)
-        R, t_mm = data["R"][i].ravel().tolist(), (data["t"][i] * 1000.0).tolist()
-        # One object a scene, in its own frame: the world is the object's frame, w2c = m2c.
-        scene["camera"][str(im)] = {"cam_K": K_to_corner_origin(data["K"][i]).ravel().tolist(),
-                                    "cam_R_w2c": R, "cam_t_w2c": t_mm, "depth_scale": scale}
-        scene["gt"][str(im)] = [{"cam_R_m2c": R, "cam_t_m2c": t_mm, "obj_id": obj_id}]
-        canvas = full_silhouette(mask, self.models[obj_id], data["K"][i], data["R"][i], data["t"][i])
-        info = gt_info(canvas, visible, depth)
-        scene["info"][str(im)] = [info]
-        # Masks kept a bit a pixel until the scene's COCO file is written.
-        scene["coco"].append((im, rgb_name, mask.shape, np.packbits(mask), np.packbits(visible), info["visib_fract"]))
+        """Frame ``i`` of ``data`` with its target ``obj_id`` and its 3-D distractors (those the
+        scan found: found.distractors, empty without include_distractors) to the scene writer."""
+        objects = [(obj_id, self.models[obj_id], data["R"][i], data["t"][i])]
+        for identity, k, _ in (self.found.distractors[self.frames] if self.found.distractors else ()):
+            other = self.object_id(identity)
+            objects.append((other, self.models[other], data["distractor_R"][i][k], data["distractor_t"][i][k]))
+        self.writer.add_frame(data, i, objects)
         self.frames += 1
 
-    def _coco_frames(self, entries, obj_id):
-        for im, name, (h, w), mask, visible, fract in entries:
-            unpack = lambda bits: np.unpackbits(bits, count=h * w).reshape(h, w)  # noqa: E731
-            yield {"im_id": im, "file_name": name, "width": w, "height": h,
-                   "objects": [{"obj_id": obj_id, "mask": unpack(mask), "mask_visib": unpack(visible),
-                                "visib_fract": fract}]}
-
     def finish(self, first_shard) -> None:
-        every_id = sorted(self.ids.values())   # COCO files list every category of the dataset, as bop_toolkit's
-        for obj_id, scene in self.scenes.items():
-            sdir = self.root / self.split / f"{obj_id - 1:06d}"
-            for name in ("camera", "gt", "info"):
-                key = {"camera": "scene_camera", "gt": "scene_gt", "info": "scene_gt_info"}[name]
-                (sdir / f"{key}.json").write_text(json.dumps(scene[name], indent=1))
-            coco = scene_coco(self._coco_frames(scene.pop("coco"), obj_id), dataset="spm", split=self.split,
-                              obj_ids=every_id, bbox_type="amodal")
-            save_scene_gt_coco(sdir / COCO_FILE, coco)
+        self.writer.finish(self.ids.values())   # COCO files list every category of the dataset, as bop_toolkit's
         first = read_shard(first_shard, ["K", "rgb"], frames=slice(0, 1))
         K, (h, w) = K_to_corner_origin(first["K"][0]), first["rgb"].shape[1:3]
         (self.root / "camera.json").write_text(json.dumps({"cx": K[0, 2], "cy": K[1, 2], "fx": K[0, 0],
@@ -157,12 +123,13 @@ class _Export:
 
 
 def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=False, meshes_from=None,
-               ids_from=None) -> dict:
+               ids_from=None, include_distractors=True) -> dict:
     """Write the shards of ``in_dir`` as a BOP dataset at ``out_dir``. Returns counts.
     split: one folder name (BOP's: train, train_pbr, val, test...). meshes_from: the folder
     a mesh-file spec's paths start from, when not the spec folder its shards recorded
     (spm_data.core.instances.shard_mesh). ids_from: a previous export (or its objects.json)
-    whose obj_ids to keep (the module's docstring)."""
+    whose obj_ids to keep (the module's docstring). include_distractors: a frame's 3-D distractors
+    are objects of its own in it (scene_gt, masks, scene_gt_info, COCO), numbered after the targets."""
     out_dir = check_out_name(out_dir)
     if not SPLIT_NAME.fullmatch(str(split)):
         raise SpmError(f"--split {split!r}: expected one folder name of letters, digits, '_' or '-' "
@@ -173,7 +140,7 @@ def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=F
     # Every shard read below is verified as it is read; the export is built in OUT.partial, so a
     # corrupt shard (or a full disk) leaves nothing behind.
     shards, meshes, found = folder_objects(in_dir, ids_from, allow_partial=allow_partial, spec_dir=meshes_from,
-                                           distractors=False)
+                                           distractors=include_distractors)
     tmp = out_dir.with_name(out_dir.name + ".partial")
     shutil.rmtree(tmp, ignore_errors=True)
     made = top_created(tmp / "models")  # what this export creates: removed on failure
@@ -190,6 +157,8 @@ def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=F
                 if progress:
                     progress(1)
         export.finish(shards[0])
+        from spm_data.formats.bop_results import write_test_targets   # what eval_bop19_pose.py scores against
+        write_test_targets(tmp, split)
         if out_dir.exists():
             out_dir.rmdir()
         os.replace(tmp, out_dir)
@@ -200,5 +169,6 @@ def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=F
             raise SpmError(f"could not export to {out_dir}: {exc.strerror or exc}; nothing was written; "
                            f"{fix}") from None
         raise
-    return {"frames": export.frames, "objects": len(export.scenes), "scenes": len(export.scenes),
+    return {"frames": export.frames, "objects": len(export.names), "scenes": len(export.scenes),
+            "distractors": sum(e.get("role") == "distractor" for e in export.names.values()),
             "without_model": sorted(export.no_model)}

@@ -10,11 +10,16 @@
   decimation); we subdivide until no edge is longer than half a cell, then keep
   one vertex per occupied cell of a grid of ``EVAL_CELL_FRACTION`` of the
   diameter (about 5 mm on a 250 mm object): the surface point nearest the
-  mean of the cell's points (vertex clustering, without MeshLab).
-* ``models_info.json`` entries: ``diameter`` (largest distance between two
-  vertices), ``min_x`` ... ``size_z`` (bounding box), and the shape's
-  ``symmetries_discrete`` (4 x 4 row-major matrices, translation in mm) and
-  ``symmetries_continuous`` (``axis``, ``offset`` in mm), omitted when none.
+  mean of the cell's points (vertex clustering, without MeshLab); and, without
+  faces, the render mesh's extreme vertices (lowest and highest along each axis,
+  both ends of its diameter), so the resampled surface keeps the model's extent.
+* ``models_info.json`` (:func:`save_models_info`): ``diameter`` (largest distance
+  between two vertices), ``min_x`` ... ``size_z`` (bounding box), recomputed in
+  each folder from its PLYs as bop_toolkit's ``scripts/calc_model_info.py``
+  computes them (float32 vertices, its diameter's arithmetic); with the extreme
+  vertices kept, ``models/`` and ``models_eval/`` get the same numbers. Then the
+  shape's ``symmetries_discrete`` (4 x 4 row-major matrices, translation in mm)
+  and ``symmetries_continuous`` (``axis``, ``offset`` in mm), omitted when none.
 """
 
 from __future__ import annotations
@@ -26,9 +31,9 @@ from pathlib import Path
 import numpy as np
 
 from spm_data.errors import SpmError
-from spm_data.core.meshes import TexturedMesh, diameter
-from spm_data.core.symmetries import Symmetries
-from spm_data.formats.ply import save_ply
+from spm_data.core.meshes import TexturedMesh
+from spm_data.core.symmetries import NO_SYMMETRY, Symmetries
+from spm_data.formats.ply import load_ply, save_ply
 
 MM_PER_M = 1000.0
 EVAL_CELL_FRACTION = 0.02  # models_eval: one vertex per cell of 2 % of the diameter
@@ -116,21 +121,86 @@ def symmetry_info(symmetries: Symmetries) -> dict:
     return info
 
 
+def ply_vertices(mesh: TexturedMesh) -> np.ndarray:
+    """(V, 3) float32: ``mesh``'s vertices in mm, the values its PLY stores (and BOP's tools read)."""
+    return np.asarray(mesh.vertices * MM_PER_M, dtype=np.float32)
+
+
+_DIAMETER_ENDS: dict = {}   # sha1 of the points -> diameter_ends: models/ and models_eval/ share them
+
+
+def diameter_ends(points: np.ndarray) -> tuple[float, int, int]:
+    """diameter_ends_of, remembered per process by the points' bytes (an export computes each
+    model's several times: its info, its eval surface's ends, and each models_info.json)."""
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    key = hashlib.sha1(pts.tobytes()).hexdigest()
+    if key not in _DIAMETER_ENDS:
+        if len(_DIAMETER_ENDS) >= 4096:
+            _DIAMETER_ENDS.pop(next(iter(_DIAMETER_ENDS)))
+        _DIAMETER_ENDS[key] = diameter_ends_of(pts)
+    return _DIAMETER_ENDS[key]
+
+
+def diameter_ends_of(points: np.ndarray) -> tuple[float, int, int]:
+    """(diameter, i, j): the largest distance between two of ``points`` (N, 3) and the indices of
+    two points that far apart, by misc.calc_pts_diameter's arithmetic (float64, ((dx² + dy²) +
+    dz²), square root). Only points that can be an end are compared: p is one only if
+    |p - c| >= D - max|q - c|, for any centre c and any distance D between two points."""
+    pts = np.asarray(points, dtype=np.float64)
+    if len(pts) < 2:
+        return 0.0, 0, 0
+    radius = np.linalg.norm(pts - (pts.min(axis=0) + pts.max(axis=0)) / 2, axis=1)
+    far = pts[int(np.argmax(radius))]
+    bound = float(np.sqrt(((pts - far) ** 2).sum(axis=1).max()))
+    ends = np.flatnonzero(radius >= bound - radius.max() - 1e-6 * (1.0 + bound))
+    best, pair = -1.0, (0, 0)
+    for start in range(0, len(ends), 1024):   # blocks of 1024 rows: bounded memory
+        d = pts[ends[start:start + 1024], None, :] - pts[None, ends, :]
+        sq = (d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1]) + d[..., 2] * d[..., 2]
+        k = int(np.argmax(sq))
+        if sq.flat[k] > best:
+            best, pair = float(sq.flat[k]), (int(ends[start + k // len(ends)]), int(ends[k % len(ends)]))
+    return float(np.sqrt(best)), pair[0], pair[1]
+
+
+def extreme_vertices(points: np.ndarray) -> np.ndarray:
+    """Indices (sorted, unique) of the vertices of ``points`` (N, 3) that fix its models_info
+    numbers: the lowest and highest along each axis, and the two ends of its diameter."""
+    pts = np.asarray(points, dtype=np.float64)
+    _, i, j = diameter_ends(pts)
+    return np.unique(np.concatenate([pts.argmin(axis=0), pts.argmax(axis=0), [i, j]]))
+
+
 def model_info(vertices_mm: np.ndarray, symmetries: Symmetries) -> dict:
-    lo, hi = vertices_mm.min(axis=0), vertices_mm.max(axis=0)
-    info = {"diameter": diameter(vertices_mm), "min_x": float(lo[0]), "min_y": float(lo[1]),
+    """A models_info.json entry for a PLY whose vertices are ``vertices_mm`` (V, 3) (rounded to
+    float32 here, as the PLY stores them): calc_model_info's numbers, and the symmetry keys."""
+    pts = np.asarray(vertices_mm, dtype=np.float32).astype(np.float64)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    info = {"diameter": diameter_ends(pts)[0], "min_x": float(lo[0]), "min_y": float(lo[1]),
             "min_z": float(lo[2]), "size_x": float(hi[0] - lo[0]), "size_y": float(hi[1] - lo[1]),
             "size_z": float(hi[2] - lo[2])}
     return {**info, **symmetry_info(symmetries)}
 
 
-def save_bop_model(root: Path, obj_id: int, mesh: TexturedMesh) -> dict:
+def _eval_surface(mesh: TexturedMesh, diameter_mm: float, unit: TexturedMesh | None, size: float) -> tuple:
+    """models_eval's resampled surface (mm) of ``mesh``; for a mesh that is ``unit`` scaled by
+    ``size`` (a distractor drawn at its own size), ``unit``'s resampling scaled: the same surface
+    points relative to the diameter, resampled once per pool mesh instead of once per size."""
+    if unit is None:
+        return _remembered_resample(mesh.vertices * MM_PER_M, mesh.faces, EVAL_CELL_FRACTION * diameter_mm)
+    v, f, n = _remembered_resample(unit.vertices * MM_PER_M, unit.faces,
+                                   EVAL_CELL_FRACTION * diameter_mm / size)
+    return v * size, f, n
+
+
+def save_bop_model(root: Path, obj_id: int, mesh: TexturedMesh, unit: TexturedMesh | None = None,
+                   size: float = 1.0) -> dict:
     """Write ``mesh`` as object ``obj_id`` under ``root`` (models/, models_eval/); returns its
-    models_info.json entry."""
+    models_info.json entry. ``unit``, ``size``: ``mesh`` is ``unit`` scaled by ``size`` (_eval_surface)."""
     import cv2
 
     name = f"obj_{obj_id:06d}"
-    vertices = mesh.vertices * MM_PER_M
+    vertices = ply_vertices(mesh)
     texture_name = f"{name}.png"
     ok, png = cv2.imencode(".png", cv2.cvtColor(mesh.texture, cv2.COLOR_RGB2BGR))
     if not ok:
@@ -139,13 +209,38 @@ def save_bop_model(root: Path, obj_id: int, mesh: TexturedMesh) -> dict:
     save_ply(root / "models" / f"{name}.ply", vertices, mesh.faces, normals=mesh.normals,
              colors=texture_colors(mesh.texture, mesh.uv), uv=mesh.uv, texture_file=texture_name)
     info = model_info(vertices, mesh.symmetries)
-    v_eval, f_eval, n_eval = _remembered_resample(vertices, mesh.faces, EVAL_CELL_FRACTION * info["diameter"])
-    save_ply(root / "models_eval" / f"{name}.ply", v_eval, f_eval, normals=n_eval)
+    v_eval, f_eval, n_eval = _eval_surface(mesh, _unit_diameter(unit) * size if unit is not None
+                                           else info["diameter"], unit, size)
+    # The resampled surface keeps the model's extreme vertices (faceless), so calc_model_info finds
+    # the same box and diameter in models_eval/ as in models/: BOP's error thresholds (fractions
+    # of the diameter) do not shrink with the resampling.
+    ends = extreme_vertices(vertices)
+    save_ply(root / "models_eval" / f"{name}.ply", np.concatenate([v_eval, mesh.vertices[ends] * MM_PER_M]),
+             f_eval, normals=np.concatenate([n_eval, mesh.normals[ends]]))
     return info
 
 
+_DIAMETERS: dict = {}   # id(unit mesh) -> (mesh, its diameter in mm): pool meshes live for the process
+
+
+def _unit_diameter(unit: TexturedMesh) -> float:
+    """Diameter (mm) of a pool mesh, once per mesh: the cell of every size of it follows from it,
+    so one resampling serves them all."""
+    if id(unit) not in _DIAMETERS:
+        _DIAMETERS[id(unit)] = (unit, model_info(unit.vertices * MM_PER_M, NO_SYMMETRY)["diameter"])
+    return _DIAMETERS[id(unit)][1]
+
+
 def save_models_info(path: Path, info: dict) -> None:
-    path.write_text(json.dumps({str(k): v for k, v in info.items()}, indent=1))
+    """Write ``info`` (obj_id -> entry) as ``path`` (models_info.json); each object's diameter and
+    box are recomputed from its ``obj_NNNNNN.ply`` beside ``path`` when there is one, so every
+    folder's file has its own models' numbers (models_eval/: the resampled surface's)."""
+    out = {}
+    for obj_id, entry in info.items():
+        ply = Path(path).parent / f"obj_{int(obj_id):06d}.ply"
+        geometry = model_info(load_ply(ply)["vertices"], NO_SYMMETRY) if ply.is_file() else {}
+        out[str(obj_id)] = {**entry, **geometry}
+    Path(path).write_text(json.dumps(out, indent=1))
 
 
 def load_models_info(path) -> dict:

@@ -2,12 +2,24 @@
 
 ``ShardDataset`` is a map-style dataset (``len`` and ``[i]``), the protocol
 ``torch.utils.data.DataLoader`` takes, without importing torch: spm does not
-depend on it. Frames are read through ``spm_data.io.shards.ShardReader``, so every
-read is verified (attributes and layout once per open, then HDF5's Fletcher-32
-on every chunk read).
+depend on it. Frames are read through ``spm_data.io.shards.ShardReader``, so no frame
+is returned from a shard before every byte of it matched its SHA-256 (seal.py), in
+this process; then HDF5's Fletcher-32 checks every chunk read.
+
+When shards are verified (``on_corrupt``): with ``"refuse"`` (the default) construction
+takes the frame counts from ``manifest.json`` and hashes only the first shard (for the
+field list) and any shard the manifest gives no count for; every other shard is hashed
+on its first read in each process (a forked worker reuses what its parent verified), so
+the first item comes after one shard's hash, not the folder's. A corrupt shard is then a
+ShardError naming it, at construction or on the first read of one of its frames (the
+other shards stay readable). With ``"skip"`` construction hashes every shard, as it
+always did before (two threads; 4 s for a 975 MB folder on a loaded 2-core machine,
+docs/reliability.md), leaves out the corrupt ones with one warning each, and ``len``
+counts only the frames of the shards kept; a shard that fails later (changed on disk
+since) is a ShardError.
 
 Process safety: an h5py handle must not cross a fork (pytorch/pytorch#11929).
-The dataset opens no handle in ``__init__``; each process opens a shard on its
+The dataset keeps no handle from ``__init__``; each process opens a shard on its
 first read of it and keeps it, keyed by the process id, so a forked worker
 (DataLoader's default on Linux) reopens instead of using its parent's handle,
 and pickling (spawn workers) carries no handle at all. A process keeps at most
@@ -19,15 +31,17 @@ from __future__ import annotations
 
 import operator
 import os
+import warnings
 from collections import OrderedDict
 
 import numpy as np
 
-from spm_data.errors import ShardError
+from spm_data.errors import ShardError, SpmWarning, one_line
 from spm_data.io.folders import open_folder
-from spm_data.io.shards import FIELDS, OPTIONAL_FIELDS, ShardReader
+from spm_data.io.shards import FIELDS, H5_ERRORS, MANIFEST, OPTIONAL_FIELDS, ShardReader, h5_is_string, hash_ahead
 
 MAX_OPEN = 64  # shards a process keeps open: well under the usual open-file limit (1024)
+ON_CORRUPT = ("refuse", "skip")
 
 
 class ShardDataset:
@@ -46,30 +60,38 @@ class ShardDataset:
 
     folder: a shard folder (read by its manifest, ``spm_data.io.folders.open_folder``:
     a folder a live run is writing is refused) or one shard file.
-    fields: names from FIELDS / OPTIONAL_FIELDS; default every field all its shards
-    have. transform: ``item -> item``, applied after reading (in the worker).
+    fields: names from FIELDS / OPTIONAL_FIELDS; default every field the shards
+    verified at construction have (with "refuse": the first shard's). A shard without
+    one of them is a ShardError naming it. transform: ``item -> item``, applied after
+    reading (in the worker).
     allow_partial: read the complete shards of an unfinished folder (warnings).
     max_open: at most this many shards open at once in a process (default MAX_OPEN).
+    on_corrupt: "refuse" (default) or "skip" a shard that fails its checks (module
+    docstring: when each is checked, and what it costs). ``skipped``: the shards left out.
 
     Process-safe as described in the module docstring; ``close()`` (or ``with``)
     closes this process's handles, and garbage collection does too.
     """
 
-    def __init__(self, folder, fields=None, transform=None, allow_partial: bool = False, max_open: int = 0):
+    def __init__(self, folder, fields=None, transform=None, allow_partial: bool = False, max_open: int = 0,
+                 on_corrupt: str = "refuse"):
         self.max_open = int(max_open) or MAX_OPEN
         if self.max_open < 1:
             raise ShardError(f"ShardDataset max_open: expected an integer >= 1 (0 for {MAX_OPEN}), got {max_open}")
-        self.shards = open_folder(folder, allow_partial=allow_partial).shards
-        self.transform = transform
-        counts, present = [], []
-        for path in self.shards:
-            with ShardReader(path) as reader:  # verified attrs and the field list; closed again
-                counts.append(int(reader.attrs["frames"]))
-                present.append(reader.fields())
+        if on_corrupt not in ON_CORRUPT:
+            raise ShardError(f"ShardDataset on_corrupt: expected 'refuse' or 'skip', got {on_corrupt!r}; pass "
+                             "on_corrupt='refuse' (a corrupt shard is an error) or 'skip' (it is left out)")
+        listing = open_folder(folder, allow_partial=allow_partial)
+        self.on_corrupt, self.transform = on_corrupt, transform
+        if on_corrupt == "skip":
+            self.shards, counts, present, self.skipped = _verify_all(listing.shards)
+        else:
+            self.shards, self.skipped = listing.shards, ()
+            counts, present = _counts_from_manifest(listing)
         self.frames = np.asarray(counts, dtype=np.int64)
         self._ends = np.cumsum(self.frames)
-        self.fields = _resolve_fields(fields, self.shards, present)
-        self._readers: OrderedDict[int, ShardReader] = OrderedDict()
+        self.fields = _resolve_fields(fields, present)
+        self._readers: OrderedDict[int, _OpenShard] = OrderedDict()
         self._pid = os.getpid()
 
     def __len__(self) -> int:
@@ -91,9 +113,9 @@ class ShardDataset:
         item = self._reader(shard).read(self.fields, local)
         return self.transform(item) if self.transform is not None else item
 
-    def _reader(self, shard: int) -> ShardReader:
-        """This process's open reader of a shard, opened on first use. After a fork
-        the handles inherited from the parent are dropped, never read through."""
+    def _reader(self, shard: int) -> _OpenShard:
+        """This process's open reader of a shard, opened (and so verified) on first use. After
+        a fork the handles inherited from the parent are dropped, never read through."""
         if self._pid != os.getpid():
             self._readers, self._pid = OrderedDict(), os.getpid()
         reader = self._readers.get(shard)
@@ -102,7 +124,7 @@ class ShardDataset:
             return reader
         while len(self._readers) >= self.max_open:   # the least recently read first
             self._readers.popitem(last=False)[1].close()
-        reader = self._readers[shard] = ShardReader(self.shards[shard])
+        reader = self._readers[shard] = _OpenShard(self.shards[shard], int(self.frames[shard]), self.fields)
         return reader
 
     def close(self) -> None:
@@ -135,11 +157,91 @@ class ShardDataset:
         return f"ShardDataset({len(self.shards)} shards, {len(self)} frames, fields={list(self.fields)})"
 
 
-def _resolve_fields(fields, shards, present) -> tuple:
-    """The requested field names, checked: known to the schema and in every shard."""
+class _OpenShard:
+    """A shard opened by ShardReader (every byte checked against its SHA-256 first), found to
+    hold the frames and fields the dataset counted on, with its h5py datasets looked up once:
+    a lookup per read costs more than reading a small field (the read path is HDF5's, as in
+    ShardReader.read for one frame, Fletcher-32 included)."""
+
+    def __init__(self, path, frames: int, fields: tuple):
+        self.reader = ShardReader(path)
+        self.pid = self.reader.pid  # the process that opened it
+        try:
+            _check_opened(self.reader, frames, fields)
+            # ShardReader has no public handle on a field; its file is the one it verified.
+            handle = self.reader._file  # noqa: SLF001
+            self.sets = {name: (handle[name].asstr() if h5_is_string(handle[name]) else handle[name])
+                         for name in fields}
+        except BaseException:
+            self.reader.close()
+            raise
+
+    def read(self, fields, j: int) -> dict:
+        try:
+            return {name: self.sets[name][j] for name in fields}
+        except (*H5_ERRORS, UnicodeDecodeError):  # a chunk failing its Fletcher-32: the reader names shard and field
+            return self.reader.read(fields, j)
+
+    def close(self) -> None:
+        self.sets = {}
+        self.reader.close()
+
+
+def _check_opened(reader: ShardReader, frames: int, fields: tuple) -> None:
+    """A shard verified on its first read holds what construction counted on (from the manifest)."""
+    have = int(reader.attrs["frames"])
+    if have != frames:
+        raise ShardError(f"{reader.path}: {have} frames in the shard, {MANIFEST} says {frames}; the manifest "
+                         "does not match its shards: run `spm-data validate` on the folder")
+    _missing_fields(reader.path, fields, reader.fields())
+
+
+def _counts_from_manifest(listing) -> tuple[list, list]:
+    """Frame counts of the shards, from the manifest (nothing hashed); a shard it gives no count
+    for, and the first shard (the field list), opened and verified now. Also their fields."""
+    listed = {e["file"]: e.get("frames") for e in (listing.manifest or {}).get("shards", [])}
+    counts, present = [], []
+    for k, path in enumerate(listing.shards):
+        count = listed.get(path.name)
+        if count is None or k == 0:
+            with ShardReader(path) as reader:  # verified attrs and the field list; closed again
+                count = int(reader.attrs["frames"]) if count is None else count
+                present.append((path, reader.fields()))
+        counts.append(count)
+    return counts, present
+
+
+def _verify_all(paths) -> tuple[tuple, list, list, tuple]:
+    """(shards kept, their frame counts, their fields, shards skipped): every shard hashed and
+    opened now; each one that fails is left out with a warning naming it and why."""
+    hash_ahead(paths)  # two threads hash; the opens below find each shard checked
+    kept, counts, present, skipped = [], [], [], []
+    for path in paths:
+        try:
+            with ShardReader(path) as reader:
+                counts.append(int(reader.attrs["frames"]))
+                present.append((path, reader.fields()))
+            kept.append(path)
+        except ShardError as exc:
+            skipped.append(path)
+            warnings.warn(SpmWarning(f"{one_line(exc)}; skipped (on_corrupt='skip'): its frames are not "
+                                     "in the dataset"), stacklevel=3)
+    return tuple(kept), counts, present, tuple(skipped)
+
+
+def _missing_fields(path, names, have) -> None:
+    missing = [f for f in names if f not in have]
+    if missing:
+        raise ShardError(f"{path}: shard has no field {', '.join(map(repr, missing))} (asked for in fields=); "
+                         "leave it out of fields, or read a folder whose shards all have it")
+
+
+def _resolve_fields(fields, present) -> tuple:
+    """The requested field names, checked: known to the schema and in every shard verified so far
+    (``present``: (path, its fields) pairs)."""
     known = list(FIELDS) + list(OPTIONAL_FIELDS)
     if fields is None:
-        common = set.intersection(*(set(p) for p in present)) if present else set()
+        common = set.intersection(*(set(p) for _, p in present)) if present else set()
         return tuple(f for f in known if f in common)
     names = (fields,) if isinstance(fields, str) else tuple(fields)
     unknown = [f for f in names if f not in known]
@@ -147,9 +249,6 @@ def _resolve_fields(fields, shards, present) -> tuple:
         raise ShardError(f"ShardDataset fields: expected names from spm_data.io.shards.FIELDS or OPTIONAL_FIELDS "
                          f"({', '.join(known)}), got {list(names)}; "
                          f"fix or drop {', '.join(map(repr, unknown)) or 'the empty list'}")
-    for path, have in zip(shards, present):
-        missing = [f for f in names if f not in have]
-        if missing:
-            raise ShardError(f"{path}: shard has no field {', '.join(map(repr, missing))} (asked for in fields=); "
-                             "leave it out of fields, or read a folder whose shards all have it")
+    for path, have in present:
+        _missing_fields(path, names, have)
     return names

@@ -34,6 +34,37 @@ def _method_names(text):
     return names
 
 
+def bop_options(command):
+    """--bop-results DIR and its naming options (spm_model/commands/bop_output.py)."""
+    for option in reversed([
+        click.option("--bop-results", "bop_results", default=None, type=click.Path(),
+                     help="Also write the estimates as BOP results files DIR/METHOD_DATASET-SPLIT.csv, one per "
+                          "method, for bop_toolkit's eval_bop19_pose.py (docs/datasets.md)."),
+        click.option("--bop-dataset", default="spm", show_default=True,
+                     help="Dataset name in the results file names (letters and digits)."),
+        click.option("--bop-split", default="test", show_default=True,
+                     help="Split name in the results file names (letters and digits): the export's --split."),
+        click.option("--bop-ids-from", default=None, type=click.Path(),
+                     help="An earlier BOP export (or its objects.json) whose obj_ids to keep, as export bop "
+                          "--ids-from.")]):
+        command = option(command)
+    return command
+
+
+def _bop(bop_results, bop_dataset, bop_split, bop_ids_from):
+    """The BopOutput of the --bop-* options (None without --bop-results)."""
+    if bop_results is None:
+        return None
+    from spm_model.commands.bop_output import BopOutput
+
+    return BopOutput(bop_results, bop_dataset, bop_split, bop_ids_from)
+
+
+def _bop_line(result) -> None:
+    if result.get("bop_results"):
+        click.echo("bop results: " + ", ".join(str(p) for p in result["bop_results"]))
+
+
 @click.command("train")
 @click.argument("shards", metavar="SHARDS", required=False, type=click.Path())
 @click.option("--out", "report_dir", default=None, type=click.Path(),
@@ -59,13 +90,14 @@ def _method_names(text):
               help="EM clusters per frame (at most 256).")
 @click.option("--estimator", "estimators", multiple=True, metavar="MODULE:CLASS",
               help="Also evaluate your estimator (fit(frames, poses), predict(frames)); repeatable. docs/estimators.md")
+@bop_options
 @ALLOW_PARTIAL
 @executor_options("Feature-extraction processes")
 @old_spelling("--shards", "shards", "give the folder as the first argument", required="SHARDS", type=click.Path())
 @old_spelling("--report", "report_dir", "use --out", type=click.Path())
 @handle_errors
 def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs, ellipse, gamma, estimators,
-              allow_partial, executor):
+              bop_results, bop_dataset, bop_split, bop_ids_from, allow_partial, executor):
     """Extract features of the shards in SHARDS (searched recursively, cached), evaluate SPM and the
     other methods under --protocol (offgrid: test on --test), and write the report and the models to --out."""
     from spm_model.spm.features import FeatureConfig
@@ -77,7 +109,8 @@ def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs,
                        features=FeatureConfig(gamma=gamma, ellipse=ellipse), progress=bar, executor=executor,
                        log=bar.write, command="spm " + " ".join(sys.argv[1:]),
                        estimators=estimators, allow_partial=allow_partial, test=test,
-                       train_occluded=train_occluded, builtins=_method_names(methods))
+                       train_occluded=train_occluded, builtins=_method_names(methods),
+                       bop=_bop(bop_results, bop_dataset, bop_split, bop_ids_from))
     except KeyboardInterrupt:
         from spm_data.jobs.outcome import exit_status
 
@@ -88,6 +121,7 @@ def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs,
         bar.close()
     click.echo(result["text"])
     click.echo(f"report: {result['report']}/results.md, {_models_line(result)}")
+    _bop_line(result)
 
 
 def _models_line(result) -> str:
@@ -122,11 +156,13 @@ def check_estimator_cmd(spec):
 @click.option("--model", "model_path", required=True, type=click.Path(),
               help="model.npz (SPM) or reference-model.npz from spm train.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
+@bop_options
 @ALLOW_PARTIAL
 @executor_options("Feature-extraction processes")
 @old_spelling("--shards", "shards", "give the folder as the first argument", required="SHARDS", type=click.Path())
 @handle_errors
-def evaluate_cmd(model_path, shards, as_json, allow_partial, executor):
+def evaluate_cmd(model_path, shards, as_json, bop_results, bop_dataset, bop_split, bop_ids_from, allow_partial,
+                 executor):
     """Score a trained model (--model: SPM or reference) on the shards in SHARDS: ±5°, sum < 5° and
     < 3°, median errors per class."""
     import json
@@ -136,7 +172,8 @@ def evaluate_cmd(model_path, shards, as_json, allow_partial, executor):
     bar = Progress()
     try:
         result = evaluate_model(model_path, shards, progress=bar, executor=executor,
-                                allow_partial=allow_partial)
+                                allow_partial=allow_partial, bop=_bop(bop_results, bop_dataset, bop_split,
+                                                                      bop_ids_from))
     finally:
         bar.close()
     if as_json:
@@ -147,6 +184,7 @@ def evaluate_cmd(model_path, shards, as_json, allow_partial, executor):
         fmt = lambda v: "-" if v is None else f"{v:.1f}"  # noqa: E731
         click.echo(f"{name:<12}{s['frames']:>8}{fmt(s['success_tol5']):>8}{fmt(s['success_sum5']):>9}"
                    f"{fmt(s['success_sum3']):>9}{fmt(s['geodesic_median_deg']):>9}{fmt(s['translation_median_mm']):>10}")
+    _bop_line(result)
 
 
 @click.command("predict")

@@ -36,11 +36,14 @@ def load_model(path):
 
 
 def evaluate_model(model_path, shards, *, progress=None, executor=None,
-                   allow_partial: bool = False) -> dict:
+                   allow_partial: bool = False, bop=None) -> dict:
     """Score a saved model (SPM or reference) on every frame under ``shards``:
     {"classes": {class: summary}, "all": summary} (summaries: spm_model/bench/metrics.py).
     progress: a callable taking count deltas, told each step (feature_cache.progress_phase):
-    the features (load_features), "predicting", "scoring"."""
+    the features (load_features), "predicting", "scoring". bop: a BopOutput (bop_output.py): also
+    write the estimates as a BOP results file, method "spm" or "template" (the result's ``bop_results``)."""
+    if bop is not None:
+        bop.check()
     model = load_model(model_path)
     features = model.features if isinstance(model, SPMEstimator) else FeatureConfig()
     table = load_features(shards, features, progress=progress, executor=executor,
@@ -60,6 +63,13 @@ def evaluate_model(model_path, shards, *, progress=None, executor=None,
     for c in sorted(set(table.class_name.tolist())):
         sel = table.class_name == c
         per_class[c] = summarise({k: v[sel] for k, v in errors.items()})
-    return {"classes": per_class, "all": summarise(errors)}
+    written = [] if bop is None else bop.write(shards, table, {_method(model): (index, pred)}, allow_partial)
+    written = [str(p) for p in written]
+    return {"classes": per_class, "all": summarise(errors), **({"bop_results": written} if bop else {})}
+
+
+def _method(model) -> str:
+    """The method name of a results file: spm train's name of the method the model is of."""
+    return "spm" if isinstance(model, SPMEstimator) else "template"
 
 

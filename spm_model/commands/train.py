@@ -79,7 +79,7 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
           features: FeatureConfig = FeatureConfig(), model_params: dict | None = None, progress=None,
           log=lambda message: None, command: str = "spm train", executor=None, estimators=(),
           allow_partial: bool = False, test=None, train_occluded: bool | None = None,
-          builtins=None) -> dict:
+          builtins=None, bop=None) -> dict:
     """Features of every shard under ``shards`` (cached), the evaluation protocol
     over ``runs`` seeds for every built-in method (``builtins``: their names, default
     all) and each ``estimators`` entry ('MODULE:CLASS'), final models on every
@@ -87,7 +87,8 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
     protocol (given alone, it selects offgrid); ``train_occluded``: see
     spm_model/bench/protocols.py. progress: a callable taking count deltas, told each step
     (feature_cache.progress_phase): the features (load_features), "fitting" and "scoring"
-    (protocols.evaluate), "report".
+    (protocols.evaluate), "report". bop: a BopOutput (bop_output.py): also write the first run's
+    estimates as BOP results files (its ``bop_results``).
     Returns {"report": folder, "model", "reference_model": paths, "summary", "evaluation", "text"}."""
     if runs < 1:
         raise ModelError(f"--runs must be at least 1, got {runs}")
@@ -99,6 +100,8 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
             raise ShardError(f"no such folder: {folder}")
     out = check_report_folder(report_dir if report_dir else Path(shards) / "report")  # before any work
     plugins = load_estimators(estimators)
+    if bop is not None:
+        bop.check()
     # The report folder is locked for the whole run as a shard folder is: a second train (or
     # fig5.py) into it is refused with the first one's pid and host, not raced; a folder this
     # run made goes again if the run fails or is interrupted.
@@ -111,13 +114,13 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
             raise write_error(out, exc) from None
         try:
             return _train(shards, out, protocol, runs, features, model_params, progress, log, command,
-                          executor, plugins, allow_partial, test, train_occluded, builtins)
+                          executor, plugins, allow_partial, test, train_occluded, builtins, bop)
         finally:
             lock.release()
 
 
 def _train(shards, out, protocol, runs, features, model_params, progress, log, command, executor, plugins,
-           allow_partial, test, train_occluded, builtins) -> dict:
+           allow_partial, test, train_occluded, builtins, bop=None) -> dict:
     """train()'s work, in its locked report folder ``out``."""
     protocol = choose_protocol(protocol, test, shards, log)
     table = load_features(shards, features, progress=progress, executor=executor,
@@ -158,8 +161,18 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
     except OSError as exc:
         raise write_error(out, exc) from None
     summary = write_report(evaluation, context, out)
+    written = [] if bop is None else _bop_results(bop, table, evaluation["protocol"], model_params, builtins,
+                                                   plugins, train_occluded, test or shards, allow_partial)
     return {"report": out, "model": model_path, "reference_model": reference_path, "summary": summary,
-            "evaluation": evaluation, "text": summary_text(summary), "models": models}
+            "evaluation": evaluation, "text": summary_text(summary), "models": models, "bop_results": written}
+
+
+def _bop_results(bop, table, protocol, model_params, builtins, plugins, train_occluded, folder, allow_partial):
+    """The first run's estimates of every method as BOP results files (bop_output.py)."""
+    from spm_model.commands.bop_output import first_run_predictions
+
+    predictions = first_run_predictions(table, protocol, model_params, builtins, plugins, train_occluded)
+    return bop.write(folder, table, predictions, allow_partial)
 
 
 def _save(model, path: Path):

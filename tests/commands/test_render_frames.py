@@ -1,6 +1,7 @@
 """Rendered frames with [randomize], [distractors] and [outputs], through the whole render path."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -220,3 +221,18 @@ def test_merge_keeps_same_named_meshes_of_other_seeds_apart(tmp_path):
     first = {int(k) for k in merged["distractor_mesh"][:4].ravel() if k >= 0}
     assert not used & first   # same names, other meshes: other pool entries
     assert {digests[k] for k in used}.isdisjoint({digests[k] for k in first})
+
+
+def test_merge_of_cluttered_and_plain_frames_keeps_the_distractors(tmp_path):
+    from spm_data.commands.merge import merge_folders
+    plain = re.sub(r"\[distractors\]\n(?:[a-z].*\n)*", "", CLUTTERED.format(cls="box"))   # the same frames, uncluttered
+    for name, text in (("a", CLUTTERED.format(cls="a")), ("box", plain)):
+        folder = tmp_path / f"specs_{name}"
+        folder.mkdir()
+        (folder / f"{name}.toml").write_text(text)
+        render_dataset(load_run_specs(all_classes=True, specs_dir=folder), tmp_path / name, limit=4)
+    merge_folders([tmp_path / "a", tmp_path / "box"], tmp_path / "merged")
+    merged = read_shard(list_shards(tmp_path / "merged")[0])
+    assert merged["distractor_mesh"].shape == (8, 2) and (merged["distractor_mesh"][4:] == -1).all()
+    assert _frame_pool_names(tmp_path / "merged")[:4] == _frame_pool_names(tmp_path / "a")
+    assert (merged["distractor_size"][4:] == 0).all() and "visible_target" not in merged

@@ -1,17 +1,25 @@
-"""spm_data.formats.bop_gt: scene_gt_info by calc_gt_info's rules, checked against a
-re-implementation of those rules from BOP's files alone (a depth render of the exported model on
-a canvas three times the image, bop19 visibility at 15 mm), on frames cut by the image border."""
+"""spm_data.formats.bop_gt: ground truth by bop_toolkit's rules. The renderer's rules are checked
+against numbers bop_toolkit's vispy renderer gave on llvmpipe (measured once, bop_toolkit cea62d6,
+Mesa 22.3.6; benchmarks/bop_toolkit_check.py repeats the measurement on whole exports), the
+visibility and counting rules on synthetic scenes, and the export against an independent
+re-implementation with pyrender."""
 
 import json
+import zlib
 
 import cv2
 import numpy as np
 import pytest
+import trimesh
 
 from spm_data.errors import SpmError
 from spm_data.core.poses import cv_to_gl_camera_to_world
+from spm_data.core.raster import silhouette
+from spm_data.core.shapes import procedural_mesh
 from spm_data.formats.bop_export import export_bop
-from spm_data.formats.bop_gt import bbox, depth_scale_for, depth_units, full_silhouette, gt_info
+from spm_data.formats.bop_gt import (bbox, depth_scale_for, depth_units, distances, image_gt, object_gt,
+                                     png_depth_mm, render_depth, visible_mask)
+from spm_data.formats.bop_models import ply_vertices
 from spm_data.formats.coco import load_scene_gt_coco
 from spm_data.formats.ply import load_ply
 from spm_data.commands.render_jobs import load_run_specs, render_dataset
@@ -35,6 +43,7 @@ height = {size}
 renderer = "pyrender"
 frames_per_shard = 16
 """
+CUBE = trimesh.creation.box(extents=(100.0, 100.0, 100.0))   # mm, centred
 
 
 def test_depth_scale_is_the_finest_that_holds_the_farthest_depth():
@@ -44,6 +53,7 @@ def test_depth_scale_is_the_finest_that_holds_the_farthest_depth():
     np.testing.assert_array_equal(depth_units(np.array([[7.0, 0.5]]), 0.2), [[35000, 2500]])
     with pytest.raises(SpmError, match="a depth of 700.0 m does not fit a BOP depth PNG"):
         depth_scale_for(np.array([700.0]))
+    assert png_depth_mm(np.array([[5000]], np.uint16), 0.1).dtype == np.float32   # as inout.load_depth reads it
 
 
 def test_bbox_offsets_and_empty_masks():
@@ -53,12 +63,78 @@ def test_bbox_offsets_and_empty_masks():
     assert bbox(np.zeros((3, 3), bool)) == [-1, -1, -1, -1]
 
 
-def test_a_frame_inside_the_image_keeps_its_mask_and_counts():
+def test_distances_along_rays_and_bop19_visibility():
+    K = np.array([[100.0, 0, 2.0], [0, 100.0, 1.0], [0, 0, 1]])
+    dist = distances(np.full((3, 5), 500.0, np.float32), K)
+    assert dist[1, 2] == 500.0 and dist[1, 4] == pytest.approx(500.0 * np.sqrt(1 + 0.02 ** 2))
+    scene = np.array([[500.0, 500.0, 0.0, 400.0]])
+    model = np.array([[515.0, 515.5, 600.0, 0.0]])
+    # 15 mm behind: visible; 15.5 behind: hidden; no scene depth: visible (bop19); no model: not.
+    np.testing.assert_array_equal(visible_mask(scene, model), [[True, False, True, False]])
+
+
+def test_a_cube_with_edges_on_pixel_centres_keeps_its_left_and_bottom_edges():
+    # 100 mm cube, 500 mm away, f = 90: its front face spans u, v = c ± 10, on pixel centres when c
+    # ends in .5 (BOP's pixel-corner convention). vispy on llvmpipe gave 20 x 20 = 400 pixels:
+    # columns 22-41 (left edge in, right out), rows 15-34 (top edge out, bottom in).
+    K = np.array([[90.0, 0, 32.5], [0, 90.0, 24.5], [0, 0, 1]])
+    depth = render_depth(np.float32(CUBE.vertices), CUBE.faces, K, np.eye(3), [0, 0, 500.0], 64, 48)
+    ys, xs = np.nonzero(depth)
+    assert len(ys) == 400 and (ys.min(), ys.max(), xs.min(), xs.max()) == (15, 34, 22, 41)
+    np.testing.assert_allclose(depth[depth > 0], 450.0, atol=1e-3)
+
+
+# A cup cut by the bottom border, where a plain pixel-centre test misses two pixels: vispy's counts,
+# boxes and masks (CRC-32 of np.packbits) at image size and on calc_gt_info's 3x canvas.
+CUT_R = [[-0.043327954052944276, 0.6688054544906514, 0.7421738020444667],
+         [0.25527592191399145, -0.7108004171543264, 0.6554364734008913],
+         [0.9658969365768523, 0.21785782294145106, -0.13993240116093084]]
+CUT_T = [-43.98533568986429, 91.14157162694356, 508.8466999726777]
+CUT_K = [[53.88050952014089, 0.0, 31.561835655190887], [0.0, 53.88050952014089, 25.191735544388084], [0.0, 0.0, 1.0]]
+
+
+@pytest.mark.parametrize("canvas, pixels, box, crc, naive", [
+    (1, 506, [8, 17, 32, 30], 2465547510, 504),
+    (3, 512, [8, 17, 32, 32], 626360992, 510),
+])
+def test_a_cup_cut_by_the_border_is_drawn_as_vispy_draws_it(canvas, pixels, box, crc, naive):
+    mesh = procedural_mesh("cup", 0, seed=3)
+    w, h = 64, 48
+    off = (w, h) if canvas == 3 else (0, 0)
+    depth = render_depth(ply_vertices(mesh), mesh.faces, np.array(CUT_K), np.array(CUT_R), np.array(CUT_T),
+                         canvas * w, canvas * h, offset=off)
+    assert (depth > 0).sum() == pixels and bbox(depth > 0, offset=off) == box
+    assert zlib.crc32(np.packbits(depth > 0).tobytes()) == crc
+    K = np.array(CUT_K) + [[0, 0, off[0] - 0.5], [0, 0, off[1] - 0.5], [0, 0, 0]]   # OpenCV centres
+    plain = silhouette(ply_vertices(mesh).astype(np.float64), mesh.faces, K, np.array(CUT_R), np.array(CUT_T),
+                       canvas * h, canvas * w)
+    assert plain.sum() == naive   # the rules matter here
+
+
+def test_object_gt_counts_the_whole_silhouette_and_sees_through_missing_depth():
+    # The cube cut by the left border: x from -10 to 9 on a 40 x 30 image.
+    K = np.array([[90.0, 0, 0.5], [0, 90.0, 15.0], [0, 0, 1]])
+    v, t = np.float32(CUBE.vertices), np.array([0.0, 0.0, 500.0])
+    own = render_depth(v, CUBE.faces, K, np.eye(3), t, 40, 30)
+    scene = own.copy()
+    scene[10:14, :] = 300.0            # something 150 mm in front: hides four rows
+    scene[20:22, :] = 0.0              # no depth measured: bop19 calls it visible
+    scene_mm = png_depth_mm(depth_units(scene / 1000.0, 0.1), 0.1)
+    info, mask, seen = object_gt(v, CUBE.faces, K, np.eye(3), t, scene_mm)
+    assert mask.sum() == 10 * 20 and info["px_count_all"] == 20 * 20   # half of it outside the image
+    assert info["px_count_visib"] == seen.sum() == 10 * 16 and info["visib_fract"] == 160 / 400
+    assert info["px_count_valid"] == 10 * 18                            # with depth in the PNG
+    assert info["bbox_obj"] == [-10, 5, 19, 19] and info["bbox_visib"] == [0, 5, 9, 19]
+    np.testing.assert_array_equal(seen, mask & ~((np.arange(30) >= 10) & (np.arange(30) < 14))[:, None])
+    # Wholly hidden: no boxes, as calc_gt_info writes them.
+    hidden, _, _ = object_gt(v, CUBE.faces, K, np.eye(3), t, np.full((30, 40), 100.0, np.float32))
+    assert hidden["px_count_visib"] == 0 and hidden["bbox_obj"] == hidden["bbox_visib"] == [-1, -1, -1, -1]
+
+
+def test_an_object_without_a_model_keeps_its_image_masks():
     mask = np.zeros((8, 8), bool)
     mask[2:5, 3:6] = True
-    canvas = full_silhouette(mask, None, np.eye(3), np.eye(3), np.zeros(3))
-    info = gt_info(canvas, mask & (np.arange(8)[None, :] < 5), np.where(mask, 0.5, 0.0))
-    assert canvas.shape == (24, 24) and canvas.sum() == 9
+    info = image_gt(mask, mask & (np.arange(8)[None, :] < 5), np.where(mask, 0.5, 0.0))
     assert info == {"bbox_obj": [3, 2, 2, 2], "bbox_visib": [3, 2, 1, 2], "px_count_all": 9,
                     "px_count_valid": 9, "px_count_visib": 6, "visib_fract": 6 / 9}
 
@@ -66,10 +142,10 @@ def test_a_frame_inside_the_image_keeps_its_mask_and_counts():
 # --------------------------------------------------------------------------- calc_gt_info's rules, re-implemented
 
 def reference_gt_info(model, K, gt, depth_mm):
-    """calc_gt_info.py's rules (bop_toolkit, read, not copied): the model's depth rendered on a
-    3W x 3H canvas with the principal point moved by (W, H), the image its middle; distances along
-    the rays; visible where the object's distance is at most 15 mm behind the scene's or the
-    scene has no depth; counts over the whole canvas, boxes from its silhouette, unclipped."""
+    """calc_gt_info.py's rules (bop_toolkit, read, not copied), with pyrender as the renderer: the
+    model's depth on a 3W x 3H canvas with the principal point moved by (W, H), the image its
+    middle; distances along the rays; visible where the object's distance is at most 15 mm
+    behind the scene's or the scene has no depth; counts over the whole canvas, boxes unclipped."""
     from spm_data.render.pyrender_backend import _import_pyrender, _offscreen
 
     pr = _import_pyrender()   # one sample a pixel, at its centre, as bop_toolkit's renderers
@@ -115,16 +191,16 @@ def test_frames_cut_by_the_border_have_calc_gt_info_counts_and_boxes(truncated_e
         coco = load_scene_gt_coco(scene / "scene_gt_coco.json")
         for im, (gt,) in gts.items():
             model = load_ply(bop / "models" / f"obj_{gt['obj_id']:06d}.ply")
-            depth = cv2.imread(str(scene / "depth" / f"{int(im):06d}.png"), cv2.IMREAD_UNCHANGED) * cams[im]["depth_scale"]
+            depth = cv2.imread(str(scene / "depth" / f"{int(im):06d}.png"), cv2.IMREAD_UNCHANGED)
+            depth = depth * cams[im]["depth_scale"]
             mask = cv2.imread(str(scene / "mask" / f"{int(im):06d}_000000.png"), cv2.IMREAD_UNCHANGED) > 0
             ref, ours = reference_gt_info(model, np.reshape(cams[im]["cam_K"], (3, 3)), gt, depth), infos[im][0]
             if ref["px_count_all"] > mask.sum():
                 truncated += 1
-                assert ours["visib_fract"] < 1.0
-            # Inside the image both are OpenGL's; outside, our silhouette at pixel centres
-            # against OpenGL's: a pixel centre on an edge may go either way.
+                assert ours["visib_fract"] < 1.0 and ours["px_count_all"] > mask.sum()
+            # pyrender's matrices are not vispy's: a pixel centre on an edge may go either way.
             assert abs(ours["px_count_all"] - ref["px_count_all"]) <= max(2, 0.002 * ref["px_count_all"])
-            assert ours["px_count_visib"] == ref["px_count_visib"]
+            assert abs(ours["px_count_visib"] - ref["px_count_visib"]) <= 2
             assert np.abs(np.subtract(ours["bbox_obj"], ref["bbox_obj"])).max() <= 1
             worst = max(worst, abs(ours["visib_fract"] - ref["visib_fract"]))
             ann = [a for a in coco["annotations"] if a["image_id"] == int(im)]

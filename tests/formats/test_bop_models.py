@@ -1,11 +1,13 @@
 """BOP models: texture colours, symmetry entries, evaluation resampling, models_info."""
 
 import numpy as np
+import pytest
 import trimesh
 
 from spm_data.core.meshes import diameter
-from spm_data.formats.bop_models import (eval_resample, load_models_info, model_info, save_models_info,
-                                         symmetry_info, texture_colors)
+from spm_data.formats.bop_models import (diameter_ends, eval_resample, extreme_vertices, load_models_info, model_info,
+                                         save_bop_model, save_models_info, symmetry_info, texture_colors)
+from spm_data.formats.ply import load_ply
 from spm_data.core.symmetries import NO_SYMMETRY, Symmetries, rotation
 
 
@@ -31,6 +33,49 @@ def test_model_info_and_diameter(tmp_path):
     assert (info["min_x"], info["size_y"], info["size_z"], info["diameter"]) == (-15.0, 40.0, 120.0, 130.0)
     save_models_info(tmp_path / "models_info.json", {1: info})
     assert load_models_info(tmp_path / "models_info.json") == {1: info}
+
+
+def calc_model_info_numbers(points):
+    """What calc_model_info.py computes from a PLY's vertices (its rules, written out here): box
+    from the float32 values, diameter as the largest sqrt(dx² + dy² + dz²) over all pairs."""
+    pts = np.asarray(points, dtype=np.float32).astype(np.float64)
+    best = 0.0
+    for i in range(len(pts)):
+        d = pts[i] - pts[i:]
+        best = max(best, float(np.sqrt((d * d).sum(axis=1).max())))
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    return {"diameter": best, "min_x": lo[0], "min_y": lo[1], "min_z": lo[2], "size_x": hi[0] - lo[0],
+            "size_y": hi[1] - lo[1], "size_z": hi[2] - lo[2]}
+
+
+def test_numbers_are_calc_model_info_s_from_the_float32_vertices():
+    rng = np.random.default_rng(1)
+    for points in (rng.normal(size=(700, 3)) * [80.0, 50.0, 20.0], trimesh.creation.icosphere(3).vertices * 125.3):
+        pts = np.float64(np.float32(points))
+        d, i, j = diameter_ends(pts)
+        assert np.sqrt(((pts[i] - pts[j]) ** 2).sum()) == pytest.approx(d, rel=1e-15)
+        info = model_info(points, NO_SYMMETRY)
+        assert {k: info[k] for k in calc_model_info_numbers(points)} == calc_model_info_numbers(points)
+    # Rounded to float32 first, as the PLY stores it: -124.99999999999999 is -125.0 there.
+    assert model_info(np.array([[-124.99999999999999, 0, 0], [125.0, 1, 1]]), NO_SYMMETRY)["min_x"] == -125.0
+
+
+def test_eval_models_keep_the_extreme_vertices_so_both_folders_have_the_same_numbers(tmp_path):
+    from spm_data.core.shapes import procedural_mesh
+
+    for sub in ("models", "models_eval"):
+        (tmp_path / sub).mkdir()
+    mesh = procedural_mesh("cup", 2)
+    entry = save_bop_model(tmp_path, 7, mesh)
+    render = load_ply(tmp_path / "models" / "obj_000007.ply")["vertices"]
+    resampled = load_ply(tmp_path / "models_eval" / "obj_000007.ply")["vertices"]
+    ends = extreme_vertices(np.float32(render))
+    assert 2 <= len(ends) <= 8 and all((resampled == render[k]).all(axis=1).any() for k in ends)
+    for sub in ("models", "models_eval"):
+        save_models_info(tmp_path / sub / "models_info.json", {7: entry})
+    a, b = (load_models_info(tmp_path / sub / "models_info.json")[7] for sub in ("models", "models_eval"))
+    assert a == b == entry
+    assert {k: a[k] for k in calc_model_info_numbers(resampled)} == calc_model_info_numbers(resampled)
 
 
 def test_eval_resample_spreads_vertices_evenly():

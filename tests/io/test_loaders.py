@@ -1,15 +1,17 @@
 """spm_data.io.loaders.ShardDataset: a shard folder as a map-style dataset, read lazily
 per process (fork and spawn workers), verified like every other read."""
 
+import json
 import multiprocessing
 import os
 import pickle
+import warnings
 
 import h5py
 import numpy as np
 import pytest
 
-from spm_data.errors import ShardError
+from spm_data.errors import ShardError, SpmWarning
 from spm_data.io.loaders import ShardDataset
 from spm_data.io.shards import FIELDS, MANIFEST, read_shard, write_manifest, write_shard
 from tests.helpers import flip_stored_byte
@@ -106,7 +108,7 @@ def test_an_unknown_field_is_a_one_line_error(folder, fields, bad):
 
 def test_an_optional_field_the_shards_lack_is_a_one_line_error(folder):
     with pytest.raises(ShardError, match=r"cup-00000.h5: shard has no field 'visible_mask' .*leave it out"):
-        ShardDataset(folder, fields=["rgb", "visible_mask"])
+        ShardDataset(folder, fields=["rgb", "visible_mask"])  # the first shard is verified at construction
 
 
 def add_one(item):
@@ -215,14 +217,97 @@ def test_a_dataset_used_before_fork_reopens_in_the_children(folder):
 
 
 @pytest.mark.parametrize("field", ["rgb", "K", "class_name"])
-def test_a_corrupt_chunk_is_a_shard_error_naming_the_field(folder, field):
-    """A shard is trusted only whole: a flipped byte in one frame's chunk refuses the shard
-    (every byte is checked when it is opened), naming the field that changed."""
+def test_a_corrupt_chunk_is_a_shard_error_naming_the_field_on_its_first_read(folder, field):
+    """A shard is trusted only whole: a flipped byte in one frame's chunk refuses that shard on
+    the first read of any of its frames (every byte is checked then, before a frame is returned),
+    naming the field that changed; the other shards still read."""
+    want = direct_read(folder)
     flip_stored_byte(folder / "cup-00002.h5", field)
-    with pytest.raises(ShardError, match=rf"cup-00002.h5: field '{field}' fails its checksum"):
-        ShardDataset(folder)
-    ds = ShardDataset(folder / "cup-00000.h5")  # the other shards still read
-    assert len(ds) and ds[0]["rgb"].shape[-1] == 3
+    ds = ShardDataset(folder)  # shard 2 is not hashed yet: counts come from the manifest
+    assert len(ds) == sum(COUNTS)
+    assert_item_equal(ds[0], want[0])
+    for i in (3, 6):  # the first and the last frame of shard 2
+        with pytest.raises(ShardError, match=rf"cup-00002.h5: field '{field}' fails its checksum") as info:
+            ds[i]
+        assert "\n" not in str(info.value)
+    assert_item_equal(ds[7], want[7])
+
+
+THREE = (3, 4, 2)  # frames per shard of the three_shards fixture
+
+
+@pytest.fixture
+def three_shards(tmp_path):
+    """A 3-shard folder and every frame of it read before anything is damaged: [{field: value}]."""
+    out = tmp_path / "three"
+    out.mkdir()
+    for k, n in enumerate(THREE):
+        write_shard(out / f"cup-{k:05d}.h5", make_arrays(n, seed=k), {"renderer": "test", "seed": k})
+    write_manifest(out)
+    return out, direct_read(out)
+
+
+@pytest.mark.parametrize("shard", [0, 1])  # the first shard is hashed at construction, the others on first read
+def test_refuse_names_the_corrupt_shard(three_shards, shard):
+    folder, _ = three_shards
+    flip_stored_byte(folder / f"cup-{shard:05d}.h5", "rgb")
+    with pytest.raises(ShardError) as info:
+        ds = ShardDataset(folder, on_corrupt="refuse")
+        [ds[i] for i in range(len(ds))]
+    message = str(info.value)
+    assert "\n" not in message and message.startswith(str(folder / f"cup-{shard:05d}.h5") + ":")
+    assert "field 'rgb' fails its checksum" in message and "corrupt" in message
+
+
+@pytest.mark.parametrize("shard", [0, 1, 2])
+def test_skip_leaves_out_the_corrupt_shard_with_one_warning(three_shards, shard):
+    folder, clean = three_shards
+    bad = folder / f"cup-{shard:05d}.h5"
+    flip_stored_byte(bad, "depth")
+    with pytest.warns(SpmWarning) as caught:
+        ds = ShardDataset(folder, on_corrupt="skip")
+    messages = [str(w.message) for w in caught if issubclass(w.category, SpmWarning)]
+    assert len(messages) == 1 and "\n" not in messages[0]
+    assert messages[0].startswith(f"{bad}: field 'depth' fails its checksum") and "skipped" in messages[0]
+    assert ds.skipped == (bad,) and bad not in ds.shards
+    starts = np.cumsum((0,) + THREE)
+    want = clean[:starts[shard]] + clean[starts[shard + 1]:]
+    assert len(ds) == sum(THREE) - THREE[shard] == len(want)
+    for i in range(len(ds)):
+        assert_item_equal(ds[i], want[i])
+    with pytest.raises(IndexError):
+        ds[len(want)]
+
+
+def test_skip_of_a_clean_folder_warns_nothing(three_shards):
+    folder, clean = three_shards
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ds = ShardDataset(folder, on_corrupt="skip")
+    assert ds.skipped == () and len(ds) == sum(THREE)
+    assert_item_equal(ds[-1], clean[-1])
+
+
+@pytest.mark.parametrize("value", ["ignore", None, True])
+def test_a_bad_on_corrupt_is_a_one_line_error(three_shards, value):
+    with pytest.raises(ShardError) as info:
+        ShardDataset(three_shards[0], on_corrupt=value)
+    message = str(info.value)
+    assert "\n" not in message
+    assert message.startswith("ShardDataset on_corrupt: expected 'refuse' or 'skip'")
+    assert f"got {value!r}" in message and "pass on_corrupt='refuse'" in message
+
+
+def test_a_manifest_count_the_shard_does_not_match_is_an_error_on_first_read(three_shards):
+    folder, clean = three_shards
+    manifest = json.loads((folder / MANIFEST).read_text())
+    manifest["shards"][1]["frames"] += 1
+    (folder / MANIFEST).write_text(json.dumps(manifest))
+    ds = ShardDataset(folder)
+    assert len(ds) == sum(THREE) + 1
+    assert_item_equal(ds[0], clean[0])
+    with pytest.raises(ShardError, match=r"cup-00001.h5: 4 frames in the shard, manifest.json says 5"):
+        ds[3]
 
 
 def test_manifest_rules_apply(folder):

@@ -1,0 +1,115 @@
+"""``--bop-results DIR`` of ``spm train`` and ``spm evaluate``: every method's estimates as a BOP
+results file ``DIR/{method}_{dataset}-{split}.csv`` (spm_data/formats/bop_results.py), the frames
+numbered as ``spm-data export bop`` numbers them (spm_data/formats/bop_ids.py).
+
+``spm evaluate``: the model's estimate of every frame of the folder. ``spm train``: each test
+frame's estimate in the first run (seed 0) of the protocol, every split of it (under loco each
+frame is tested once; under views and interleaved only the held-out frames have rows; under
+offgrid the frames of the --test folder, numbered as the export of that folder). The estimates are
+those of run 1: the methods are fitted again here on run 1's splits with run 1's seed (on one BLAS
+thread, as the benchmark's workers are), which gives run 1's predictions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from spm_data.errors import SpmError
+from spm_data.io.shards import read_attrs
+
+
+@dataclass(frozen=True)
+class BopOutput:
+    """Where and how to write the results files: ``folder`` (--bop-results), ``dataset``
+    (--bop-dataset), ``split`` (--bop-split), ``ids_from`` (--bop-ids-from: an earlier export whose
+    obj_ids to keep, as export bop --ids-from)."""
+    folder: Path
+    dataset: str = "spm"
+    split: str = "test"
+    ids_from: Path | None = None
+
+    def check(self) -> None:
+        """SpmError (one line) for a bad name or a folder that cannot be one, before any work."""
+        from spm_data.formats.bop_results import result_file_name
+
+        result_file_name("m", self.dataset, self.split)
+        folder = Path(self.folder)
+        if folder.exists() and not folder.is_dir():
+            raise SpmError(f"--bop-results {folder}: expected a folder, got a file; give a folder for the .csv files")
+        if self.ids_from is not None and not Path(self.ids_from).exists():
+            raise SpmError(f"--bop-ids-from {self.ids_from}: no such export; give the folder export bop wrote "
+                           "(or its objects.json)")
+
+    def write(self, shards, table, predictions: dict, allow_partial: bool = False) -> list[Path]:
+        """One results file per method of ``predictions`` ({method: (table rows, (n, 6) labels)}) of the
+        frames of the shard folder ``shards`` (the rows of ``table``, a FeatureTable, are mapped to
+        its frame order). Returns the files written."""
+        from spm_data.formats.bop_ids import frame_ids
+        from spm_data.formats.bop_results import pose_rows, result_file_name, save_bop_results
+
+        ids = frame_ids(shards, self.ids_from, allow_partial=allow_partial)
+        where = frame_positions(shards, table, allow_partial)
+        folder = Path(self.folder)
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise SpmError(f"--bop-results {folder}: cannot create it ({exc.strerror or exc}); give a writable "
+                           "folder") from None
+        written = []
+        for method, (rows, labels) in predictions.items():
+            rows = np.asarray(rows, dtype=np.int64)
+            if (where[rows] < 0).any():
+                raise SpmError(f"--bop-results: {int((where[rows] < 0).sum())} frames are not in {shards}'s "
+                               "manifest (a subfolder's?); expected one shard folder, as export bop reads it; "
+                               "give that folder")
+            path = folder / result_file_name(method, self.dataset, self.split)
+            written.append(save_bop_results(path, pose_rows(ids, labels, where[rows])))
+        return written
+
+
+def frame_positions(shards, table, allow_partial: bool = False) -> np.ndarray:
+    """(n,) int64: each row of ``table`` (its ``shard`` and ``frame``) as a position in the frame
+    order of the shard folder ``shards`` (manifest order, then frame index); -1 for a row of
+    another folder."""
+    from spm_data.io.folders import open_folder
+
+    start, offset = {}, 0
+    for shard in open_folder(shards, allow_partial=allow_partial).shards:
+        start[str(Path(shard).resolve())] = offset
+        offset += int(read_attrs(shard)["frames"])
+    first = {s: start.get(str(Path(s).resolve()), -1) for s in set(table.shard.tolist())}
+    base = np.asarray([first[s] for s in table.shard.tolist()], dtype=np.int64)
+    return np.where(base >= 0, base + np.asarray(table.frame, dtype=np.int64), -1)
+
+
+def first_run_predictions(table, protocol: str, model_params: dict, builtins=None, estimators=None,
+                          train_occluded: bool | None = None) -> dict:
+    """{method: (test rows of ``table``, (n, 6) labels)} of the first run of ``protocol``: every split
+    of run 1, its methods fitted and asked as the benchmark does (protocols.split_job). A method
+    declined in a split has no rows there (NaN labels)."""
+    from threadpoolctl import threadpool_limits
+
+    from spm_model.base.feature_memo import use_folder
+    from spm_model.bench.feature_cache import memo_folder
+    from spm_model.bench.fitting import fit_predict
+    from spm_model.bench.protocols import make_methods, splits, training_rows
+
+    occluded = (protocol != "offgrid") if train_occluded is None else bool(train_occluded)
+    if len(table):
+        use_folder(memo_folder(table.shard[0], model_params["features"]))
+    out: dict = {}
+    with threadpool_limits(limits=1, user_api="blas"):
+        for _, train, test in splits(table, protocol, seed=0):
+            train = training_rows(table, train, occluded)
+            if len(test) == 0 or len(train) == 0:
+                continue
+            methods = make_methods(0, model_params, builtins, estimators)
+            predictions, _, _ = fit_predict(methods, table, train, test, seed=0)
+            for name in methods:
+                pred = predictions.get(name, np.full((len(test), 6), np.nan))
+                rows, labels = out.get(name, (np.zeros(0, np.int64), np.zeros((0, 6))))
+                out[name] = (np.r_[rows, test], np.r_[labels, pred])
+    return out

@@ -1,0 +1,133 @@
+"""spm_data.formats.bop_scene: every object of a frame in its scene, the target first, each with
+its masks, scene_gt_info entry and COCO annotation; a target without a mesh keeps image-only
+ground truth."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from spm_data.errors import SpmError
+from spm_data.formats.bop_export import export_bop
+from spm_data.formats.bop_scene import SceneWriter
+from spm_data.formats.coco import load_scene_gt_coco, rle_to_mask
+from spm_data.io.shards import list_shards, read_shard
+from spm_data.commands.render_jobs import load_run_specs, render_dataset
+
+FRAMES = 6
+
+
+@pytest.fixture(scope="module")
+def cluttered(tmp_path_factory):
+    """6 frames of a cup with 2 distractors each (pyrender, 128 x 128), exported with and without
+    the distractors. Read-only for tests."""
+    from tests.commands.test_render_frames import CLUTTERED
+
+    root = tmp_path_factory.mktemp("scene")
+    (root / "specs").mkdir()
+    (root / "specs" / "c.toml").write_text(CLUTTERED.format(cls="c").replace("frames_per_shard = 8",
+                                                                              f"frames_per_shard = {FRAMES}"))
+    render_dataset(load_run_specs(all_classes=True, specs_dir=root / "specs"), root / "r", limit=FRAMES)
+    export_bop(root / "r", root / "bop")
+    export_bop(root / "r", root / "targets", include_distractors=False)
+    return root / "r", root / "bop", root / "targets"
+
+
+def png(path):
+    return cv2.imread(str(path), cv2.IMREAD_UNCHANGED) > 0
+
+
+def frames(bop):
+    """(scene folder, im, scene_gt entries, scene_gt_info entries) per image, in export order."""
+    for sdir in sorted((bop / "train").iterdir()):
+        gts = json.loads((sdir / "scene_gt.json").read_text())
+        infos = json.loads((sdir / "scene_gt_info.json").read_text())
+        for im in sorted(gts, key=int):
+            yield sdir, int(im), gts[im], infos[im]
+
+
+def test_every_distractor_is_an_object_of_its_frame_after_its_target(cluttered):
+    shards, bop, _ = cluttered
+    d = read_shard(list_shards(shards)[0], ["instance_id", "instances", "distractor_mesh", "visible_mask"])
+    objects = {int(k): v for k, v in json.loads((bop / "objects.json").read_text()).items()}
+    targets = {k for k, v in objects.items() if v.get("role") != "distractor"}
+    assert len(targets) == 2 and min(set(objects) - targets) > max(targets)   # distractors numbered after
+    seen = {}
+    for sdir, im, gts, infos in frames(bop):
+        i = [k for k, inst in enumerate(d["instance_id"]) if sorted(set(d["instance_id"])).index(inst) ==
+             int(sdir.name)][im]   # the shard frame: scenes by target, images in frame order
+        assert gts[0]["obj_id"] == int(sdir.name) + 1
+        assert len(gts) == len(infos) == 1 + (d["distractor_mesh"][i] >= 0).sum()
+        coco = load_scene_gt_coco(sdir / "scene_gt_coco.json")
+        anns = [a for a in coco["annotations"] if a["image_id"] == im]
+        for k, (gt, info) in enumerate(zip(gts, infos)):
+            name = f"{im:06d}_{k:06d}.png"
+            full, visib = png(sdir / "mask" / name), png(sdir / "mask_visib" / name)
+            assert (visib <= full).all() and info["px_count_visib"] == visib.sum()
+            # Seen where the render saw it (instances: 1 the target, 2 + k distractor k; a pixel centre
+            # on an edge may go either way). Also seen, by bop19's 15 mm tolerance, where another
+            # distractor is in front by less: never over the target, which is behind them all.
+            rendered = d["instances"][i] == (1 if k == 0 else 1 + k)
+            extra = visib & ~rendered
+            assert (rendered & ~visib).sum() <= 2 and (extra & (d["instances"][i] < 2)).sum() <= 2
+            if k == 0:
+                assert extra.sum() <= 2
+            if k:
+                assert gt["obj_id"] not in targets and objects[gt["obj_id"]]["role"] == "distractor"
+            if visib.any():
+                ann = next(a for a in anns if a["category_id"] == gt["obj_id"])
+                np.testing.assert_array_equal(rle_to_mask(ann["segmentation"]), visib)
+        assert len(anns) == sum(1 for info in infos if info["px_count_visib"] > 0)
+        seen[int(sdir.name)] = seen.get(int(sdir.name), 0) + 1
+    assert sum(seen.values()) == FRAMES
+
+
+def test_without_distractors_the_targets_ground_truth_is_the_same(cluttered):
+    _, bop, targets = cluttered
+    both = list(frames(bop))
+    alone = list(frames(targets))
+    assert len(both) == len(alone) == FRAMES
+    for (sdir, im, gts, infos), (_, im2, gts2, infos2) in zip(both, alone):
+        assert len(gts2) == 1 and gts2[0] == gts[0] and infos2[0] == infos[0] and im == im2
+    objects = (json.loads((folder / "objects.json").read_text()) for folder in (targets, bop))
+    assert next(objects).keys() < next(objects).keys()   # the distractors are objects of the export with them
+
+
+def frame_data(h=16, w=20):
+    mask = np.zeros((1, h, w), np.uint8)
+    mask[0, 4:10, 5:12] = 1
+    visible = mask.copy()
+    visible[0, 4:6] = 0
+    return {"rgb": np.zeros((1, h, w, 3), np.uint8), "depth": mask * np.float32(0.5), "mask": mask,
+            "visible_mask": visible, "K": np.array([[[20.0, 0, 9.5], [0, 20.0, 7.5], [0, 0, 1]]]),
+            "R": np.eye(3)[None], "t": np.array([[0, 0, 0.5]])}
+
+
+def test_a_target_without_a_mesh_keeps_its_image_masks(tmp_path):
+    written = []
+    writer = SceneWriter(tmp_path / "train", ".png", lambda path, a: written.append(path) or path.write_bytes(
+        cv2.imencode(".png", a)[1].tobytes()), set())
+    data = frame_data()
+    writer.add_frame(data, 0, [(3, None, data["R"][0], data["t"][0])])
+    writer.finish([3, 4])
+    sdir = tmp_path / "train" / "000002"
+    np.testing.assert_array_equal(png(sdir / "mask" / "000000_000000.png"), data["mask"][0] > 0)
+    np.testing.assert_array_equal(png(sdir / "mask_visib" / "000000_000000.png"), data["visible_mask"][0] > 0)
+    info = json.loads((sdir / "scene_gt_info.json").read_text())["0"][0]
+    assert info["px_count_all"] == 42 and info["px_count_visib"] == 28 and info["bbox_obj"] == [5, 4, 6, 5]
+    gt = json.loads((sdir / "scene_gt.json").read_text())["0"]
+    assert gt == [{"cam_R_m2c": np.eye(3).ravel().tolist(), "cam_t_m2c": [0.0, 0.0, 500.0], "obj_id": 3}]
+    cam = json.loads((sdir / "scene_camera.json").read_text())["0"]
+    assert cam["cam_K"][2] == 10.0 and cam["depth_scale"] == 0.1   # BOP's pixel-corner convention
+    assert [c["id"] for c in load_scene_gt_coco(sdir / "scene_gt_coco.json")["categories"]] == [3, 4]
+    assert len(written) == 4   # rgb, depth, mask, mask_visib
+
+
+def test_a_frame_needs_its_target_and_meshes_for_the_others(tmp_path):
+    writer = SceneWriter(tmp_path / "train", ".png", lambda path, a: None, set())
+    data = frame_data()
+    with pytest.raises(SpmError, match="a frame needs its target object"):
+        writer.add_frame(data, 0, [])
+    with pytest.raises(SpmError, match="object 1 .obj_id 9. of a frame has no mesh; only a target may lack one"):
+        writer.add_frame(data, 0, [(3, None, np.eye(3), np.zeros(3)), (9, None, np.eye(3), np.zeros(3))])
