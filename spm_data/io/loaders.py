@@ -29,6 +29,7 @@ of thousands of shards never runs into the open-file limit.
 
 from __future__ import annotations
 
+import multiprocessing
 import operator
 import os
 import warnings
@@ -38,7 +39,8 @@ import numpy as np
 
 from spm_data.errors import ShardError, SpmWarning, one_line
 from spm_data.io.folders import open_folder
-from spm_data.io.shards import FIELDS, H5_ERRORS, MANIFEST, OPTIONAL_FIELDS, ShardReader, h5_is_string, hash_ahead
+from spm_data.io.shards import (FIELDS, H5_ERRORS, MANIFEST, OPTIONAL_FIELDS, ShardReader, h5_is_string, hash_ahead,
+                                reuse_verification, verification)
 
 MAX_OPEN = 64  # shards a process keeps open: well under the usual open-file limit (1024)
 ON_CORRUPT = ("refuse", "skip")
@@ -93,6 +95,7 @@ class ShardDataset:
         self.fields = _resolve_fields(fields, present)
         self._readers: OrderedDict[int, _OpenShard] = OrderedDict()
         self._pid = os.getpid()
+        self._checks = _SharedChecks(len(self.shards))
 
     def __len__(self) -> int:
         return int(self._ends[-1]) if len(self._ends) else 0
@@ -124,7 +127,9 @@ class ShardDataset:
             return reader
         while len(self._readers) >= self.max_open:   # the least recently read first
             self._readers.popitem(last=False)[1].close()
+        self._checks.take(shard, self.shards[shard])
         reader = self._readers[shard] = _OpenShard(self.shards[shard], int(self.frames[shard]), self.fields)
+        self._checks.record(shard, self.shards[shard])
         return reader
 
     def close(self) -> None:
@@ -148,13 +153,53 @@ class ShardDataset:
             pass
 
     def __getstate__(self) -> dict:
-        """Pickled without open handles (spawn workers open their own)."""
+        """Pickled without open handles (spawn workers open their own) and without the shared
+        record (shared memory travels by fork only), but with what it knew verified."""
         state = dict(self.__dict__)
         state["_readers"], state["_pid"] = OrderedDict(), None
+        state["_checks"] = [self._checks.known(k, path) for k, path in enumerate(self.shards)]
         return state
+
+    def __setstate__(self, state: dict) -> None:
+        known = state.pop("_checks")
+        self.__dict__.update(state)
+        self._checks = _SharedChecks(len(self.shards))
+        for path, check in zip(self.shards, known):
+            reuse_verification(path, check)  # taken only while the file's stat is the one verified
 
     def __repr__(self) -> str:
         return f"ShardDataset({len(self.shards)} shards, {len(self)} frames, fields={list(self.fields)})"
+
+
+class _SharedChecks:
+    """Which shards a process of this dataset verified: each one's stat key and digest
+    (seal.verification) in memory shared with the processes forked from the one that made the
+    dataset, so DataLoader's workers, forked anew each epoch from a parent that reads nothing,
+    hash a shard once per run instead of once per worker and epoch. A process takes a record
+    only while the file's stat is still the one recorded (seal.reuse_verification)."""
+
+    RECORD = np.dtype([("key", "<i8", 5), ("digest", "S64")])
+
+    def __init__(self, n: int):
+        self._memory = multiprocessing.Array("b", max(n, 1) * self.RECORD.itemsize)  # zeroed, with a lock
+
+    def known(self, shard: int, path) -> tuple | None:
+        """This process's check of ``path``, else the shared record of shard ``shard``, else None."""
+        mine = verification(path)
+        if mine is not None:
+            return mine
+        with self._memory.get_lock():
+            key, digest = np.frombuffer(self._memory.get_obj(), dtype=self.RECORD)[shard].tolist()
+        return (tuple(key), digest.decode("ascii")) if digest else None
+
+    def take(self, shard: int, path) -> None:
+        reuse_verification(path, self.known(shard, path))
+
+    def record(self, shard: int, path) -> None:
+        mine = verification(path)  # None for a file changed within seal.RACY_SECONDS: hashed on every open
+        if mine is not None:
+            with self._memory.get_lock():
+                np.frombuffer(self._memory.get_obj(), dtype=self.RECORD)[shard] = (mine[0], mine[1].encode("ascii"))
 
 
 class _OpenShard:

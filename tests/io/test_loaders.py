@@ -5,6 +5,7 @@ import json
 import multiprocessing
 import os
 import pickle
+import time
 import warnings
 
 import h5py
@@ -323,3 +324,37 @@ def test_a_single_shard_file(folder):
     ds = ShardDataset(folder / "cup-00002.h5", fields=["t"])
     assert len(ds) == 4
     np.testing.assert_array_equal(ds[-1]["t"], read_shard(folder / "cup-00002.h5", ["t"])["t"][3])
+
+
+# Forked workers made anew each epoch (DataLoader without persistent_workers): a shard one of
+# them verified is not hashed again by the next epoch's workers.
+_HASHES = multiprocessing.Value("i", 0)
+
+
+def _counting_digest(real):
+    def digest(path):
+        with _HASHES.get_lock():
+            _HASHES.value += 1
+        return real(path)
+    return digest
+
+
+def test_workers_forked_each_epoch_hash_each_shard_once_per_run(folder, monkeypatch):
+    from spm_data.io.shards import forget_checks, seal
+    from tests.helpers import wait_for
+
+    newest = max(p.stat().st_ctime for p in folder.glob("*.h5"))
+    wait_for(lambda: time.time() - newest > seal.RACY_SECONDS, "the shards' ctime older than RACY_SECONDS")
+    want = direct_read(folder, ["pose", "class_name"])
+    forget_checks()  # as a fresh training run starts: nothing verified in this process
+    monkeypatch.setattr(seal, "content_digest", _counting_digest(seal.content_digest))
+    ds = ShardDataset(folder, fields=["pose", "class_name"])
+    hashes = []
+    for epoch in range(3):
+        _HASHES.value = 0
+        with multiprocessing.get_context("fork").Pool(2, initializer=_set_dataset, initargs=(ds,)) as pool:
+            results = pool.map(_read, range(len(ds)), chunksize=1)
+        for (item, _, _), expected in zip(results, want):
+            assert_item_equal(item, expected)
+        hashes.append(_HASHES.value)
+    assert hashes[0] <= 2 * 3 and hashes[1:] == [0, 0]  # 3 non-empty shards, 2 workers; none again later
