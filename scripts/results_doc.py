@@ -54,7 +54,7 @@ from spm_model.methods.registry import METHOD_NAMES  # noqa: E402
 SNAPSHOTS = ROOT / "docs" / "results"
 TEMPLATE = SNAPSHOTS / "results.md.in"
 DOC = ROOT / "docs" / "results.md"
-TOP = ("schema", "schema_version", "context", "summary", "evaluation", "made")
+TOP = ("schema", "schema_version", "context", "summary", "evaluation", "made", "bop")
 PLACEHOLDER = re.compile(r"\{\{(.+?)\}\}")
 DASH = "–"
 
@@ -183,10 +183,17 @@ def dumps(obj, depth: int = 0, open_levels: int = 4) -> str:
 
 def write_snapshot(name: str, results_json: Path, command: str, wall_s: float, date: str | None = None,
                    note: str | None = None, folder: Path = SNAPSHOTS, parameters: dict | None = None,
-                   before: list | None = None) -> Path:
+                   before: list | None = None, bop_eval: Path | None = None) -> Path:
+    """``bop_eval``: benchmarks/bop_eval.py's JSON for the same run: its per-method AR figures
+    become the snapshot's ``bop`` block (bop_toolkit's eval_bop19_pose on the run's export)."""
     results = json.loads(Path(results_json).read_text())
     path = folder / f"{name}.json"
-    path.write_text(dumps(trim(results, made_block(command, wall_s, date, note, parameters, before))) + "\n")
+    snap = trim(results, made_block(command, wall_s, date, note, parameters, before))
+    if bop_eval is not None:
+        bop = json.loads(Path(bop_eval).read_text())
+        snap["bop"] = {"date": bop["date"][:10], "targets": bop["targets"], "protocol": bop["protocol"],
+                       "commands": [c["command"] for c in bop["commands"]], "figures": bop["figures"]}
+    path.write_text(dumps(snap) + "\n")
     return path
 
 
@@ -670,6 +677,8 @@ def main(argv=None) -> int:
         p.add_argument("--before-wall-s", action="append", type=float, default=[], help="its wall time, each --before")
         p.add_argument("--before-date", default=None, help="their date (default --date)")
         p.add_argument("--folder", type=Path, default=SNAPSHOTS)
+        p.add_argument("--bop-eval", type=Path, default=None,
+                       help="benchmarks/bop_eval.py's JSON for this run: its AR figures (the snapshot's bop block)")
         a = p.parse_args(argv[1:])
         parameters = {k: _number(v) for k, _, v in (x.partition("=") for x in a.param)}
         if len(a.before) != len(a.before_wall_s):
@@ -677,7 +686,7 @@ def main(argv=None) -> int:
         day = a.before_date or a.date or datetime.date.today().isoformat()
         before = [{"command": c, "wall_s": w, "date": day} for c, w in zip(a.before, a.before_wall_s)] or None
         path = write_snapshot(a.name, a.results_json, a.command, a.wall_s, a.date, a.note, a.folder, parameters,
-                              before)
+                              before, a.bop_eval)
         print(f"{path} ({path.stat().st_size:,} bytes)")
         return 0
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
