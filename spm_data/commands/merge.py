@@ -98,7 +98,9 @@ def plan_merge(inputs, out_dir, *, sources=None, renames=None, frames_per_shard=
             optional = tuple(f for f in OPTIONAL_FIELDS
                              if all(f in info[Path(p)]["fields"] for p, _ in frames_from)
                              # 3-D distractors: kept when any source has them (frames without: none, -1)
-                             or (f in PLACED and any(set(PLACED) <= info[Path(p)]["fields"] for p, _ in frames_from)))
+                             or (f in PLACED and any(set(PLACED) <= info[Path(p)]["fields"] for p, _ in frames_from))
+                             # occluded frames keep what is hidden (frames without: all of the mask seen)
+                             or (f == "visible_mask" and any(f in info[Path(p)]["fields"] for p, _ in frames_from)))
             stamp = [(p, info[Path(p)]["sha256"]) for p, _ in frames_from]
             key = hashlib.sha256(json.dumps([stamp, frames_from, sorted(renames.items()), optional]).encode())
             jobs.append(MergeJob(f"merged-{tag}-{k:05d}.h5", key.hexdigest(), str(out_dir), frames_from,
@@ -123,9 +125,10 @@ def merge_shard(job: MergeJob, report=lambda n: None) -> dict:
         layout = shard_layout(path)
         part = read_shard(path, [f for f in fields if f in layout] + (["mesh"] if "mesh" in layout else []),
                           frames=np.asarray(frames))
-        for f in set(fields) - set(part):   # a distractor field this source lacks: no distractors
+        for f in set(fields) - set(part):   # a field this source lacks: nothing hidden, no distractors
             dtype, shape = OPTIONAL_FIELDS[f]
-            part[f] = np.zeros((len(frames), 0) + tuple(d for d in shape[1:]), dtype=dtype)
+            part[f] = part["mask"].copy() if f == "visible_mask" else \
+                np.zeros((len(frames), 0) + tuple(d for d in shape[1:]), dtype=dtype)
         attrs, meshes = read_attrs(path), FrameMeshes(Path(path).parent)
         part["mesh"] = np.asarray(meshes.targets(attrs, part), dtype=object)   # older shards: rebuilt
         pools.append(meshes.pool(attrs) if "distractor_mesh" in job.optional and "distractor_mesh" in layout else [])
@@ -187,9 +190,9 @@ def _warn_shared_names(out_dir) -> None:
     for path in open_folder(out_dir).shards:
         d = read_shard(path, ["class_name", "instance_name", "mesh"])
         for cls, name, digest in zip(d["class_name"], d["instance_name"], d["mesh"]):
-            if digest:
-                seen.setdefault((str(cls), str(name)), set()).add(str(digest))
-    shared = sorted(f"{c}/{n} ({len(d)} meshes)" for (c, n), d in seen.items() if len(d) > 1)
+            seen.setdefault((str(cls), str(name)), set()).add(str(digest))   # "": a frame without a mesh
+    shared = sorted(f"{c}/{n} ({len(d)} {'meshes' if '' not in d else 'objects: meshes or none'})"
+                    for (c, n), d in seen.items() if len(d) > 1)
     if shared:
         warnings.warn(SpmWarning(f"{len(shared)} name(s) stand for different meshes: {', '.join(shared[:5])}"
                                  f"{' …' if len(shared) > 5 else ''}; each mesh is its own object "

@@ -161,6 +161,6 @@ def _store_problems(shards) -> list[tuple[str, str]]:
 def validation_report(folder, problems) -> str:
     if not problems:
         return f"{folder}: all shards valid; manifest agrees with the files"
-    lines = [f"{folder}: {len(problems)} problems"]
+    lines = [f"{folder}: {len(problems)} problem{'' if len(problems) == 1 else 's'}"]
     lines += [f"  {where}: {msg}" for where, msg in problems]
     return "\n".join(lines)

@@ -9,7 +9,8 @@ without an estimate gets no row. The (scene_id, im_id, obj_id) of a frame are th
 ``spm-data export bop`` gives it (bop_ids.py).
 
 Targets: one entry per image, its target (the first object of the image's ``scene_gt.json``
-list; a distractor, ``"role": "distractor"`` in objects.json, is never a target), with
+list; a distractor, ``"role": "distractor"`` in objects.json, and an object without a model
+(image-only ground truth) are never targets), with
 ``inst_count`` the instances of that object in the image: what bop_toolkit's
 eval_bop19_pose.py scores against.
 """
@@ -145,7 +146,10 @@ def test_targets(root, split: str) -> list[dict]:
     from spm_data.formats.bop_ids import read_objects
 
     objects = read_objects(Path(root))
-    distractors = {k for k, v in objects.items() if v.get("role") == "distractor"}
+    # Not targets: distractors, and objects without a model (imported frames): bop_toolkit's
+    # errors need the model, so a target without one would stop its evaluation.
+    distractors = {k for k, v in objects.items() if v.get("role") == "distractor"
+                   or v.get("ground_truth") == "image-only"}
     targets = []
     for scene in sorted(p for p in (Path(root) / split).iterdir() if p.is_dir() and p.name.isdigit()):
         gt = json.loads((scene / "scene_gt.json").read_text())

@@ -31,9 +31,13 @@ class BopOutput:
     split: str = "test"
     ids_from: Path | None = None
 
-    def check(self) -> None:
-        """SpmError (one line) for a bad name or a folder that cannot be one, before any work."""
+    def check(self, *shard_folders, allow_partial: bool = False) -> None:
+        """SpmError (one line) for a bad name, a folder that cannot be one, or a shard folder whose
+        frames an export would not number (shards in its subfolders), before any work."""
         from spm_data.formats.bop_results import result_file_name
+
+        for shards in (f for f in shard_folders if f is not None):
+            _check_one_folder(Path(shards), allow_partial)
 
         result_file_name("m", self.dataset, self.split)
         folder = Path(self.folder)
@@ -68,6 +72,18 @@ class BopOutput:
             path = folder / result_file_name(method, self.dataset, self.split)
             written.append(save_bop_results(path, pose_rows(ids, labels, where[rows])))
         return written
+
+
+def _check_one_folder(shards: Path, allow_partial: bool) -> None:
+    from spm_data.io.folders import find_folders, open_folder
+
+    if shards.is_file():
+        return
+    found = [f for f in find_folders(shards) if f != shards]
+    if found and not any(shards.glob("*.h5")):
+        raise SpmError(f"--bop-results: {shards} holds its shards in subfolders ({found[0].name}/…), which export "
+                       "bop does not number; give one shard folder (merge them with spm-data merge first)")
+    open_folder(shards, allow_partial=allow_partial)
 
 
 def frame_positions(shards, table, allow_partial: bool = False) -> np.ndarray:

@@ -43,7 +43,7 @@ def evaluate_model(model_path, shards, *, progress=None, executor=None,
     the features (load_features), "predicting", "scoring". bop: a BopOutput (bop_output.py): also
     write the estimates as a BOP results file, method "spm" or "template" (the result's ``bop_results``)."""
     if bop is not None:
-        bop.check()
+        bop.check(shards, allow_partial=allow_partial)
     model = load_model(model_path)
     features = model.features if isinstance(model, SPMEstimator) else FeatureConfig()
     table = load_features(shards, features, progress=progress, executor=executor,

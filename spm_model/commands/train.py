@@ -101,7 +101,7 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
     out = check_report_folder(report_dir if report_dir else Path(shards) / "report")  # before any work
     plugins = load_estimators(estimators)
     if bop is not None:
-        bop.check()
+        bop.check(shards, test, allow_partial=allow_partial)
     # The report folder is locked for the whole run as a shard folder is: a second train (or
     # fig5.py) into it is refused with the first one's pid and host, not raced; a folder this
     # run made goes again if the run fails or is interrupted.

@@ -236,3 +236,20 @@ def test_merge_of_cluttered_and_plain_frames_keeps_the_distractors(tmp_path):
     assert merged["distractor_mesh"].shape == (8, 2) and (merged["distractor_mesh"][4:] == -1).all()
     assert _frame_pool_names(tmp_path / "merged")[:4] == _frame_pool_names(tmp_path / "a")
     assert (merged["distractor_size"][4:] == 0).all() and "visible_target" not in merged
+
+
+def test_merge_of_occluded_and_plain_frames_keeps_what_is_hidden(tmp_path):
+    from spm_data.commands.merge import merge_folders
+
+    folder = tmp_path / "specs"
+    folder.mkdir()
+    plain = re.sub(r"\[distractors\]\n(?:[a-z].*\n)*", "", CLUTTERED.format(cls="box"))
+    (folder / "box.toml").write_text(plain)
+    render_dataset(load_run_specs(all_classes=True, specs_dir=folder), tmp_path / "a", limit=4)
+    occlude_dataset(tmp_path / "a", tmp_path / "a_occ", low=0.3, high=0.5)
+    merge_folders([tmp_path / "a", tmp_path / "a_occ"], tmp_path / "merged")
+    merged = read_shard(list_shards(tmp_path / "merged")[0])
+    occluded = read_shard(list_shards(tmp_path / "a_occ")[0])
+    assert np.array_equal(merged["visible_mask"][:4], merged["mask"][:4])   # the plain frames: all seen
+    assert np.array_equal(merged["visible_mask"][4:], occluded["visible_mask"])
+    assert (merged["visible_mask"][4:].sum(axis=(1, 2)) < merged["mask"][4:].sum(axis=(1, 2))).all()

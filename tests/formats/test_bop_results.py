@@ -83,10 +83,13 @@ def _export(root):
     (root / "objects.json").write_text(json.dumps({
         "1": {"class": "cup", "instance": "a", "instance_id": 0},
         "2": {"class": "cup", "instance": "b", "instance_id": 1},
-        "3": {"class": "distractor", "instance": "d", "instance_id": 0, "role": "distractor"}}))
+        "3": {"class": "distractor", "instance": "d", "instance_id": 0, "role": "distractor"},
+        "4": {"class": "coil", "instance": "c", "instance_id": 0, "ground_truth": "image-only"}}))
     gt = lambda *ids: [{"obj_id": i, "cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "cam_t_m2c": [0, 0, 1]} for i in ids]  # noqa: E731
     (root / "test" / "000000" / "scene_gt.json").write_text(json.dumps({"0": gt(1, 3), "1": gt(1), "2": gt(3, 1)}))
     (root / "test" / "000001" / "scene_gt.json").write_text(json.dumps({"0": gt(2, 2, 3), "10": gt(2), "9": gt()}))
+    (root / "test" / "000003").mkdir()   # an object without a model: no target (bop_toolkit needs models)
+    (root / "test" / "000003" / "scene_gt.json").write_text(json.dumps({"0": gt(4)}))
 
 
 def test_targets_of_a_small_export_first_object_no_distractor(tmp_path):

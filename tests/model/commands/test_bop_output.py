@@ -133,3 +133,15 @@ def test_frames_of_another_folder_are_refused_in_one_line(tiny, tmp_path):
     with pytest.raises(SpmError, match="1 frames are not in") as err:
         BopOutput(tmp_path / "r").write(tiny / "render", table, {"m": (np.arange(3), np.zeros((3, 6)))})
     assert "\n" not in str(err.value)
+
+
+def test_shards_in_subfolders_are_refused_in_one_line_before_any_work(tiny, tmp_path):
+    import shutil
+
+    shutil.copytree(tiny / "render", tmp_path / "nest" / "inner")
+    for command in (["train", str(tmp_path / "nest"), "--out", str(tmp_path / "report")],
+                    ["evaluate", str(tmp_path / "nest"), "--model", str(tmp_path / "none.npz")]):
+        r = CliRunner().invoke(model_cli, command + ["--bop-results", str(tmp_path / "r")])
+        assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1, r.output
+        assert "holds its shards in subfolders (inner/…)" in r.output
+    assert not (tmp_path / "r").exists() and not (tmp_path / "report").exists()
