@@ -1,11 +1,17 @@
-"""Render throughput: seconds per frame of a bare render loop and of the whole path, and their ratio.
+"""Render throughput: frames per second of a bare render loop and of the whole path, their ratio, and where the time goes.
 
-pyrender (one process, best of 3 interleaved runs, per resolution): (1) a bare loop
-of renderer.render over the frames, with the frames' own draws and distractors (made
-before the loop) and (2) the whole `spm-data render` path for the same frames (path
-generation, meshes, draws, distractors, compositing, HDF5 shard writing, manifest);
-prints s/frame and fps for both, overhead = 1 - bare / whole and whole / bare.
-Targets (issue 26): overhead <= 10% at 128x128 and <= 15% at 256x256.
+pyrender (per image size and worker count, best of --rounds interleaved runs): (1) a bare
+loop of renderer.render over the frames, with the frames' own draws and distractors (made
+before the loop), in each of N processes at once (their frames split as the shards are;
+1 worker: this process) and (2) the whole `spm-data render` path for the same frames
+(render_dataset with N local workers: path generation, meshes, draws, distractors,
+compositing, compression, HDF5 shard writing, manifest; with N > 1 the workers' start-up is
+included). Prints fps for both, whole / bare, and the split of the whole path: ms per frame
+busy in each stage (render, readback, composite, compress, write; they overlap, and with
+N workers they add up over the workers), and the GL renderer it ran on (GL_RENDERER:
+llvmpipe on the CPU, the GPU's name on a GPU). --frames is per worker. Runs unchanged on a
+GPU machine. Targets (issue 37, the 2-core CPU machine): whole / bare <= 1.10 at 128x128
+and 256x256 in one process.
 
 Blender (--blender-frames of each shipped spec, at the spec's settings, Cycles and
 Workbench): bare = camera move + bpy.ops.render.render() and nothing else (no file
@@ -17,6 +23,8 @@ Progress on stderr (a bar on a terminal, a line every $SPM_PROGRESS_EVERY s, def
 """
 
 import argparse
+import os
+import resource
 import sys
 from dataclasses import replace
 import tempfile
@@ -32,30 +40,98 @@ from spm_data.core.instances import load_instance  # noqa: E402
 from spm_data.commands.render_frames import FrameMaker  # noqa: E402
 from spm_data.commands.render_jobs import RECYCLE_AFTER, plan_shards, render_dataset  # noqa: E402
 from spm_data.core.specs import all_spec_paths, find_spec, load_spec  # noqa: E402
-from spm_data.jobs.executor import LocalExecutor  # noqa: E402
+from spm_data.jobs.executor import LocalExecutor, run_jobs  # noqa: E402
+
+STAGES = ("render", "readback", "composite", "compress", "write")
 
 
-def bench(spec, frames: int, renderer_name: str, repeats: int = 3) -> tuple[float, float]:
-    """Best-of-``repeats`` seconds for the bare loop and the whole path, interleaved
-    so that load from other users of a shared machine hits both alike."""
+class _FirstFrame:
+    """render_dataset's progress: when the first frame was done (the workers' start-up over)."""
+
+    total = None
+
+    def __init__(self):
+        self.first = None
+
+    def __call__(self, n):
+        if self.first is None:
+            self.first = time.perf_counter()
+
+
+def bench(spec, frames: int, workers: int, rounds: int = 3) -> dict:
+    """Best-of-``rounds`` seconds of the bare loop, of the whole path and of the whole path
+    from its first frame (``warm``: without the workers' start-up) over ``frames`` frames
+    with ``workers`` processes, interleaved so that load from other users of a shared machine
+    hits both alike; ``paired``: the median of each round's whole / bare; ``split``: the whole
+    path's busy seconds per stage, of its best run."""
     size = f"{spec.image.width}x{spec.image.height}"
-    with stage(f"render_throughput: {renderer_name} {size}, bare loop and whole path, {frames} frames, "
-               f"{repeats} rounds", 2 * frames * repeats, "frame") as progress:
-        runs = [_bench_once(spec, frames, renderer_name, progress) for _ in range(repeats)]
-    return min(r[0] for r in runs), min(r[1] for r in runs)
+    best = {"bare": float("inf"), "whole": float("inf"), "warm": float("inf"), "split": {},
+            "bare_cpu": float("inf"), "whole_cpu": float("inf")}
+    ratios = []
+    with stage(f"render_throughput: pyrender {size}, {workers} workers, bare loop and whole path, {frames} frames, "
+               f"{rounds} rounds", 2 * frames * rounds, "frame") as progress:
+        for _ in range(rounds):
+            bare, bare_cpu = _bare(spec, frames, workers)
+            best["bare"], best["bare_cpu"] = min(best["bare"], bare), min(best["bare_cpu"], bare_cpu)
+            progress(frames)
+            first = _FirstFrame()
+            with tempfile.TemporaryDirectory() as out:
+                executor = LocalExecutor(workers=workers, retries=1, recycle_after=RECYCLE_AFTER)
+                started, cpu = time.perf_counter(), _cpu_seconds()
+                summary = render_dataset([spec], out, limit=frames, executor=executor, progress=first)
+                ended = time.perf_counter()
+                best["whole_cpu"] = min(best["whole_cpu"], _cpu_seconds() - cpu)
+            assert summary.frames == frames and not summary.failed, summary.report()
+            ratios.append((ended - started) / bare)
+            best["warm"] = min(best["warm"], (ended - first.first) * frames / (frames - 1))  # the first frame's own time
+            if ended - started < best["whole"]:
+                splits = [result.get("seconds", {}) for result in summary.results.values()]
+                best["whole"], best["split"] = ended - started, {k: sum(s.get(k, 0.0) for s in splits) for k in STAGES}
+            progress(frames)
+    best["paired"] = sorted(ratios)[len(ratios) // 2]
+    return best
 
 
-def _bench_once(spec, frames: int, renderer_name: str, progress=lambda n: None) -> tuple[float, float]:
-    jobs = plan_shards(spec, "unused", limit=frames)
+def _cpu_seconds() -> float:
+    """CPU seconds of this process (every thread) and of its finished worker processes: the
+    work done, which other users of a shared machine slow down less than the wall-clock time."""
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + children.ru_utime + children.ru_stime
+
+
+def _bare(spec, frames: int, workers: int) -> tuple[float, float]:
+    """(seconds, CPU seconds) of the bare loop over the ``frames`` frames ``--limit`` picks: in
+    this process for one worker, else in ``workers`` processes at once (from the moment all are
+    ready; CPU summed over them)."""
+    if workers <= 1:
+        return _bare_loop((spec, frames, 1, 0, None))[1:3]
+    with tempfile.TemporaryDirectory() as barrier:
+        outcomes = run_jobs(_bare_loop, [(spec, frames, workers, i, barrier) for i in range(workers)],
+                            workers=workers, retries=0)
+    spans = [o.result for o in outcomes]
+    assert all(o.error is None for o in outcomes), [o.error for o in outcomes]
+    return max(s[3] for s in spans) - min(s[0] for s in spans), sum(s[2] for s in spans)
+
+
+def _bare_loop(job, report=lambda n: None) -> tuple[float, float, float, float]:
+    """(start, seconds, CPU seconds, end) of the bare loop over worker ``index``'s share of the
+    shards (every ``workers``-th); with a ``barrier`` folder, started once every worker is ready
+    (warm)."""
+    spec, frames, workers, index, barrier = job
+    jobs = [j for j in plan_shards(spec, "unused", limit=frames) if j.shard_index % workers == index]
     path = camera_path(spec.camera, spec.seed)
-    poses = [path.poses(job.path_indices) for job in jobs]  # outside the timed loop
-    renderer = make_renderer(spec, renderer_name)
+    poses = [path.poses(j.path_indices) for j in jobs]  # outside the timed loop
+    renderer = make_renderer(spec, "pyrender")
     # Warm up: GL context, shader compilation, mesh building (cached for both loops).
     for inst in sorted({int(i) for j in jobs for i in j.instances}):
         renderer.set_mesh(load_instance(spec, inst))
         renderer.render(poses[0][0][0], poses[0][1][0])
     scenes = _scenes(spec, renderer, jobs, poses)  # outside the timed loop
-    started = time.perf_counter()
+    if barrier:
+        Path(barrier, f"ready-{index}").touch()
+        while len(list(Path(barrier).glob("ready-*"))) < workers:  # every worker warm: start together
+            time.sleep(0.005)
+    started, cpu, begin = time.perf_counter(), time.process_time(), time.time()
     for job, (R, t), scene in zip(jobs, poses, scenes):
         current = None
         for k, inst in enumerate(job.instances):
@@ -64,15 +140,7 @@ def _bench_once(spec, frames: int, renderer_name: str, progress=lambda n: None) 
                 current = inst
             draws, distractors = scene[k]
             renderer.render(R[k], t[k], draws=draws, distractors=distractors)
-    bare = time.perf_counter() - started
-    progress(frames)
-    with tempfile.TemporaryDirectory() as out:
-        started = time.perf_counter()
-        summary = render_dataset([spec], out, limit=frames)
-        whole = time.perf_counter() - started
-    progress(frames)
-    assert summary.frames == frames
-    return bare, whole
+    return begin, time.perf_counter() - started, time.process_time() - cpu, time.time()
 
 
 def _scenes(spec, renderer, jobs, poses) -> list:
@@ -86,18 +154,27 @@ def _scenes(spec, renderer, jobs, poses) -> list:
             for job, (R, t) in zip(jobs, poses)]
 
 
-def bench_pyrender(base, cls: str, frames: int) -> None:
-    print(f"class {cls}, {frames} frames, 1 process, best of 3 interleaved runs; overhead = 1 - bare / whole "
-          "(the share of the run outside renderer.render); whole / bare = the run's time over the bare loop's")
-    print("| renderer | size | bare s/frame | whole s/frame | bare render fps | spm-data render fps | overhead | "
-          "whole / bare |")
-    print("|---|---|---|---|---|---|---|---|")
-    for size in (128, 256):
+def bench_pyrender(base, cls: str, frames: int, sizes, workers_list, rounds: int) -> None:
+    gl = make_renderer(base.replace(render=replace(base.render, renderer="pyrender")), "pyrender").gl_renderer()
+    print(f"class {cls}, pyrender on GL_RENDERER {gl!r}, {os.cpu_count()} CPUs; {frames} frames per worker, best of "
+          f"{rounds} interleaved runs; fps over all workers; whole, warm: from the first frame done (no worker "
+          "start-up); whole / bare: of the best runs, and the median of each round's; split: ms per frame busy in "
+          "each stage of the whole path (they overlap; summed over workers and threads; readback includes the wait "
+          "for the drawing); CPU: ms of CPU per frame, all threads and worker processes (start-up included); "
+          "load: 1-minute load average as the row ended")
+    print("| size | workers | bare fps | whole fps | whole fps, warm | whole / bare | whole / bare, median | "
+          "bare CPU | whole CPU | " + " | ".join(STAGES) + " | load |")
+    print("|---|---|---|---|---|---|---|---|---|" + "---|" * len(STAGES) + "---|")
+    for size in sizes:
         spec = base.replace(image=type(base.image)(width=size, height=size, fov=base.image.fov),
                             render=replace(base.render, renderer="pyrender"))
-        bare, whole = bench(spec, frames, "pyrender")
-        print(f"| pyrender | {size}x{size} | {bare / frames:.5f} | {whole / frames:.5f} | {frames / bare:.0f} | "
-              f"{frames / whole:.0f} | {100 * (1 - bare / whole):.1f}% | {whole / bare:.3f} |", flush=True)
+        for workers in workers_list:
+            n = frames * workers
+            r = bench(spec, n, workers, rounds)
+            split = " | ".join(f"{1e3 * r['split'].get(k, 0.0) / n:.3f}" for k in STAGES)
+            print(f"| {size}x{size} | {workers} | {n / r['bare']:.0f} | {n / r['whole']:.0f} | {n / r['warm']:.0f} | "
+                  f"{r['whole'] / r['bare']:.3f} | {r['paired']:.3f} | {1e3 * r['bare_cpu'] / n:.2f} | "
+                  f"{1e3 * r['whole_cpu'] / n:.2f} | {split} | {os.getloadavg()[0]:.2f} |", flush=True)
 
 
 def _blender_spec(spec, engine: str):
@@ -183,7 +260,10 @@ def bench_blender(specs, engine: str, per_class: int, rounds: int = 2) -> dict:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=512)
+    parser.add_argument("--frames", type=int, default=512, help="pyrender: frames per worker")
+    parser.add_argument("--sizes", default="128,256", help="pyrender: image sides, comma-separated")
+    parser.add_argument("--workers-list", default="1,2,4,8", help="pyrender: worker counts, comma-separated")
+    parser.add_argument("--rounds", type=int, default=3, help="pyrender: interleaved runs (the best counts)")
     parser.add_argument("--class", dest="cls", default="cup")
     parser.add_argument("--no-blender", action="store_true", help="pyrender only")
     parser.add_argument("--no-pyrender", action="store_true", help="Blender only")
@@ -191,7 +271,8 @@ def main():
     parser.add_argument("--engines", default="cycles,workbench", help="Blender engines, comma-separated")
     args = parser.parse_args()
     if not args.no_pyrender:
-        bench_pyrender(load_spec(find_spec(args.cls)), args.cls, args.frames)
+        bench_pyrender(load_spec(find_spec(args.cls)), args.cls, args.frames, [int(v) for v in args.sizes.split(",")],
+                       [int(v) for v in args.workers_list.split(",")], args.rounds)
     if args.no_blender:
         return
     specs = [load_spec(p) for p in all_spec_paths()]

@@ -27,12 +27,19 @@ from spm_data.render import renderer_names
               help="At most N frames per class, spread over views (at most 10,000,000).")
 @executor_options("Render processes", recycle_after=16,
                   task_cpus="Give a Blender task its Cycles threads (render.blender.threads).")
+@click.option("--gpus", default=None, metavar="0,1,...",
+              help="GPUs to render on, one per worker in turn (--executor local) [default: every GPU; none: "
+                   "the CPU]. pyrender: at most 2 GL contexts a GPU, --workers' other work on their threads.")
+@click.option("--task-gpus", default=0.0, show_default=True, type=click.FloatRange(min=0.0),
+              help="GPUs each Ray task reserves (--executor ray; 0.25: four tasks share one).")
 @handle_errors
-def render_cmd(classes, all_classes, spec_files, specs_dir, out, renderer, seed, limit, executor):
+def render_cmd(classes, all_classes, spec_files, specs_dir, out, renderer, seed, limit, executor, gpus, task_gpus):
     """Render classes (--class, --all, --spec) over their camera paths into shards in --out; a rerun resumes."""
     from spm_data.commands.render_jobs import load_run_specs, render_dataset
+    from spm_data.jobs.executor import use_gpus
 
     specs = load_run_specs(classes, all_classes, spec_files, specs_dir, renderer=renderer, seed=seed)
+    executor = use_gpus(executor, gpus, task_gpus, {spec.render.renderer for spec in specs})
     run_with_progress(lambda bar: render_dataset(specs, out, limit=limit, progress=bar, executor=executor))
 
 
@@ -154,20 +161,23 @@ export_group = Group("export", help="Hand shards to other tools in their formats
 @click.option("--ids-from", "ids_from", type=click.Path(), default=None,
               help="A previous export (or its objects.json): the objects it lists keep their obj_ids, new "
                    "ones are numbered after its largest.")
+@click.option("--no-distractors", "no_distractors", is_flag=True,
+              help="Leave 3-D distractors out (by default each is an object of its own in its frames).")
 @ALLOW_PARTIAL
 @handle_errors
-def export_bop_cmd(folder, out_dir, split, meshes_from, ids_from, allow_partial):
+def export_bop_cmd(folder, out_dir, split, meshes_from, ids_from, no_distractors, allow_partial):
     """Write the shard folder FOLDER as a BOP dataset in --out (one scene per object instance)."""
     from spm_data.formats.bop import export_bop
 
     bar = Progress()
     try:
         counts = export_bop(folder, out_dir, split=split, progress=bar, allow_partial=allow_partial,
-                            meshes_from=meshes_from, ids_from=ids_from)
+                            meshes_from=meshes_from, ids_from=ids_from, include_distractors=not no_distractors)
     finally:
         bar.close()
-    click.echo(f"exported {counts['frames']} frames of {counts['objects']} objects in {counts['scenes']} scenes "
-               f"-> {out_dir}/")
+    others = f" (of which {counts['distractors']} distractors)" if counts.get("distractors") else ""
+    click.echo(f"exported {counts['frames']} frames of {counts['objects']} objects{others} in {counts['scenes']} "
+               f"scenes -> {out_dir}/")
     if counts["without_model"]:
         click.echo(f"  no mesh for {len(counts['without_model'])} objects (imported, not rendered):")
         for name in counts["without_model"]:   # one line each: which objects have no model in models/

@@ -1,11 +1,16 @@
 """One rendered frame, as a shard stores it: the spec's draws and distractors, the
-render, the background, and the opt-in outputs (spm_data.commands.render_jobs
-streams these into shards).
+render, the background, and the opt-in outputs; and the pipeline that takes frames from
+the renderer's thread to the shard (spm_data.commands.render_jobs streams them into shards).
 """
 
 from __future__ import annotations
 
+import os
+import queue
+import threading
+import time
 import zlib
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -13,7 +18,10 @@ from spm_data.core.backgrounds import background_image, composite
 from spm_data.core.distractors import place_distractors
 from spm_data.core.randomize import frame_draws, lights_width
 from spm_data.core.raster import object_coords
+from spm_data.errors import ShardError
 from spm_data.io.shards import FIELDS, OPTIONAL_FIELDS
+from spm_data.io.shards.chunks import encode_chunk
+from spm_data.jobs.executor import WORKER_CORES
 
 
 def frame_rng(spec, instance: int, path_index: int) -> np.random.Generator:
@@ -27,6 +35,7 @@ class FrameMaker:
 
     def __init__(self, spec, renderer):
         self.spec, self.renderer = spec, renderer
+        self.render_seconds = 0.0  # in renderer.render (its readback included), on the renderer's thread
         self.distractors = spec.distractors.count > 0
         self.randomized = spec.randomize.enabled
         outputs = spec.outputs
@@ -50,10 +59,23 @@ class FrameMaker:
     def make(self, mesh, instance: int, path_index: int, R, t) -> tuple[dict, dict]:
         """(images {field: one frame's array}, labels {field: one frame's value}) of frame
         (``instance``, ``path_index``), the target ``mesh`` posed by ``R``, ``t``."""
-        spec = self.spec
+        return self.finish(self.render(mesh, instance, path_index, R, t), instance, path_index, R, t)
+
+    def render(self, mesh, instance: int, path_index: int, R, t) -> tuple:
+        """The part of ``make`` that needs the renderer's thread: (draws, placement, the
+        renderer's arrays) of the frame, for ``finish``."""
         draws, placement = self.scene(mesh, instance, path_index, R, t)
-        K = draws.K if draws is not None else self.renderer.K
+        started = time.perf_counter()
         out = self.renderer.render(R, t, draws=draws, distractors=placement.distractors if placement else ())
+        self.render_seconds += time.perf_counter() - started
+        return draws, placement, out
+
+    def finish(self, rendered: tuple, instance: int, path_index: int, R, t) -> tuple[dict, dict]:
+        """The rest of ``make``, on any thread: the background composited, the opt-in outputs
+        and the labels of a frame ``render`` drew (its arrays are new every frame)."""
+        spec = self.spec
+        draws, placement, out = rendered
+        K = draws.K if draws is not None else self.renderer.K
         kind = draws.background if draws is not None else spec.background.kind
         rgb = out["rgb"]
         if kind != "black":
@@ -84,3 +106,108 @@ class FrameMaker:
         return {"visible_target": np.float32(placement.visible_target), "distractor_mesh": mesh,
                 "distractor_R": Rs, "distractor_t": ts, "distractor_size": sizes,
                 "occlusion_fraction": np.float32(1.0 - seen / area if area else 0.0)}
+
+
+def pipeline_threads() -> int:
+    """Threads of a FramePipeline: this worker's share of the cores (the executor's
+    SPM_WORKER_CORES), at least 2 (compression and compositing overlap the render), at most 16."""
+    cores = os.environ.get(WORKER_CORES, "")
+    share = int(cores) if cores.isdigit() else len(os.sched_getaffinity(0))
+    return max(2, min(16, share))
+
+
+class FramePipeline:
+    """A shard's frames from the renderer's thread to the writer: ``put(task)`` hands a frame's
+    finishing (``task()`` -> (images, labels): compositing, the opt-in outputs) to a pool of
+    threads, which also compress its image fields (encode_chunk; zlib lets go of the GIL), and
+    one writer thread stores the chunks in the order write_images stores a block (``block``
+    frames, field by field), so the shard is the serial path's bytes. The renderer's thread
+    only renders. At most ``ahead`` frames are being finished or compressed (put waits), so a
+    worker holds a few frames' arrays and a block's compressed chunks, whatever the shard's
+    length. ``close()`` waits for every frame to be stored and returns their labels, in order;
+    leaving the block otherwise stops the threads. ``seconds``: busy time per stage."""
+
+    def __init__(self, writer, block: int, threads: int = 2, ahead: int = 0):
+        self.writer, self.block = writer, max(1, int(block))
+        self.seconds = {"composite": 0.0, "compress": 0.0, "write": 0.0}
+        self._labels, self._put, self._error = [], 0, None
+        self._lock = threading.Lock()
+        self._room = threading.Semaphore(max(1, ahead or 2 * threads))
+        self._queue = queue.SimpleQueue()  # Futures in frame order, for the writer thread; None: stop
+        self._pool = ThreadPoolExecutor(max_workers=threads)
+        self._thread = threading.Thread(target=self._store_all, name="spm-shard-writer", daemon=True)
+        self._thread.start()
+
+    def put(self, task) -> None:
+        """The next frame: ``task()`` runs on the pool; ShardError or the writer's own error,
+        raised here, when storing a frame before it failed."""
+        self._room.acquire()  # freed as each frame is compressed, whatever happens to it
+        if self._error is not None:
+            self._room.release()
+            raise self._error
+        self._queue.put(self._pool.submit(self._finish, task))
+        self._put += 1
+
+    def _finish(self, task) -> tuple:
+        try:
+            started = time.perf_counter()
+            images, labels = task()
+            made = time.perf_counter()
+            missing = [f for f in self.writer.images if f not in images]
+            if missing:
+                raise ShardError(f"shard field {missing[0]!r}: the frame has no such image")
+            chunks = {f: encode_chunk(self.writer.check_frame(f, images[f])) for f in self.writer.images}
+            self._add(composite=made - started, compress=time.perf_counter() - made)
+            return chunks, labels
+        finally:
+            self._room.release()
+
+    def _add(self, **seconds) -> None:
+        with self._lock:
+            for stage, value in seconds.items():
+                self.seconds[stage] += value
+
+    def _store_all(self) -> None:
+        """The writer thread: blocks of frames, each field's chunks in frame order."""
+        try:
+            for start in range(0, self.writer.frames, self.block):
+                block = []
+                for index in range(start, min(start + self.block, self.writer.frames)):
+                    future = self._queue.get()
+                    if future is None:
+                        return
+                    chunks, labels = future.result()
+                    self._labels.append(labels)
+                    block.append(chunks)
+                    self._store(self.writer.images[0], index, chunks)  # the first field as it comes
+                for field in self.writer.images[1:]:
+                    for k, chunks in enumerate(block):
+                        self._store(field, start + k, chunks)
+        except BaseException as exc:  # noqa: BLE001 - raised on the renderer's thread (put, close)
+            self._error = exc
+
+    def _store(self, field: str, index: int, chunks: dict) -> None:
+        started = time.perf_counter()
+        self.writer.store_chunk(field, index, chunks[field])
+        self._add(write=time.perf_counter() - started)
+
+    def close(self) -> list:
+        """Wait for every frame to be stored; their labels, in frame order."""
+        if self._put != self.writer.frames:
+            raise ShardError(f"{self.writer.path.name}: {self._put} of {self.writer.frames} frames given; not written")
+        self._thread.join()
+        self._pool.shutdown()
+        if self._error is not None:
+            raise self._error
+        return self._labels
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if self._thread.is_alive():  # left early: the writer thread stops at the next frame it takes
+            self._queue.put(None)
+            self._pool.shutdown(cancel_futures=True)
+            self._thread.join()
+        self._pool.shutdown()
+        return False

@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import hashlib
 import json
+import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
-from functools import lru_cache
+from functools import lru_cache, partial
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +25,7 @@ from spm_data.core.instances import instance_count, load_instance, mesh_attrs, m
 from spm_data.core.paths import camera_path
 from spm_data.core.poses import pose_to_label
 from spm_data.render import RENDERERS, make_renderer
-from spm_data.commands.render_frames import FrameMaker
+from spm_data.commands.render_frames import FrameMaker, FramePipeline, pipeline_threads
 from spm_data.core.distractors import pool_names
 from spm_data.core.mesh_store import save_mesh
 from spm_data.core.shard_meshes import store_pool
@@ -200,9 +202,12 @@ def block_frames(height: int, width: int, bytes_per_pixel: int = 8) -> int:
 
 
 def render_shard(job: ShardJob, report=lambda n: None) -> dict:
-    """Render ``job`` and write its shard atomically, streaming the images a block
-    of frames at a time (block_frames), so a worker's memory stays about one
-    block whatever the shard's length; returns its manifest entry."""
+    """Render ``job`` and write its shard atomically; returns its manifest entry and ``seconds``,
+    where the time went (render, readback, composite, compress, write: each stage's busy time;
+    they overlap). This thread only renders: compositing, compression and storing run on a
+    FramePipeline's threads, which store the chunks in the serial path's order (the same bytes),
+    a block of frames at a time (block_frames), so a worker's memory stays about one block
+    whatever the shard's length."""
     spec = job.spec
     renderer = _renderer_for(spec)
     maker = FrameMaker(spec, renderer)
@@ -212,24 +217,14 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
     R, t = points.poses()
     n, h, w = job.frames, spec.image.height, spec.image.width
     per = max(1, min(n, block_frames(h, w, maker.bytes_per_pixel())))
-    frame_labels = []
-    with ShardWriter(Path(job.out_dir) / job.name, frames=n, height=h, width=w, images=maker.image_fields) as writer:
-        current, names, records, digests = None, {}, {}, {}
-        for start in range(0, n, per):
-            k = min(per, n - start)
-            for i in range(start, start + k):
-                inst, pidx = instances[i], path_indices[i]
-                if inst != current:
-                    mesh = load_instance(spec, int(inst))
-                    renderer.set_mesh(mesh)
-                    current, names[int(inst)] = inst, mesh.name
-                    records[int(inst)] = mesh_record(spec, int(inst))
-                    digests[int(inst)] = save_mesh(job.out_dir, mesh)  # before the shard that names it
-                images, labels = maker.make(mesh, int(inst), int(pidx), R[i], t[i])  # new arrays every frame
-                writer.encode_ahead(i, images)  # compressed while the next renders
-                frame_labels.append(labels)
-                report(1)
-            writer.write_ahead(start, k)  # a block of frames stored: at most one block held
+    threads, readback = pipeline_threads(), renderer.readback_seconds
+    with ShardWriter(Path(job.out_dir) / job.name, frames=n, height=h, width=w, images=maker.image_fields) as writer, \
+            ThreadPoolExecutor(max_workers=1) as mesh_store:
+        with FramePipeline(writer, per, threads, ahead=min(per, 4 * threads)) as pipeline:
+            names, records, digests = _render_frames(job, maker, pipeline, (instances, path_indices, R, t),
+                                                     mesh_store, report)
+            frame_labels = pipeline.close()
+        digests = {inst: saved.result() for inst, saved in digests.items()}  # stored before the shard naming them
         per_frame = {f: np.stack([fl[f] for fl in frame_labels]) for f in (frame_labels[0] if frame_labels else {})}
         labels = {
             "K": per_frame.pop("K", np.zeros((0, 3, 3))), "R": R, "t": t, "pose": pose_to_label(R, t).reshape(n, 6),
@@ -252,8 +247,33 @@ def render_shard(job: ShardJob, report=lambda n: None) -> dict:
         if maker.distractors:
             attrs["distractor_meshes"] = json.dumps(pool_names(spec))
             attrs["distractor_mesh_digests"] = json.dumps(store_pool(spec, job.out_dir, labels["distractor_mesh"]))
+        started = time.perf_counter()
         target = writer.finish(labels, attrs)
-    return {"entry": manifest_entry(target, writer.written)}
+        pipeline.seconds["write"] += time.perf_counter() - started
+    readback = renderer.readback_seconds - readback
+    seconds = {"render": maker.render_seconds - readback, "readback": readback, **pipeline.seconds}
+    return {"entry": manifest_entry(target, writer.written), "seconds": seconds}
+
+
+def _render_frames(job: ShardJob, maker: FrameMaker, pipeline: FramePipeline, frames: tuple, mesh_store,
+                   report) -> tuple[dict, dict, dict]:
+    """Render ``frames`` (instances, path indices, R, t) into ``pipeline``, a scene per instance;
+    (names, records, digests) by instance, digests as futures of save_mesh on ``mesh_store``
+    (a thread: the store's compression off the renderer's thread)."""
+    spec, renderer = job.spec, maker.renderer
+    instances, path_indices, R, t = frames
+    current, names, records, digests = None, {}, {}, {}
+    for i, (inst, pidx) in enumerate(zip(instances.tolist(), path_indices.tolist())):
+        if inst != current:
+            mesh = load_instance(spec, inst)
+            renderer.set_mesh(mesh)
+            current, names[inst] = inst, mesh.name
+            records[inst] = mesh_record(spec, inst)
+            digests[inst] = mesh_store.submit(save_mesh, job.out_dir, mesh)  # waited for before the shard
+        rendered = maker.render(mesh, inst, pidx, R[i], t[i])  # new arrays every frame
+        pipeline.put(partial(maker.finish, rendered, inst, pidx, R[i], t[i]))
+        report(1)
+    return names, records, digests
 
 
 def render_dataset(specs: list[RenderSpec], out_dir, *, limit=None, progress=None, executor=None) -> RunSummary:

@@ -7,6 +7,7 @@ the other jobs go on. Workers retire after ``recycle_after`` jobs so a slow
 leak in a renderer cannot grow without bound. ``workers=0`` runs in-process;
 ``parent_works``: this process is one of the workers (for light jobs, whose
 start-up in a new process is a large share: it works while the others start).
+``gpus``: each worker process renders on one of them, in turn (render's --gpus).
 """
 
 from __future__ import annotations
@@ -15,10 +16,12 @@ import multiprocessing as mp
 import os
 import signal
 import sys
+import warnings
 from dataclasses import dataclass, field
+from contextlib import contextmanager
 from multiprocessing.connection import wait
 
-from spm_data.errors import SpmError
+from spm_data.errors import SpmError, SpmWarning
 from spm_data.jobs.outcome import JobOutcome, deferred_interrupt, error_text, is_blender_script_dir
 
 
@@ -30,9 +33,11 @@ class _Worker:
     done: int = 0
     progress: dict = field(default_factory=dict)
     ready: bool = False  # it said so (its imports done)
+    slot: int = 0        # which of the pool's places it fills (its GPU, with gpus)
 
 
 BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+WORKER_CORES = "SPM_WORKER_CORES"  # a spawned worker's share of the cores (render's pipeline threads)
 
 
 def blas_threads(workers: int) -> dict:
@@ -42,6 +47,39 @@ def blas_threads(workers: int) -> dict:
     against each other and SPM's small matrix products took 2-3 times the CPU."""
     threads = str(max(1, (os.cpu_count() or 1) // max(1, workers)))
     return {name: threads for name in BLAS_THREAD_VARIABLES if name not in os.environ}
+
+
+def worker_environment(workers: int, slot: int = 0, gpus=()) -> dict:
+    """Environment for the spawned worker in place ``slot`` of ``workers``: blas_threads, its
+    share of the cores (WORKER_CORES) and, with ``gpus``, its GPU (GPU_VARIABLE): gpus[slot mod
+    len(gpus)], so the workers spread over the GPUs evenly, a replaced worker on its place's GPU."""
+    env = {**blas_threads(workers), WORKER_CORES: str(max(1, (os.cpu_count() or 1) // max(1, workers)))}
+    return {**env, **gpu_environment(gpus, slot)}
+
+
+def gpu_environment(gpus, slot: int = 0) -> dict:
+    """{GPU_VARIABLE: gpus[slot mod len(gpus)]}, or {} without gpus."""
+    if not gpus:
+        return {}
+    from spm_data.render.base import GPU_VARIABLE  # only with GPUs: the render layer costs 0.4 s to import
+
+    return {GPU_VARIABLE: str(gpus[slot % len(gpus)])}
+
+
+@contextmanager
+def environment(values: dict):
+    """``values`` in os.environ for the block (a spawned child takes the environment as it
+    starts; in-process jobs read it), then the environment as it was."""
+    before = {name: os.environ.get(name) for name in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for name, value in before.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 def _worker_main(fn, conn, recycle_after):
@@ -68,10 +106,11 @@ def _worker_main(fn, conn, recycle_after):
 
 
 def run_jobs(fn, jobs, *, workers=1, retries=1, recycle_after=0, on_progress=None, on_outcome=None,
-             on_worker_death=None, parent_works=False):
+             on_worker_death=None, parent_works=False, gpus=()):
     """Run ``fn(job, report)`` for every job; ``report(n)`` advances progress by n.
     parent_works: with ``workers`` > 1, this process runs jobs too and ``workers - 1`` are
-    spawned; a spawned worker gets a job once it is ready (its imports done).
+    spawned; a spawned worker gets a job once it is ready (its imports done). gpus: GPU
+    indices, one per spawned worker in turn (worker_environment); in-process jobs use the first.
 
     Returns a list of :class:`JobOutcome` in job order. ``on_progress(n)`` gets
     progress deltas (negative when a crashed job's frames are lost);
@@ -80,15 +119,16 @@ def run_jobs(fn, jobs, *, workers=1, retries=1, recycle_after=0, on_progress=Non
     """
     with deferred_interrupt() as stop:
         return _run_jobs(fn, list(jobs), workers, retries, recycle_after, on_progress, on_outcome,
-                         on_worker_death, stop, parent_works)
+                         on_worker_death, stop, parent_works, tuple(gpus))
 
 
 def _run_jobs(fn, jobs, workers, retries, recycle_after, on_progress, on_outcome, on_worker_death, stop,
-              parent_works=False):
+              parent_works=False, gpus=()):
     if workers <= 0 or (parent_works and workers == 1):
-        return _run_in_process(fn, jobs, on_progress, on_outcome, stop)
+        with environment(gpu_environment(gpus)):
+            return _run_in_process(fn, jobs, on_progress, on_outcome, stop)
     pool = _Pool(fn, jobs, workers, retries, recycle_after, on_progress, on_outcome, on_worker_death, stop,
-                 parent_works)
+                 parent_works, gpus)
     try:
         pool.run()
     finally:
@@ -130,7 +170,7 @@ class _Pool:
     worker dies goes back to the queue (``retries`` times), then fails."""
 
     def __init__(self, fn, jobs, workers, retries, recycle_after, on_progress, on_outcome, on_worker_death, stop,
-                 parent_works=False):
+                 parent_works=False, gpus=()):
         self.fn, self.jobs, self.workers, self.retries = fn, jobs, workers, retries
         self.recycle_after, self.on_outcome, self.on_worker_death, self.stop = (recycle_after, on_outcome,
                                                                                on_worker_death, stop)
@@ -142,6 +182,7 @@ class _Pool:
         self.pool: dict[int, _Worker] = {}
         self.next_id = 0
         self.parent_works = parent_works  # run_jobs' parent_works
+        self.gpus = gpus  # run_jobs' gpus
         self.spawned = workers - 1 if parent_works else workers  # processes to keep running
 
     def run(self) -> None:
@@ -169,15 +210,11 @@ class _Pool:
     def start_worker(self) -> None:
         parent, child = self.ctx.Pipe()
         proc = self.ctx.Process(target=_worker_main, args=(self.fn, child, self.recycle_after), daemon=True)
-        limits = blas_threads(self.workers)
-        os.environ.update(limits)  # a spawned child takes the parent's environment as it starts
-        try:
+        slot = min(set(range(len(self.pool) + 1)) - {w.slot for w in self.pool.values()})  # a free place
+        with environment(worker_environment(self.workers, slot, self.gpus)):
             proc.start()
-        finally:
-            for name in limits:
-                os.environ.pop(name, None)
         child.close()
-        self.pool[self.next_id] = _Worker(proc, parent)
+        self.pool[self.next_id] = _Worker(proc, parent, slot=slot)
         self.next_id += 1
 
     def hand_out_jobs(self) -> None:
@@ -260,14 +297,16 @@ class _Pool:
 
 class LocalExecutor:
     """Worker processes on this machine (the default): ``run_jobs`` with ``workers``
-    processes; ``in_process`` runs in this process when workers <= 1 (not for Blender)."""
+    processes; ``in_process`` runs in this process when workers <= 1 (not for Blender).
+    gpus: GPU indices handed to the processes in turn (run_jobs)."""
 
     name = "local"
 
-    def __init__(self, workers: int = 1, retries: int = 1, recycle_after: int = 0):
+    def __init__(self, workers: int = 1, retries: int = 1, recycle_after: int = 0, gpus=()):
         self.workers = workers
         self.retries = retries
         self.recycle_after = recycle_after
+        self.gpus = tuple(gpus)
 
     def run(self, fn, jobs, *, in_process=True, on_progress=None, on_outcome=None, on_worker_death=None,
             parent_works=False):
@@ -275,4 +314,33 @@ class LocalExecutor:
         workers = 0 if (in_process and self.workers <= 1) else max(1, self.workers)
         return run_jobs(fn, jobs, workers=workers, retries=self.retries, recycle_after=self.recycle_after,
                         on_progress=on_progress, on_outcome=on_outcome, on_worker_death=on_worker_death,
-                        parent_works=parent_works and in_process)
+                        parent_works=parent_works and in_process, gpus=self.gpus)
+
+
+def use_gpus(executor, gpus, task_gpus: float, renderers):
+    """The render run's ``executor`` with GPUs (the render command's --gpus and --task-gpus):
+    Ray tasks ask for ``task_gpus`` each (RayExecutor.with_task_gpus); local workers get the
+    GPUs ``gpus`` names ("0,1"; None: every GPU the ``renderers`` list here) in turn, in at
+    most CONTEXTS_PER_GPU processes a GPU for a renderer that lists its GPUs here (pyrender:
+    one GL context a process). RenderError / SpmError (one line) for a refusal."""
+    from spm_data.render.base import choose_gpus, gl_processes, parse_gpus, visible_gpus
+
+    wanted = parse_gpus(gpus)
+    if executor.name != "local":
+        if wanted is not None:
+            raise SpmError("--gpus picks this machine's GPUs (--executor local); Ray tasks ask for theirs "
+                           "with --task-gpus")
+        return executor.with_task_gpus(task_gpus) if task_gpus else executor
+    if task_gpus:
+        raise SpmError("--task-gpus is for --executor ray; on this machine, pick GPUs with --gpus")
+    if wanted is None and executor.workers <= 1:
+        return executor  # one worker: the renderer takes the first GPU itself
+    listed = [found for found in (visible_gpus(r) for r in sorted(set(renderers))) if found is not None]
+    if not listed:  # Blender alone lists its GPUs in its workers, which check the indices
+        return LocalExecutor(executor.workers, executor.retries, executor.recycle_after, wanted or ())
+    chosen = choose_gpus(wanted, *listed[0])
+    processes = gl_processes(executor.workers, len(chosen))
+    if processes < len(chosen):
+        warnings.warn(f"--workers {executor.workers} renders on {processes} of the {len(chosen)} GPUs; give "
+                      f"--workers {len(chosen)} or more to use them all", SpmWarning)
+    return LocalExecutor(processes, executor.retries, executor.recycle_after, chosen)

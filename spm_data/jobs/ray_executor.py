@@ -14,7 +14,10 @@ comes back; the driver writes the manifest.
   many tasks (Ray's ``max_calls``), so a Blender that leaks is replaced.
 - Resources: each task asks for ``task_cpus`` CPUs, so a node runs at most
   (its CPUs / task_cpus) tasks at once; give Blender tasks the CPUs Cycles'
-  threads will use.
+  threads will use. ``task_gpus`` > 0 (render's --task-gpus; a fraction shares a
+  GPU among tasks) also asks for GPUs, so render tasks run on GPU nodes, each on
+  the GPU Ray gives it (base.GPU_VARIABLE); a cluster with no node that has that
+  many GPUs is refused (its tasks would wait for ever).
 - Without ``address``, a local Ray instance is started with ``workers`` CPUs,
   listening on loopback only, and stopped at the end; with one (``auto`` or
   ``HOST:PORT``), the run joins that cluster.
@@ -54,9 +57,16 @@ def _loopback_only() -> None:
     ray_constants.ENABLE_RAY_CLUSTER = False
 
 
-def _ray_task(fn, job):
-    """Runs in a Ray worker: the job, its frame count and any error as a message."""
+def _ray_task(fn, job, gpu_variable=None):
+    """Runs in a Ray worker: the job, its frame count and any error as a message.
+    gpu_variable: with --task-gpus, where the renderer reads the GPU Ray gave the task."""
     sys.path[:] = [p for p in sys.path if not is_blender_script_dir(p)]
+    if gpu_variable:
+        import ray
+
+        ids = ray.get_gpu_ids()  # the node's GPU indices Ray gave this task (it sets CUDA_VISIBLE_DEVICES)
+        if ids:
+            os.environ[gpu_variable] = str(int(ids[0]))
     frames = [0]
 
     def report(n):
@@ -72,12 +82,18 @@ class RayExecutor:
     name = "ray"
 
     def __init__(self, *, address: str | None = None, workers: int = 1, task_cpus: float = 1.0,
-                 retries: int = 1, recycle_after: int = 0):
+                 retries: int = 1, recycle_after: int = 0, task_gpus: float = 0.0):
         self.address = address
         self.workers = workers
         self.task_cpus = task_cpus
         self.retries = retries
         self.recycle_after = recycle_after
+        self.task_gpus = float(task_gpus)
+
+    def with_task_gpus(self, task_gpus: float) -> "RayExecutor":
+        """This executor with each task asking for ``task_gpus`` GPUs (render's --task-gpus)."""
+        return RayExecutor(address=self.address, workers=self.workers, task_cpus=self.task_cpus,
+                           retries=self.retries, recycle_after=self.recycle_after, task_gpus=task_gpus)
 
     def _connect(self, ray) -> bool:
         """Connect (or start a local instance); True when this call started it."""
@@ -107,12 +123,20 @@ class RayExecutor:
         options = {"num_cpus": self.task_cpus, "max_retries": self.retries, "retry_exceptions": False}
         if self.recycle_after:
             options["max_calls"] = self.recycle_after
+        gpu_variable = None
+        if self.task_gpus:
+            from spm_data.render.base import GPU_VARIABLE
+
+            options["num_gpus"], gpu_variable = self.task_gpus, GPU_VARIABLE
         task = ray.remote(**options)(_ray_task)
         pending = {}
         try:
+            if self.task_gpus:
+                check_task_gpus(self.task_gpus, [n.get("Resources", {}).get("GPU", 0.0) for n in ray.nodes()
+                                                 if n.get("Alive")])
             with deferred_interrupt() as stop:
                 fn_ref = ray.put(fn)
-                pending = {task.remote(fn_ref, job): i for i, job in enumerate(jobs)}
+                pending = {task.remote(fn_ref, job, gpu_variable): i for i, job in enumerate(jobs)}
                 while pending:
                     if stop.is_set():
                         raise KeyboardInterrupt
@@ -140,3 +164,13 @@ class RayExecutor:
             if started:
                 ray.shutdown()
         return outcomes
+
+
+def check_task_gpus(task_gpus: float, node_gpus: list) -> None:
+    """SpmError (one line) when no node has ``task_gpus`` GPUs (``node_gpus``: each live node's
+    GPU count), where Ray would keep the tasks waiting for ever."""
+    if not node_gpus or max(node_gpus) < task_gpus:
+        most = max(node_gpus, default=0)
+        have = "no GPUs" if not most else f"at most {most:g} GPU{'s' if most != 1 else ''} on a node"
+        raise SpmError(f"--task-gpus {task_gpus:g}: the Ray cluster has {have}, so no render task could start; "
+                       "start its GPU nodes with GPUs (ray start --num-gpus N) or ask for fewer")

@@ -5,13 +5,22 @@ bpy or OpenGL; the backends are registered in spm_data/render/__init__.py."""
 from __future__ import annotations
 
 import abc
+import importlib
+import os
+import re
 
 import numpy as np
 
+from spm_data.errors import RenderError
 from spm_data.core.poses import intrinsics_from_fov
 from spm_data.core.randomize import fixed_light_rotations, max_lights
 
 OUTPUTS = ("rgb", "alpha", "depth", "mask")
+GPU_VARIABLE = "SPM_RENDER_GPU"  # the GPU a worker renders on, an index into its backend's GPU list (executors set it)
+# GL contexts (render processes) per GPU when --workers asks for more: two keep a GPU fed while one
+# process's thread is in Python between draws; the other workers' share goes to each process's
+# pipeline threads (compositing, compression). A first guess, not measured on a GPU (docs/scaling.md).
+CONTEXTS_PER_GPU = 2
 
 
 def spec_intrinsics(spec) -> np.ndarray:
@@ -40,6 +49,7 @@ class Renderer(abc.ABC):
     """
 
     name: str = ""
+    readback_seconds: float = 0.0  # cumulative seconds of render spent reading the frame back (backends that can tell)
 
     def __init__(self, spec):
         self.spec = spec
@@ -118,3 +128,62 @@ def rotate_normals(normals: np.ndarray, instances: np.ndarray, rotations: np.nda
 def mask_from_depth(depth: np.ndarray) -> np.ndarray:
     """(H, W) uint8 mask of pixels with a surface (depth > 0)."""
     return (depth > 0).astype(np.uint8)
+
+
+# --------------------------------------------------------------------------- GPUs
+
+def parse_gpus(text) -> tuple[int, ...] | None:
+    """``--gpus``: None when not given (every GPU listed), else ``"0,1,3"`` -> (0, 1, 3);
+    RenderError (one line) for any other text or a GPU named twice."""
+    if text is None:
+        return None
+    parts = [part.strip() for part in str(text).split(",")]
+    if not all(re.fullmatch(r"[0-9]{1,4}", part) for part in parts):
+        raise RenderError(f"--gpus {text!r}: expected GPU indices separated by commas, such as 0 or 0,1,3")
+    gpus = tuple(int(part) for part in parts)
+    twice = [g for k, g in enumerate(gpus) if g in gpus[:k]]
+    if twice:
+        raise RenderError(f"--gpus {text!r}: GPU {twice[0]} is named twice")
+    return gpus
+
+
+def choose_gpus(wanted, listed, lister: str = "this machine") -> tuple[int, ...]:
+    """The GPUs a run renders on: ``wanted`` (parse_gpus) out of ``listed`` (the indices a backend
+    lists, ``lister`` saying which); None wants every listed GPU (none listed: the CPU, ()).
+    RenderError (one line) when GPUs are wanted and none is listed, or one wanted is not."""
+    listed = tuple(listed)
+    if wanted is None:
+        return listed
+    named = ",".join(str(g) for g in wanted)
+    if not listed:
+        raise RenderError(f"--gpus {named}: no GPU here ({lister} lists none); leave --gpus out to render on the CPU")
+    missing = [g for g in wanted if g not in listed]
+    if missing:
+        raise RenderError(f"--gpus {named}: there is no GPU {missing[0]}; {lister} lists {len(listed)}: "
+                          f"{', '.join(str(g) for g in listed)}")
+    return tuple(wanted)
+
+
+def gl_processes(workers: int, gpus: int, per_gpu: int = CONTEXTS_PER_GPU) -> int:
+    """Render processes (one GL context each) carrying ``workers``-way work: one per worker on
+    the CPU (``gpus`` = 0: llvmpipe draws on the process's own cores), at most ``per_gpu`` per GPU
+    otherwise (contexts on one GPU take turns; more of them only add switches)."""
+    if gpus <= 0:
+        return max(1, workers)
+    return max(1, min(workers, per_gpu * gpus))
+
+
+def assigned_gpu(environ=None) -> int | None:
+    """The GPU this worker renders on (GPU_VARIABLE, set by the executors), or None."""
+    value = (os.environ if environ is None else environ).get(GPU_VARIABLE, "")
+    return int(value) if value.isdigit() else None
+
+
+def visible_gpus(renderer: str):
+    """``(gpus, lister)``: the GPU indices renderer ``renderer`` lists in this process and who lists
+    them (pyrender: EGL), or None for a backend that lists its GPUs only where it renders
+    (Blender, in its workers: its backend module has no ``visible_gpus``)."""
+    from spm_data.render import RENDERERS
+
+    lister = getattr(importlib.import_module(RENDERERS[renderer].module), "visible_gpus", None)
+    return None if lister is None else lister()

@@ -26,7 +26,7 @@ import numpy as np
 from spm_data.errors import RenderError
 from spm_data.core.poses import K_to_corner_origin, cv_to_gl_camera_to_world
 from spm_data.core.raster import CLIP_FAR, CLIP_NEAR
-from spm_data.render.base import Renderer, light_rotations, rotate_normals
+from spm_data.render.base import Renderer, assigned_gpu, light_rotations, rotate_normals
 from spm_data.render.blender_exr import INSTALL_HINT, import_openexr, read_frame
 from spm_data.render.blender_scene import border_box, captured_output, cycles_device, mesh_data, remove_mesh_data, tail
 
@@ -110,11 +110,12 @@ class BlenderRenderer(Renderer):
         sc.view_settings.view_transform = "Standard"
 
     def _set_device(self, sc) -> str:
-        """Where Cycles renders (cycles_device): "CPU" or the GPU backend used."""
+        """Where Cycles renders (cycles_device): "CPU" or the GPU backend used; with --gpus, this
+        worker's GPU only."""
         if self.engine != "cycles":
             sc.cycles.device = "CPU"
             return "CPU"
-        return cycles_device(self._bpy, sc, self.spec.render.blender.device)
+        return cycles_device(self._bpy, sc, self.spec.render.blender.device, assigned_gpu())
 
     def _set_output(self, sc) -> None:
         """One multi-layer EXR a frame: Combined, Depth and Object Index, 32-bit, uncompressed."""

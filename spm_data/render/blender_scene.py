@@ -140,10 +140,12 @@ def mesh_data(bpy, mesh, base_color: bool = False):
 GPU_BACKENDS = ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL")  # in the order "auto" and "gpu" try them
 
 
-def cycles_device(bpy, sc, wanted: str) -> str:
+def cycles_device(bpy, sc, wanted: str, gpu: int | None = None) -> str:
     """Where Cycles renders, as a spec's ``render.blender.device`` (``wanted``) asks:
     ``"CPU"`` or the GPU backend used (OPTIX, CUDA, HIP, ONEAPI, METAL; the first with a
-    device). ``"auto"`` falls back to the CPU; ``"gpu"`` without one is a RenderError."""
+    device). ``"auto"`` falls back to the CPU; ``"gpu"`` without one is a RenderError.
+    ``gpu``: the worker's GPU (--gpus; base.assigned_gpu), the only device Cycles then uses,
+    counted in that backend's device list; None: every device of the backend."""
     if wanted == "cpu":
         sc.cycles.device = "CPU"
         return "CPU"
@@ -155,12 +157,27 @@ def cycles_device(bpy, sc, wanted: str) -> str:
         except (TypeError, AttributeError, RuntimeError):
             continue
         if found:
+            use = pick_device(found, gpu, backend)
             for d in prefs.devices:
-                d.use = d.type == backend
+                d.use = d.type == backend and (use is None or d.id == use.id)
             sc.cycles.device = "GPU"
             return backend
     if wanted == "gpu":
         raise RenderError("render.blender.device = \"gpu\": Blender finds no GPU here (tried "
                           f"{', '.join(GPU_BACKENDS)}); use \"auto\" to fall back to the CPU, or \"cpu\"")
+    if gpu is not None:  # --gpus asked for one: "auto" does not fall back to the CPU then
+        raise RenderError(f"--gpus {gpu}: Blender finds no GPU here (tried {', '.join(GPU_BACKENDS)}); "
+                          "leave --gpus out to render on the CPU")
     sc.cycles.device = "CPU"
     return "CPU"
+
+
+def pick_device(found: list, gpu: int | None, backend: str):
+    """The device of ``found`` (one backend's, in Blender's order) that --gpus gave this worker,
+    or None (all of them); RenderError (one line) for a GPU Blender does not list."""
+    if gpu is None:
+        return None
+    if gpu >= len(found):
+        raise RenderError(f"--gpus: there is no GPU {gpu} for Blender; it lists {len(found)} {backend} "
+                          f"device{'s' if len(found) != 1 else ''} (0-{len(found) - 1})")
+    return found[gpu]

@@ -5,14 +5,17 @@ See spm_data.render.base for the interface and the arrays ``render`` returns.
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import os
+import time
 
 import numpy as np
 
 from spm_data.errors import RenderError
 from spm_data.core.poses import K_to_corner_origin, cv_to_gl_camera_to_world
 from spm_data.core.raster import CLIP_FAR, CLIP_NEAR
-from spm_data.render.base import Renderer, decode_normals, light_rotations, mask_from_depth
+from spm_data.render.base import Renderer, assigned_gpu, decode_normals, light_rotations, mask_from_depth
 
 # EGL needs no display; it must be chosen before OpenGL is first imported.
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
@@ -33,11 +36,108 @@ def _import_pyrender():
         gl_renderer.glRenderbufferStorageMultisample = (
             lambda target, samples, fmt, width, height: multisample(target, 0, fmt, width, height))
         gl_renderer._spm_single_sample = True
+    if not getattr(gl_renderer, "_spm_timed_readback", False):
+        gl_renderer.Renderer._read_main_framebuffer = _timed_readback(gl_renderer)
+        gl_renderer._spm_timed_readback = True
     return pyrender
+
+
+_READBACK = [0.0]  # seconds this process spent reading frames back (render_shard's split)
+
+
+def _timed_readback(gl_renderer):
+    """pyrender's read of a drawn frame, timed: the copy and the wait for the drawing to end (a
+    GPU draws while Python goes on; llvmpipe draws only when the frame is first read), so a large
+    readback says the drawing bounds the loop. No glFinish to split the two: on llvmpipe that
+    is one more wait for its threads (0-5% of a 128x128 frame here)."""
+    read = gl_renderer.Renderer._read_main_framebuffer
+
+    def timed(self, scene, flags):
+        started = time.perf_counter()
+        try:
+            return read(self, scene, flags)
+        finally:
+            _READBACK[0] += time.perf_counter() - started
+    return timed
+
+
+# --------------------------------------------------------------------------- GPUs (EGL devices)
+
+EGL_EXTENSIONS = 0x3055  # eglQueryDeviceStringEXT: the device's extensions
+SOFTWARE_DEVICE = "EGL_MESA_device_software"  # Mesa's llvmpipe, listed among EGL's devices
+
+
+def gpu_devices(extensions) -> list[int]:
+    """Indices into EGL's device list (pyrender's EGL_DEVICE_ID) of the GPUs, given each EGL
+    device's extension string: every device but software renderers, in EGL's order. GPU k
+    (``--gpus k``) is the k-th of them."""
+    return [i for i, ext in enumerate(extensions) if SOFTWARE_DEVICE not in str(ext).split()]
+
+
+def egl_device_id(gpu, extensions) -> int | None:
+    """pyrender's EGL_DEVICE_ID for GPU ``gpu`` (None: the first GPU; without one, None: EGL's
+    default display); RenderError (one line) for a GPU that EGL does not list."""
+    devices = gpu_devices(extensions)
+    if gpu is None:
+        return devices[0] if devices else None
+    if gpu >= len(devices):
+        listed = f"GPUs 0-{len(devices) - 1}" if devices else "no GPU, only a software renderer"
+        raise RenderError(f"pyrender: there is no GPU {gpu} here; EGL lists {listed}")
+    return devices[gpu]
+
+
+def _egl_extensions() -> list[str]:
+    """Each EGL device's extension string, in EGL's order (the order pyrender's EGL_DEVICE_ID
+    counts in: the same eglQueryDevicesEXT of the same libEGL); [] where EGL is not pyrender's
+    platform or cannot list its devices. Through ctypes, so that a run's parent process lists
+    the GPUs in milliseconds, without importing pyrender and OpenGL (over a second)."""
+    if os.environ.get("PYOPENGL_PLATFORM") != "egl":
+        return []
+    try:
+        lib = ctypes.CDLL(ctypes.util.find_library("EGL") or "libEGL.so.1")
+        lib.eglGetProcAddress.restype, lib.eglGetProcAddress.argtypes = ctypes.c_void_p, [ctypes.c_char_p]
+        query, string = (lib.eglGetProcAddress(name) for name in (b"eglQueryDevicesEXT", b"eglQueryDeviceStringEXT"))
+        if not query or not string:  # no EGL_EXT_device_enumeration: only the default display
+            return []
+        query = ctypes.CFUNCTYPE(ctypes.c_uint, ctypes.c_int, ctypes.POINTER(ctypes.c_void_p),
+                                 ctypes.POINTER(ctypes.c_int))(query)
+        string = ctypes.CFUNCTYPE(ctypes.c_char_p, ctypes.c_void_p, ctypes.c_int)(string)
+        devices, count = (ctypes.c_void_p * 64)(), ctypes.c_int(0)  # 64: more than any machine has
+        if not query(64, devices, ctypes.byref(count)):
+            return []
+        return [(string(device, EGL_EXTENSIONS) or b"").decode() for device in devices[:count.value]]
+    except (OSError, AttributeError):  # no libEGL here
+        return []
+
+
+def visible_gpus() -> tuple[tuple[int, ...], str]:
+    """(GPU indices, who lists them) in this process: the EGL devices that are not software."""
+    return tuple(range(len(gpu_devices(_egl_extensions())))), "pyrender's EGL"
+
+
+def _choose_device() -> None:
+    """Point pyrender (EGL_DEVICE_ID, read as a context is opened) at this worker's GPU
+    (base.assigned_gpu), or at the first GPU: EGL's device 0 may be a software renderer. A
+    user's own EGL_DEVICE_ID stands when no GPU was assigned."""
+    gpu = assigned_gpu()
+    device = None if gpu is None and "EGL_DEVICE_ID" in os.environ else egl_device_id(gpu, _egl_extensions())
+    if device is not None:
+        os.environ["EGL_DEVICE_ID"] = str(device)
 
 
 _OFFSCREEN: dict = {}
 _SCENE_CLASS = None
+
+
+def _one_blas_thread() -> None:
+    """Keep this process's BLAS on one thread. pyrender inverts a 4x4 matrix per frame
+    (np.linalg.inv), which wakes OpenBLAS's threads, and they then spin in sched_yield
+    waiting for more: measured 3-4.7 ms of CPU a frame of a 5-7 ms frame on 2 cores, taken
+    from llvmpipe and the shard writer. The same pixels (the products are 4x4; shards
+    compared byte for byte). Not restored: the limit stays with the process, as its renderer."""
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=1, user_api="blas")
 
 
 def _ordered_scene_class(pr):
@@ -62,6 +162,7 @@ def _offscreen(pr, width: int, height: int):
     calls eglTerminate on the display every other EGL context shares."""
     key = (width, height)
     if key not in _OFFSCREEN:
+        _choose_device()
         _OFFSCREEN[key] = pr.OffscreenRenderer(width, height)
     return _OFFSCREEN[key]
 
@@ -94,9 +195,12 @@ class PyrenderRenderer(Renderer):
     def __init__(self, spec):
         super().__init__(spec)
         self._pr = _import_pyrender()
+        _one_blas_thread()
         self.lighting = spec.lighting
         try:
             self._renderer = _offscreen(self._pr, self.width, self.height)
+        except RenderError:
+            raise
         except Exception as exc:  # EGL / driver failures surface as many types
             raise RenderError(f"pyrender could not open an offscreen EGL context ({type(exc).__name__}: {exc}); "
                               "install Mesa's EGL (apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri)") from None
@@ -107,6 +211,18 @@ class PyrenderRenderer(Renderer):
         self._scene = None
         self._distractor_meshes = {}  # id(mesh) -> (mesh, its pyrender meshes), built once per distractor mesh
         self._target = ()
+
+    @property
+    def readback_seconds(self) -> float:
+        return _READBACK[0]
+
+    def gl_renderer(self) -> str:
+        """The OpenGL renderer this process draws with (GL_RENDERER: "llvmpipe (LLVM 15.0.7, 256
+        bits)" on the CPU, the GPU's name otherwise), for benchmarks."""
+        from OpenGL import GL
+
+        self._renderer._platform.make_current()
+        return GL.glGetString(GL.GL_RENDERER).decode()
 
     def version(self) -> str:
         return f"pyrender {self._pr.__version__ if hasattr(self._pr, '__version__') else ''}".strip()

@@ -91,3 +91,26 @@ def test_off_a_terminal_render_and_validate_print_progress_lines_on_stderr(small
     r = run("validate", tmp_path / "out")
     assert r.exit_code == 0 and r.stdout.endswith("all shards valid; manifest agrees with the files\n"), r.output
     assert re.match(r"validate: 0/2 shards, 0 shards/s\n", r.stderr), r.stderr
+
+
+def test_render_gpu_refusals_are_one_line_and_exit_1(small_specs_dir, tmp_path, monkeypatch):
+    """The device list is injected (this machine may or may not have a GPU)."""
+    from spm_data.render import pyrender_backend
+
+    base = ["render", "--class", "cup", "--specs-dir", small_specs_dir, "--out", tmp_path / "o", "--limit", 2]
+    monkeypatch.setattr(pyrender_backend, "visible_gpus", lambda: ((), "pyrender's EGL"))
+    refusals = {
+        ("--gpus", "0"): "error: --gpus 0: no GPU here (pyrender's EGL lists none); leave --gpus out to render on the CPU",
+        ("--gpus", "0,x"): "error: --gpus '0,x': expected GPU indices separated by commas, such as 0 or 0,1,3",
+        ("--task-gpus", "1"): "error: --task-gpus is for --executor ray; on this machine, pick GPUs with --gpus",
+        ("--gpus", "1", "--executor", "ray"): "error: --gpus picks this machine's GPUs (--executor local); Ray tasks "
+                                              "ask for theirs with --task-gpus",
+    }
+    for args, line in refusals.items():
+        r = run(*base, *args)
+        assert r.exit_code == 1 and r.output == line + "\n", (args, r.output)
+    monkeypatch.setattr(pyrender_backend, "visible_gpus", lambda: ((0, 1), "pyrender's EGL"))
+    r = run(*base, "--gpus", "0,3", "--workers", 2)
+    assert r.exit_code == 1 and r.output == "error: --gpus 0,3: there is no GPU 3; pyrender's EGL lists 2: 0, 1\n"
+    assert not (tmp_path / "o").exists()
+    assert "--gpus" in run("render", "--help").output and "--task-gpus" in run("render", "--help").output

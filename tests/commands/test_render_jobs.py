@@ -320,3 +320,179 @@ def test_sampled_views_render_the_same_with_workers_and_on_resume(tmp_path):
     np.testing.assert_array_equal(got["roll"], views.roll)
     assert list(got["path_index"]) == list(range(9)) * 2 and list(got["instance_id"]) == [0] * 9 + [1] * 9
     assert np.ptp(got["roll"]) > 90   # so3: the camera rolls
+
+
+# --------------------------------------------------------------------------- the frame pipeline
+
+CLUTTERED = """class = "clutter"
+seed = 2
+[mesh]
+generator = "cup"
+instances = 2
+[camera]
+sampler = "sphere"
+views = 5
+distance_range = [0.6, 0.8]
+[randomize]
+lights = [1, 3]
+base_color = [0.8, 1.2]
+backgrounds = ["gradient", "noise", "checker"]
+[distractors]
+count = 1
+visible = [0.4, 0.9]
+classes = ["box"]
+instances = 1
+[outputs]
+normals = true
+instances = true
+coords = true
+[image]
+width = 40
+height = 32
+[render]
+renderer = "pyrender"
+frames_per_shard = 7
+"""
+
+
+class SerialPipeline:
+    """The serial path, for comparison: each frame finished (composited, its outputs made) on
+    the renderer's thread as it is put, a block's frames stored by write_images (the call
+    write_shard makes) at the block's end: what render_shard did before its pipeline."""
+
+    def __init__(self, writer, block, threads=2, ahead=0):
+        self.writer, self.block, self.seconds = writer, block, {"composite": 0.0, "compress": 0.0, "write": 0.0}
+        self.frames, self.labels, self.start = [], [], 0
+
+    def put(self, task):
+        images, labels = task()
+        self.frames.append({f: self.writer.check_frame(f, images[f]) for f in self.writer.images})
+        self.labels.append(labels)
+        if len(self.frames) == self.block or self.start + len(self.frames) == self.writer.frames:
+            self.writer.write_images(self.start, {f: np.stack([fr[f] for fr in self.frames]) for f in self.writer.images})
+            self.start, self.frames = self.start + len(self.frames), []
+
+    def close(self):
+        return self.labels
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+@pytest.mark.parametrize("block_bytes", [None, 3 * 40 * 32 * 64])  # one block a shard; blocks of 3 frames
+def test_the_pipelined_shard_is_the_serial_paths_bytes(tmp_path, monkeypatch, block_bytes):
+    """Compositing (random backgrounds), the opt-in outputs, compression and storing run on
+    the pipeline's threads: every shard is byte for byte what the serial path writes."""
+    from spm_data.commands import render_jobs
+
+    (tmp_path / "clutter.toml").write_text(CLUTTERED)
+    specs = load_run_specs(spec_files=[tmp_path / "clutter.toml"])
+    if block_bytes:
+        monkeypatch.setattr(render_jobs, "BLOCK_BYTES", block_bytes)
+    piped = render_dataset(specs, tmp_path / "piped")
+    monkeypatch.setattr(render_jobs, "FramePipeline", SerialPipeline)
+    serial = render_dataset(specs, tmp_path / "serial")
+    assert piped.done == serial.done == ["clutter-00000.h5", "clutter-00001.h5"] and piped.frames == 10
+    for name in piped.done:
+        assert file_sha256(tmp_path / "piped" / name) == file_sha256(tmp_path / "serial" / name), name
+    seconds = piped.results["clutter-00000.h5"]["seconds"]
+    assert set(seconds) == {"render", "readback", "composite", "compress", "write"}
+    assert all(v > 0 for v in seconds.values()) and seconds["readback"] < seconds["render"] + seconds["readback"]
+
+
+def pipeline_writer(tmp_path, n=4):
+    from spm_data.io.shards import IMAGE_FIELDS, ShardWriter
+    from tests.helpers import make_arrays
+
+    arrays = make_arrays(n=n, seed=1)
+    images = [f for f in IMAGE_FIELDS if f in arrays]
+    return arrays, images, ShardWriter(tmp_path / "a.h5", frames=n, height=8, width=10, images=images)
+
+
+def test_the_pipeline_holds_at_most_ahead_frames_and_gives_labels_in_order(tmp_path):
+    import threading
+
+    from spm_data.commands.render_frames import FramePipeline
+
+    arrays, images, shard = pipeline_writer(tmp_path)
+    go, started = threading.Event(), []
+
+    def frame(i):
+        started.append(i)
+        go.wait()  # held until the test has looked at the pipeline
+        return {f: arrays[f][i] for f in images}, {"i": i}
+
+    with shard as writer, FramePipeline(writer, block=4, threads=2, ahead=2) as pipeline:
+        pipeline.put(lambda: frame(0))
+        pipeline.put(lambda: frame(1))
+        assert not pipeline._room.acquire(blocking=False)  # two frames in hand: a third put would wait
+        go.set()
+        pipeline.put(lambda: frame(2))
+        pipeline.put(lambda: frame(3))
+        assert [labels["i"] for labels in pipeline.close()] == [0, 1, 2, 3]
+        assert not pipeline._thread.is_alive()
+
+
+def test_a_failing_frame_is_raised_on_the_renderers_thread_and_nothing_is_left(tmp_path):
+    from spm_data.commands.render_frames import FramePipeline
+    from spm_data.errors import RenderError
+
+    arrays, images, shard = pipeline_writer(tmp_path)
+
+    def bad():
+        raise RenderError("frame 1 failed")
+
+    with pytest.raises(RenderError, match="^frame 1 failed$"):
+        with shard as writer, FramePipeline(writer, block=4, threads=2) as pipeline:
+            pipeline.put(lambda: ({f: arrays[f][0] for f in images}, {}))
+            pipeline.put(bad)
+            for i in (2, 3):
+                pipeline.put(lambda i=i: ({f: arrays[f][i] for f in images}, {}))
+            pipeline.close()
+    with pytest.raises(ShardError, match=r"^shard field 'rgb': expected a frame of \(8, 10, 3\), got \(8, 9, 3\)$"):
+        with pipeline_writer(tmp_path)[2] as writer, FramePipeline(writer, block=2, threads=2) as pipeline:
+            for i in range(4):
+                pipeline.put(lambda i=i: ({**{f: arrays[f][i] for f in images}, "rgb": arrays["rgb"][i][:, :9]}, {}))
+            pipeline.close()
+    with pytest.raises(ShardError, match=r"^a\.h5: 3 of 4 frames given; not written$"):
+        with pipeline_writer(tmp_path)[2] as writer, FramePipeline(writer, block=4, threads=2) as pipeline:
+            for i in range(3):
+                pipeline.put(lambda i=i: ({f: arrays[f][i] for f in images}, {}))
+            pipeline.close()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_failed_store_stops_the_render_and_an_early_exit_stops_the_threads(tmp_path, monkeypatch):
+    from spm_data.commands.render_frames import FramePipeline
+
+    arrays, images, shard = pipeline_writer(tmp_path)
+
+    def full(field, index, chunk):
+        raise ShardError("could not write shard a.h5: No space left on device")
+
+    with pytest.raises(ShardError, match="No space left on device"):
+        with shard as writer, FramePipeline(writer, block=4, threads=2) as pipeline:
+            monkeypatch.setattr(writer, "store_chunk", full)
+            for i in range(4):
+                pipeline.put(lambda i=i: ({f: arrays[f][i] for f in images}, {}))
+            pipeline.close()
+    with pytest.raises(KeyboardInterrupt):
+        with pipeline_writer(tmp_path)[2] as writer, FramePipeline(writer, block=4, threads=2) as pipeline:
+            pipeline.put(lambda: ({f: arrays[f][0] for f in images}, {}))
+            raise KeyboardInterrupt  # Ctrl-C while rendering frame 1
+    assert not pipeline._thread.is_alive() and list(tmp_path.iterdir()) == []
+
+
+def test_a_workers_pipeline_threads_are_its_share_of_the_cores(monkeypatch):
+    from spm_data.commands.render_frames import pipeline_threads
+
+    for cores, threads in (("1", 2), ("8", 8), ("64", 16)):
+        monkeypatch.setenv("SPM_WORKER_CORES", cores)
+        assert pipeline_threads() == threads
+    monkeypatch.delenv("SPM_WORKER_CORES")
+    import os
+
+    assert pipeline_threads() == max(2, min(16, len(os.sched_getaffinity(0))))

@@ -91,3 +91,77 @@ def test_spawned_workers_share_the_cores_among_their_blas_threads_unless_the_use
     got = run_jobs(blas_environment, ["OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"] * 2, workers=2)
     assert [o.result for o in got] == [expected, "3"] * 2
     assert "OPENBLAS_NUM_THREADS" not in os.environ  # the parent's environment as it was
+
+
+# --------------------------------------------------------------------------- GPUs (render's --gpus)
+
+def gpu_of_worker(job, report):
+    from spm_data.render.base import GPU_VARIABLE
+
+    return os.environ.get(GPU_VARIABLE), os.environ.get("SPM_WORKER_CORES"), os.getpid()
+
+
+def test_workers_take_the_gpus_in_turn_and_in_process_jobs_the_first(monkeypatch):
+    from spm_data.jobs.executor import worker_environment
+    from spm_data.render.base import GPU_VARIABLE
+
+    monkeypatch.setenv(GPU_VARIABLE, "")  # recorded as it is, so the test leaves it so
+    monkeypatch.delenv(GPU_VARIABLE)
+    assert [worker_environment(3, slot, (2, 5))[GPU_VARIABLE] for slot in range(4)] == ["2", "5", "2", "5"]
+    assert GPU_VARIABLE not in worker_environment(3, 1, ())
+    assert worker_environment(2)["SPM_WORKER_CORES"] == str(max(1, (os.cpu_count() or 1) // 2))
+    got = run_jobs(gpu_of_worker, list(range(6)), workers=2, gpus=(4, 7))
+    by_process = {pid: gpu for gpu, _, pid in (o.result for o in got)}
+    assert sorted(by_process.values()) == ["4", "7"]  # two processes, one on each GPU
+    here = run_jobs(gpu_of_worker, [0], workers=0, gpus=(3,))
+    assert here[0].result[:2] == ("3", None) and GPU_VARIABLE not in os.environ  # restored after the run
+
+
+def fake_visible(monkeypatch, gpus):
+    from spm_data.render import pyrender_backend
+
+    monkeypatch.setattr(pyrender_backend, "visible_gpus", lambda: (tuple(gpus), "pyrender's EGL"))
+
+
+def test_use_gpus_spreads_workers_over_few_gl_contexts_a_gpu(monkeypatch):
+    from spm_data.jobs.executor import LocalExecutor, use_gpus
+
+    fake_visible(monkeypatch, (0, 1, 2))
+    local = LocalExecutor(workers=8, retries=2, recycle_after=16)
+    on_all = use_gpus(local, None, 0.0, {"pyrender"})
+    assert (on_all.gpus, on_all.workers, on_all.retries, on_all.recycle_after) == ((0, 1, 2), 6, 2, 16)
+    one = use_gpus(local, "2", 0.0, {"pyrender"})
+    assert (one.gpus, one.workers) == ((2,), 2)      # 8-way work in 2 GL contexts on GPU 2
+    assert use_gpus(LocalExecutor(workers=1), None, 0.0, {"pyrender"}).gpus == ()  # one worker: the first GPU
+    blender = use_gpus(local, "0,1", 0.0, {"blender"})   # Blender checks indices in its workers
+    assert (blender.gpus, blender.workers) == ((0, 1), 8)
+    from spm_data.errors import SpmWarning
+
+    with pytest.warns(SpmWarning, match=r"^--workers 1 renders on 1 of the 3 GPUs; give --workers 3 or more to use "
+                                        r"them all$"):
+        assert use_gpus(LocalExecutor(workers=1), "0,1,2", 0.0, {"pyrender"}).gpus == (0, 1, 2)
+    fake_visible(monkeypatch, ())
+    cpu = use_gpus(LocalExecutor(workers=4), None, 0.0, {"pyrender"})
+    assert (cpu.gpus, cpu.workers) == ((), 4)        # no GPU: one llvmpipe process per worker
+
+
+def test_use_gpus_refusals_are_one_line(monkeypatch):
+    from spm_data.errors import RenderError
+    from spm_data.jobs.executor import LocalExecutor, use_gpus
+    from spm_data.jobs.ray_executor import RayExecutor
+
+    fake_visible(monkeypatch, (0, 1))
+    with pytest.raises(RenderError, match=r"^--gpus 0,2: there is no GPU 2; pyrender's EGL lists 2: 0, 1$"):
+        use_gpus(LocalExecutor(workers=2), "0,2", 0.0, {"pyrender"})
+    with pytest.raises(RenderError, match=r"^--gpus 'x': expected GPU indices"):
+        use_gpus(LocalExecutor(workers=2), "x", 0.0, {"pyrender"})
+    with pytest.raises(SpmError, match=r"^--task-gpus is for --executor ray; on this machine, pick GPUs with --gpus$"):
+        use_gpus(LocalExecutor(), None, 1.0, {"pyrender"})
+    with pytest.raises(SpmError, match=r"^--gpus picks this machine's GPUs \(--executor local\); Ray tasks ask for "
+                                       r"theirs with --task-gpus$"):
+        use_gpus(RayExecutor(), "0", 0.0, {"pyrender"})
+    assert use_gpus(RayExecutor(task_cpus=2), None, 0.5, {"pyrender"}).task_gpus == 0.5
+    fake_visible(monkeypatch, ())
+    with pytest.raises(RenderError, match=r"^--gpus 0: no GPU here \(pyrender's EGL lists none\); leave --gpus out "
+                                          r"to render on the CPU$"):
+        use_gpus(LocalExecutor(), "0", 0.0, {"pyrender"})

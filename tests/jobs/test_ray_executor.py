@@ -160,3 +160,33 @@ def test_ray_renders_a_randomised_cluttered_spec_to_the_same_bytes(tmp_path):
     assert remote.failed == [] and remote.frames == 16
     assert [e["sha256"] for e in read_manifest(tmp_path / "ray")["shards"]] == \
            [e["sha256"] for e in read_manifest(tmp_path / "local")["shards"]]
+
+
+def test_task_gpus_are_refused_where_no_node_has_them():
+    from spm_data.errors import SpmError
+    from spm_data.jobs.ray_executor import check_task_gpus
+
+    check_task_gpus(1, [0.0, 2.0])
+    check_task_gpus(0.25, [1.0])
+    with pytest.raises(SpmError, match=r"^--task-gpus 1: the Ray cluster has no GPUs, so no render task could start; "
+                                       r"start its GPU nodes with GPUs \(ray start --num-gpus N\) or ask for fewer$"):
+        check_task_gpus(1, [0.0, 0.0])
+    with pytest.raises(SpmError, match=r"^--task-gpus 2: the Ray cluster has at most 1 GPU on a node"):
+        check_task_gpus(2, [1.0])
+    # This machine's local instance has no GPU: refused at once, not left waiting.
+    with pytest.raises(SpmError, match=r"^--task-gpus 1: the Ray cluster has no GPUs"):
+        make_executor("ray", workers=1).with_task_gpus(1).run(lambda job, report: job, [1])
+    assert not ray.is_initialized()
+
+
+def test_a_task_renders_on_the_gpu_ray_gave_it(monkeypatch):
+    from spm_data.jobs.ray_executor import _ray_task
+    from spm_data.render.base import GPU_VARIABLE
+
+    monkeypatch.setattr(ray, "get_gpu_ids", lambda: [3])
+    monkeypatch.setenv(GPU_VARIABLE, "")  # recorded as it is, so the test leaves it so
+    monkeypatch.delenv(GPU_VARIABLE)
+    got = _ray_task(lambda job, report: os.environ.get(GPU_VARIABLE), "job", GPU_VARIABLE)
+    assert got["result"] == "3"
+    monkeypatch.delenv(GPU_VARIABLE)
+    assert _ray_task(lambda job, report: os.environ.get(GPU_VARIABLE), "job")["result"] is None  # no --task-gpus

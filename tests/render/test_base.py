@@ -65,3 +65,48 @@ def test_mask_from_depth():
     depth = np.array([[0.0, 0.5], [1e-9, -0.0]], np.float32)
     mask = mask_from_depth(depth)
     assert mask.dtype == np.uint8 and mask.tolist() == [[0, 1], [1, 0]]
+
+
+# --------------------------------------------------------------------------- GPUs
+
+def test_gpus_are_parsed_and_bad_syntax_is_one_line():
+    from spm_data.errors import RenderError
+    from spm_data.render.base import parse_gpus
+
+    assert parse_gpus(None) is None and parse_gpus("0") == (0,) and parse_gpus(" 0, 1,3 ") == (0, 1, 3)
+    for text in ("", "a", "0,,1", "-1", "1.5", "0;1", "²"):
+        with pytest.raises(RenderError, match=r"^--gpus .*: expected GPU indices separated by commas, such as 0 or 0,1,3$"):
+            parse_gpus(text)
+    with pytest.raises(RenderError, match=r"^--gpus '1,0,1': GPU 1 is named twice$"):
+        parse_gpus("1,0,1")
+
+
+def test_the_gpus_chosen_are_those_wanted_out_of_those_listed():
+    from spm_data.errors import RenderError
+    from spm_data.render.base import choose_gpus
+
+    assert choose_gpus(None, (0, 1, 2)) == (0, 1, 2)                 # default: every GPU listed
+    assert choose_gpus(None, ()) == ()                               # none: the CPU
+    assert choose_gpus((2, 0), (0, 1, 2)) == (2, 0)
+    with pytest.raises(RenderError, match=r"^--gpus 0: no GPU here \(pyrender's EGL lists none\); leave --gpus out "
+                                          r"to render on the CPU$"):
+        choose_gpus((0,), (), "pyrender's EGL")
+    with pytest.raises(RenderError, match=r"^--gpus 1,4: there is no GPU 4; EGL lists 2: 0, 1$"):
+        choose_gpus((1, 4), (0, 1), "EGL")
+
+
+@pytest.mark.parametrize("workers, gpus, processes", [(1, 0, 1), (8, 0, 8), (8, 1, 2), (8, 4, 8), (3, 2, 3),
+                                                      (1, 4, 1)])
+def test_gl_processes_are_one_per_worker_on_the_cpu_and_few_per_gpu(workers, gpus, processes):
+    from spm_data.render.base import CONTEXTS_PER_GPU, gl_processes
+
+    assert CONTEXTS_PER_GPU == 2 and gl_processes(workers, gpus) == processes
+
+
+def test_a_worker_reads_its_gpu_and_blender_lists_its_gpus_only_in_its_workers():
+    from spm_data.render.base import GPU_VARIABLE, assigned_gpu, visible_gpus
+
+    assert assigned_gpu({}) is None and assigned_gpu({GPU_VARIABLE: "3"}) == 3 and assigned_gpu({GPU_VARIABLE: ""}) is None
+    assert visible_gpus("blender") is None
+    gpus, lister = visible_gpus("pyrender")
+    assert lister == "pyrender's EGL" and all(isinstance(g, int) for g in gpus)

@@ -33,3 +33,63 @@ def test_srgb_encode_is_the_transfer_curve_everywhere():
     rgba = np.zeros((len(values) // 4, 4, 4), np.float32)
     rgba[:, 1, :] = values[:len(rgba) * 4].reshape(-1, 4)
     np.testing.assert_array_equal(srgb_encode(rgba[..., :3]), curve(rgba[..., :3]))
+
+
+# --------------------------------------------------------------------------- Cycles devices (--gpus)
+
+class FakeDevice:
+    def __init__(self, kind, ident):
+        self.type, self.id, self.use = kind, ident, False
+
+
+class FakePreferences:
+    """Cycles' add-on preferences as cycles_device uses them: a Blender with CUDA and OptiX."""
+
+    def __init__(self, devices):
+        self.devices, self._kind = devices, None
+
+    @property
+    def compute_device_type(self):
+        return self._kind
+
+    @compute_device_type.setter
+    def compute_device_type(self, kind):
+        if kind not in ("CUDA", "OPTIX"):
+            raise TypeError(f"enum {kind!r} not found")
+        self._kind = kind
+
+    def get_devices_for_type(self, kind):
+        return [d for d in self.devices if d.type in (kind, "CPU")]
+
+
+def fake_bpy(devices):
+    from types import SimpleNamespace
+
+    prefs = FakePreferences(devices)
+    bpy = SimpleNamespace(context=SimpleNamespace(preferences=SimpleNamespace(
+        addons={"cycles": SimpleNamespace(preferences=prefs)})))
+    return bpy, SimpleNamespace(cycles=SimpleNamespace(device=None)), prefs
+
+
+def test_gpus_pick_one_cycles_device_per_worker():
+    """Not verified on a GPU here (no GPU, Blender finds none): the device list is injected."""
+    import pytest
+
+    from spm_data.errors import RenderError
+    from spm_data.render.blender_scene import cycles_device
+
+    devices = [FakeDevice("CPU", "cpu"), FakeDevice("OPTIX", "gpu-a"), FakeDevice("OPTIX", "gpu-b"),
+               FakeDevice("CUDA", "gpu-a-cuda")]
+    bpy, sc, prefs = fake_bpy(devices)
+    assert cycles_device(bpy, sc, "auto", gpu=1) == "OPTIX" and sc.cycles.device == "GPU"
+    assert [d.id for d in devices if d.use] == ["gpu-b"]            # this worker's GPU alone
+    assert cycles_device(bpy, sc, "gpu") == "OPTIX"
+    assert [d.id for d in devices if d.use] == ["gpu-a", "gpu-b"]   # no --gpus: every device of the backend
+    with pytest.raises(RenderError, match=r"^--gpus: there is no GPU 2 for Blender; it lists 2 OPTIX devices \(0-1\)$"):
+        cycles_device(bpy, sc, "auto", gpu=2)
+    bpy, sc, _ = fake_bpy([FakeDevice("CPU", "cpu")])
+    assert cycles_device(bpy, sc, "cpu", gpu=0) == "CPU"            # the spec says the CPU
+    assert cycles_device(bpy, sc, "auto") == "CPU"
+    with pytest.raises(RenderError, match=r"^--gpus 0: Blender finds no GPU here \(tried OPTIX, CUDA, HIP, ONEAPI, "
+                                          r"METAL\); leave --gpus out to render on the CPU$"):
+        cycles_device(bpy, sc, "auto", gpu=0)

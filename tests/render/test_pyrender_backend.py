@@ -113,3 +113,67 @@ def test_pyrender_refuses_an_image_larger_than_its_opengl(small_specs_dir, monke
     with pytest.raises(RenderError, match=r"^pyrender: image 64x64 is larger than this OpenGL renders \(48 pixels "
                                           r"a side at most\); use a smaller image or the blender renderer$"):
         make_renderer(spec)
+
+
+# --------------------------------------------------------------------------- GPUs, timing, BLAS
+
+EGL_LIST = ["EGL_MESA_device_software EGL_EXT_device_drm_render_node",   # llvmpipe first, as glvnd may list it
+            "EGL_NV_device_cuda EGL_EXT_device_drm", "EGL_EXT_device_drm EGL_EXT_device_drm_render_node"]
+
+
+def test_gpus_are_the_egl_devices_that_are_not_software():
+    from spm_data.errors import RenderError
+    from spm_data.render.pyrender_backend import egl_device_id, gpu_devices
+
+    assert gpu_devices(EGL_LIST) == [1, 2] and gpu_devices(EGL_LIST[:1]) == [] and gpu_devices([]) == []
+    assert egl_device_id(0, EGL_LIST) == 1 and egl_device_id(1, EGL_LIST) == 2
+    assert egl_device_id(None, EGL_LIST) == 1       # no GPU assigned: the first GPU, not EGL's device 0
+    assert egl_device_id(None, EGL_LIST[:1]) is None  # the CPU: EGL's default display
+    with pytest.raises(RenderError, match=r"^pyrender: there is no GPU 2 here; EGL lists GPUs 0-1$"):
+        egl_device_id(2, EGL_LIST)
+    with pytest.raises(RenderError, match=r"^pyrender: there is no GPU 0 here; EGL lists no GPU, only a software "
+                                          r"renderer$"):
+        egl_device_id(0, EGL_LIST[:1])
+
+
+def test_a_worker_opens_its_context_on_its_gpu(monkeypatch):
+    from spm_data.errors import RenderError
+    from spm_data.render import pyrender_backend
+    from spm_data.render.base import GPU_VARIABLE
+
+    monkeypatch.setattr(pyrender_backend, "_egl_extensions", lambda: EGL_LIST)
+    for name in ("EGL_DEVICE_ID", GPU_VARIABLE):  # recorded as they are, so the test leaves them so
+        monkeypatch.setenv(name, "")
+        monkeypatch.delenv(name)
+    monkeypatch.setenv(GPU_VARIABLE, "1")
+    pyrender_backend._choose_device()
+    assert pyrender_backend.os.environ["EGL_DEVICE_ID"] == "2"
+    monkeypatch.delenv(GPU_VARIABLE)
+    monkeypatch.setenv("EGL_DEVICE_ID", "0")       # the user's own choice stands when none was assigned
+    pyrender_backend._choose_device()
+    assert pyrender_backend.os.environ["EGL_DEVICE_ID"] == "0"
+    monkeypatch.delenv("EGL_DEVICE_ID")
+    pyrender_backend._choose_device()
+    assert pyrender_backend.os.environ["EGL_DEVICE_ID"] == "1"
+    monkeypatch.setenv(GPU_VARIABLE, "7")
+    with pytest.raises(RenderError, match="there is no GPU 7 here"):
+        pyrender_backend._choose_device()
+
+
+def test_this_machines_gpus_the_gl_renderer_readback_time_and_one_blas_thread(renderer):
+    from threadpoolctl import threadpool_info
+
+    from spm_data.render.pyrender_backend import visible_gpus
+
+    r, _ = renderer
+    name = r.gl_renderer()
+    gpus, lister = visible_gpus()
+    assert name and lister == "pyrender's EGL"
+    if "llvmpipe" in name:   # Mesa's software renderer: no GPU to choose
+        assert gpus == ()
+    r.set_mesh(procedural_mesh("cup", 0))
+    R, t = camera_path(CameraGrid()).poses(slice(3, 4))
+    before = r.readback_seconds
+    r.render(R[0], t[0])
+    assert r.readback_seconds > before
+    assert {lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"} == {1}

@@ -21,7 +21,7 @@ import numpy as np
 from spm_data.errors import ShardError, one_line
 from spm_data.io.files import partial_path
 from spm_data.io.shards.checksums import CHECKSUMS_ATTR, file_checksums
-from spm_data.io.shards.chunks import GZIP_LEVEL, RUN, THREADS, AheadFrame, encode_run
+from spm_data.io.shards.chunks import GZIP_LEVEL, RUN, THREADS, encode_run
 from spm_data.io.shards.reader import ShardReader
 from spm_data.io.shards.schema import (FIELDS, IMAGE_FIELDS, OPTIONAL_FIELDS, SCHEMA_VERSION, check_arrays,
                                        expected_shape)
@@ -79,10 +79,9 @@ class ShardWriter:
         self.images = tuple(images)
         self.tmp = partial_path(self.path)
         self._written = {f: 0 for f in self.images}
-        self._file = self._pool = self._ahead_pool = None
-        # (field, frame index) -> AheadFrame of that frame (encode_ahead), or (Future of a run,
-        # position in it) (prepare)
-        self._ahead = {}
+        self._file = self._pool = None
+        self._ahead = {}  # (field, frame index) -> (Future of a run, position in it): prepare's
+        self._targets = {}  # field -> (dataset id, chunk-offset tail), for _store
         self._frame = {}  # field -> (frame shape, dtype): h5py's lookups cost more than a small frame
         self._done = False
         self.written = None  # after finish: (attrs, class names) for manifest_entry
@@ -118,34 +117,21 @@ class ShardWriter:
                 for k in range(min(RUN, len(frames) - run)):
                     self._ahead[(field, int(start) + run + k)] = (future, k)
 
-    def encode_ahead(self, index: int, frames: dict) -> None:
-        """Start compressing frame ``index`` of some image fields ({field: one frame, cast to
-        the field's dtype}) on the writer's threads now, while the caller renders the next
-        frame; the write_images or write_ahead call that covers ``index`` stores these chunks
-        (the same bytes, in the same order). The frames must stay unchanged until then. One
-        task per frame (all its fields): fewer hand-offs between threads than one per field."""
-        if self._ahead_pool is None:
-            # Normal priority: on a busy machine low-priority (nice 19) threads hardly ran, and
-            # one holding the GIL while descheduled stalled the renderer's thread.
-            self._ahead_pool = ThreadPoolExecutor(max_workers=2)
-        cast = {}
-        for field, frame in frames.items():
-            shape, dtype = self._frame[field]
-            if np.shape(frame) != shape:
-                raise ShardError(f"shard field {field!r}: expected a frame of {shape}, got {np.shape(frame)}")
-            cast[field] = np.asarray(frame, dtype=dtype)
-        task = AheadFrame(self._ahead_pool, cast)
-        for field in frames:
-            self._ahead[(field, int(index))] = task
+    def check_frame(self, field: str, frame) -> np.ndarray:
+        """One frame of image field ``field``, cast to its dtype (float32 normals are stored as
+        float16); ShardError for a field this shard does not have or a frame of another shape."""
+        if field not in self._frame:
+            raise ShardError(f"shard field {field!r}: not an image field of this shard ({', '.join(self.images)})")
+        shape, dtype = self._frame[field]
+        if np.shape(frame) != shape:
+            raise ShardError(f"shard field {field!r}: expected a frame of {shape}, got {np.shape(frame)}")
+        return np.asarray(frame, dtype=dtype)
 
-    def write_ahead(self, start: int, k: int) -> None:
-        """Store frames ``start .. start + k`` of every image field, all given to encode_ahead
-        (a block as write_images stores it, without holding the block's arrays)."""
-        where = [(field, start + i) for field in self.images for i in range(k)]
-        missing = [key for key in where if key not in self._ahead]
-        if missing:
-            raise ShardError(f"shard field {missing[0][0]!r}: frame {missing[0][1]} was not given to encode_ahead")
-        self._store(where, self._chunks(where, []), {f: k for f in self.images})
+    def store_chunk(self, field: str, index: int, chunk: bytes) -> None:
+        """Store one encoded chunk (encode_chunk) of frame ``index`` of ``field`` (the render
+        pipeline's writer thread, commands/render_frames.py); HDF5 lays chunks out in the order
+        they are stored, so a caller that wants write_images' bytes stores them in its order."""
+        self._store([(field, index)], [chunk], {field: 1})
 
     def write_images(self, start: int, block: dict) -> None:
         """Frames ``start .. start + k`` of some image fields: {field: (k, ...) array}.
@@ -158,7 +144,7 @@ class ShardWriter:
                                  f"got {np.shape(frames)[1:]} {np.asarray(frames).dtype}")
         # Every (field, frame) on the pool at once, so a one-frame block keeps both threads busy;
         # chunks come back, and are stored, in field-major order.
-        # Frames given to encode_ahead are compressed already (or being compressed).
+        # Frames given to prepare are compressed already (or being compressed).
         where = [(field, start + i) for field, frames in block.items() for i in range(len(frames))]
         chunks = self._chunks(where, [frame for frames in block.values() for frame in frames])
         self._store(where, chunks, {field: len(frames) for field, frames in block.items()})
@@ -166,10 +152,11 @@ class ShardWriter:
     def _store(self, where: list, chunks, counts: dict) -> None:
         """Write ``chunks`` (an iterable) at keys ``where`` [(field, frame index)], in order;
         ``counts``: frames stored per field."""
-        targets = {}  # field -> (dataset id, chunk-offset tail): h5py's lookups cost more than a small chunk
+        targets = self._targets  # field -> (dataset id, chunk-offset tail): h5py's lookups cost more than a small chunk
         for field in counts:
-            ds = self._file[field]
-            targets[field] = (ds.id, (0,) * (ds.ndim - 1))
+            if field not in targets:
+                ds = self._file[field]
+                targets[field] = (ds.id, (0,) * (ds.ndim - 1))
         try:
             for (field, index), chunk in zip(where, chunks):
                 dsid, tail = targets[field]
@@ -180,9 +167,9 @@ class ShardWriter:
             raise self._os_error(exc) from None
 
     def _chunks(self, where: list, frames: list):
-        """The encoded chunks of frames (at keys where), in order: those given to encode_ahead or prepare
-        from their futures, the others compressed on the pool in a few runs of consecutive
-        frames (one task per frame cost more than compressing a small frame)."""
+        """The encoded chunks of frames (at keys where), in order: those given to prepare from
+        their futures, the others compressed on the pool in a few runs of consecutive frames
+        (one task per frame cost more than compressing a small frame)."""
         todo = [i for i, key in enumerate(where) if key not in self._ahead]
         runs = [todo[a: a + RUN] for a in range(0, len(todo), RUN)] if todo else []
         done = {}
@@ -191,8 +178,8 @@ class ShardWriter:
         pending = {}
         for i, key in enumerate(where):
             if key in self._ahead:
-                ahead = self._ahead.pop(key)
-                yield ahead.chunk(key[0]) if isinstance(ahead, AheadFrame) else ahead[0].result()[ahead[1]]
+                future, position = self._ahead.pop(key)
+                yield future.result()[position]
                 continue
             if i not in pending:
                 run, future = done.pop(i)
@@ -235,9 +222,8 @@ class ShardWriter:
         return ShardError(f"could not write shard {self.path}: {write_failure(exc)}")
 
     def _abort(self):
-        for pool in (self._pool, self._ahead_pool):
-            if pool is not None:
-                pool.shutdown(cancel_futures=True)
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
         if self._file is not None:
             try:
                 self._file.close()
@@ -247,9 +233,8 @@ class ShardWriter:
 
     def __exit__(self, *exc):
         if self._done:
-            for pool in (self._pool, self._ahead_pool):
-                if pool is not None:
-                    pool.shutdown()
+            if self._pool is not None:
+                self._pool.shutdown()
         else:
             self._abort()
         return False

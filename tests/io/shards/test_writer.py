@@ -35,9 +35,9 @@ def test_same_arrays_give_identical_bytes(tmp_path):
     assert file_sha256(a) == file_sha256(b)
 
 
-def test_frames_encoded_ahead_give_the_same_bytes(tmp_path):
-    """render_shard hands each frame to encode_ahead as it is rendered: the shard is the
-    same bytes as without, whichever frames were encoded ahead and in whatever order."""
+def test_frames_prepared_ahead_give_the_same_bytes(tmp_path):
+    """occlude hands frames to prepare before it stores them: the shard is the same bytes as
+    without, whichever frames were prepared ahead and in whatever order."""
     arrays = make_arrays(n=5, seed=4)
     images = [f for f in IMAGE_FIELDS if f in arrays]
     labels = {f: v for f, v in arrays.items() if f not in images}
@@ -45,7 +45,7 @@ def test_frames_encoded_ahead_give_the_same_bytes(tmp_path):
     def write(path, ahead=()):
         with ShardWriter(path, frames=5, height=8, width=10, images=images) as writer:
             for i in ahead:
-                writer.encode_ahead(i, {f: arrays[f][i] for f in images})
+                writer.prepare(i, {f: arrays[f][i:i + 1] for f in images})
             writer.write_images(0, {f: arrays[f][:2] for f in images})
             writer.write_images(2, {f: arrays[f][2:] for f in images})
             return writer.finish(labels, {"seed": 1, "renderer": "x"})
@@ -57,15 +57,15 @@ def test_frames_encoded_ahead_give_the_same_bytes(tmp_path):
 
 
 def test_compression_runs_give_the_same_bytes(tmp_path, monkeypatch):
-    """write_images compresses the frames not encoded ahead in runs of RUN frames; runs
-    that straddle a frame encoded ahead still store every chunk in order."""
+    """write_images compresses the frames not prepared ahead in runs of RUN frames; runs
+    that straddle a frame prepared ahead still store every chunk in order."""
     arrays = make_arrays(n=5, seed=5)
     images = [f for f in IMAGE_FIELDS if f in arrays]
     labels = {f: v for f, v in arrays.items() if f not in images}
     plain = write_shard(tmp_path / "plain.h5", arrays, {"seed": 1, "renderer": "x"})
     monkeypatch.setattr("spm_data.io.shards.writer.RUN", 2)
     with ShardWriter(tmp_path / "runs.h5", frames=5, height=8, width=10, images=images) as writer:
-        writer.encode_ahead(2, {f: arrays[f][2] for f in images})  # runs: frames 0-1 and 3-4 of each field
+        writer.prepare(2, {f: arrays[f][2:3] for f in images})  # runs: frames 0-1 and 3-4 of each field
         writer.write_images(0, {f: arrays[f] for f in images})
         runs = writer.finish(labels, {"seed": 1, "renderer": "x"})
     assert file_sha256(runs) == file_sha256(plain)
@@ -104,26 +104,29 @@ def test_a_failed_write_is_said_in_a_few_words_not_hdf5_text():
     assert write_failure(RuntimeError("something\nelse")) == "something else"
 
 
-def test_frames_stored_by_write_ahead_are_what_write_images_stores(tmp_path):
-    """render_shard hands the renderer's arrays to encode_ahead (cast to each field's dtype
-    there: float32 normals are stored as float16) and stores them with write_ahead, a block
-    at a time: the same bytes as write_images of the same blocks (which it did before), and
-    for one block the same as write_shard."""
+def test_chunks_stored_one_at_a_time_in_write_images_order_are_its_bytes(tmp_path):
+    """render_shard's pipeline casts each frame (check_frame: float32 normals are stored as
+    float16), encodes it and stores the chunks one at a time (store_chunk) in the order
+    write_images stores a block, field by field: the same bytes as write_images of the same
+    blocks, and for one block the same as write_shard."""
+    from spm_data.io.shards.chunks import encode_chunk
+
     arrays = make_arrays(n=5, seed=6)
     images = [f for f in IMAGE_FIELDS if f in arrays] + ["normals"]
     normals = np.random.default_rng(6).normal(size=(5, 8, 10, 3)).astype(np.float32)
     arrays["normals"] = normals.astype(np.float16)
     labels = {f: v for f, v in arrays.items() if f not in images}
 
-    def write(path, blocks, ahead):
+    def write(path, blocks, one_at_a_time):
         with ShardWriter(path, frames=5, height=8, width=10, images=images) as writer:
             for start, stop in blocks:
-                if not ahead:
+                if not one_at_a_time:
                     writer.write_images(start, {f: arrays[f][start:stop] for f in images})
                     continue
-                for i in range(start, stop):
-                    writer.encode_ahead(i, {**{f: arrays[f][i] for f in images}, "normals": normals[i]})
-                writer.write_ahead(start, stop - start)
+                for field in images:
+                    for i in range(start, stop):
+                        frame = normals[i] if field == "normals" else arrays[field][i]
+                        writer.store_chunk(field, i, encode_chunk(writer.check_frame(field, frame)))
             return writer.finish(labels, {"seed": 1, "renderer": "x"})
 
     blocks = ((0, 3), (3, 5))
@@ -133,15 +136,20 @@ def test_frames_stored_by_write_ahead_are_what_write_images_stores(tmp_path):
     np.testing.assert_array_equal(read_shard(one)["normals"], normals.astype(np.float16))
 
 
-def test_write_ahead_refuses_a_frame_not_given_and_encode_ahead_a_wrong_shape(tmp_path):
+def test_check_frame_refuses_a_wrong_shape_or_field_and_a_short_shard_is_not_written(tmp_path):
+    from spm_data.io.shards.chunks import encode_chunk
+
     arrays = make_arrays(n=2)
     images = [f for f in IMAGE_FIELDS if f in arrays]
     with ShardWriter(tmp_path / "a.h5", frames=2, height=8, width=10, images=images) as writer:
         with pytest.raises(ShardError, match=r"^shard field 'rgb': expected a frame of \(8, 10, 3\), got \(8, 9, 3\)$"):
-            writer.encode_ahead(0, {"rgb": arrays["rgb"][0][:, :9]})
-        writer.encode_ahead(0, {f: arrays[f][0] for f in images})
-        with pytest.raises(ShardError, match=r"^shard field 'rgb': frame 1 was not given to encode_ahead$"):
-            writer.write_ahead(0, 2)
+            writer.check_frame("rgb", arrays["rgb"][0][:, :9])
+        with pytest.raises(ShardError, match=r"^shard field 'normals': not an image field of this shard"):
+            writer.check_frame("normals", np.zeros((8, 10, 3)))
+        for field in images:
+            writer.store_chunk(field, 0, encode_chunk(writer.check_frame(field, arrays[field][0])))
+        with pytest.raises(ShardError, match=r"a\.h5: incomplete shard \(rgb, depth, mask\); not written"):
+            writer.finish({f: v for f, v in arrays.items() if f not in images}, {"seed": 1})
     assert list(tmp_path.iterdir()) == []  # nothing left behind
 
 

@@ -47,11 +47,15 @@ def test_same_points_as_n3m_and_its_fallback_poses_exactly(fitted):
 
 def test_shares_n3ms_sift_memo(fitted, monkeypatch):
     """Run after N3M (same sift_side and max_keypoints), SIFT + PnP extracts no SIFT of its own."""
+    from spm_model.base import feature_memo
     from spm_model.base.feature_memo import clear_memo, memo_stats
 
     _, _, (train, poses, test, _) = fitted
     train, poses, test = train[:30], poses[:30], test[:8]
     monkeypatch.setenv("SPM_FEATURE_MEMO_MB", "64")
+    # In memory only: an on-disk memo an earlier test of this process opened would turn the
+    # first extraction's misses into disk hits.
+    monkeypatch.setattr(feature_memo, "_folder", [None])
     clear_memo()
     N3MPose().fit(train, poses).predict(test)
     misses = memo_stats()["misses"]
