@@ -36,43 +36,9 @@ import sys
 import time
 from pathlib import Path
 
-DATASET = "spm"
-REGISTRATION = r'''
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-# --- Registered by spm's benchmarks/bop_eval.py: the dataset "spm" (an spm-data export bop folder),
-# described by <datasets_path>/spm/spm_dataset.json; every other dataset as before.
-import json as _spm_json
-
-_spm_get_model_params, _spm_get_split_params = get_model_params, get_split_params
-
-
-def _spm_spec(datasets_path):
-    with open(join(datasets_path, "spm", "spm_dataset.json")) as fh:
-        return _spm_json.load(fh)
-
-
-def get_model_params(datasets_path, dataset_name, model_type=None):
-    if dataset_name != "spm":
-        return _spm_get_model_params(datasets_path, dataset_name, model_type)
-    spec = _spm_spec(datasets_path)
-    folder = join(datasets_path, "spm", "models" + ("_" + model_type if model_type else ""))
-    return {"obj_ids": spec["obj_ids"], "symmetric_obj_ids": spec["symmetric_obj_ids"],
-            "model_tpath": join(folder, "obj_{obj_id:06d}.ply"), "models_info_path": join(folder, "models_info.json")}
-
-
-def get_split_params(datasets_path, dataset_name, split, split_type=None):
-    if dataset_name != "spm":
-        return _spm_get_split_params(datasets_path, dataset_name, split, split_type)
-    spec = _spm_spec(datasets_path)
-    p = _spm_get_split_params(datasets_path, "lm", split, split_type)   # LM's classic layout, paths moved
-    old, new = join(datasets_path, "lm"), join(datasets_path, "spm")
-    p = {k: (v.replace(old, new, 1) if isinstance(v, str) else v) for k, v in p.items()}
-    full = split + ("_" + split_type if split_type else "")
-    p.update(name="spm", im_size=tuple(spec["im_size"]), scene_ids=spec["scene_ids"][full],
-             depth_range=None, azimuth_range=None, elev_range=None)
-    return p
-'''
-
+from bop_registration import DATASET, REGISTRATION, write_description  # noqa: E402
 
 def run(cmd, log: list, env=None, cwd=None) -> str:
     """Run ``cmd``, recorded in ``log``; exit with its output's tail when it fails."""
@@ -101,14 +67,7 @@ def register(toolkit: Path, out: Path, export: Path, split: str) -> tuple[Path, 
     datasets = out / "datasets"
     shutil.rmtree(datasets, ignore_errors=True)
     shutil.copytree(export, datasets / DATASET)
-    camera = json.loads((export / "camera.json").read_text())
-    info = json.loads((export / "models" / "models_info.json").read_text())
-    spec = {"obj_ids": sorted(int(k) for k in info),
-            "symmetric_obj_ids": sorted(int(k) for k, v in info.items()
-                                        if v.get("symmetries_discrete") or v.get("symmetries_continuous")),
-            "im_size": [camera["width"], camera["height"]],
-            "scene_ids": {split: sorted(int(p.name) for p in (export / split).iterdir() if p.is_dir())}}
-    (datasets / DATASET / "spm_dataset.json").write_text(json.dumps(spec))
+    write_description(export, datasets / DATASET, [split])
     return copy, datasets
 
 

@@ -39,8 +39,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-DATASET = "spm"
+from bop_registration import DATASET, REGISTRATION, write_description  # noqa: E402
+
 MODEL_INFO_KEYS = ("diameter", "min_x", "min_y", "min_z", "size_x", "size_y", "size_z")
 INFO_KEYS = ("px_count_all", "px_count_valid", "px_count_visib", "visib_fract", "bbox_obj", "bbox_visib")
 
@@ -49,40 +51,18 @@ RUNNER = r'''
 import ast, json, os, sys
 from os.path import join
 
-script, overrides, spec = sys.argv[1], json.loads(sys.argv[2]), json.loads(open(sys.argv[3]).read())
+script, overrides = sys.argv[1], json.loads(sys.argv[2])
 from bop_toolkit_lib import dataset_params
 
-_split, _model = dataset_params.get_split_params, dataset_params.get_model_params
+REGISTRATION = __REGISTRATION__
 
-
-def get_model_params(datasets_path, dataset_name, model_type=None):
-    if dataset_name != "spm":
-        return _model(datasets_path, dataset_name, model_type)
-    folder = join(datasets_path, "spm", "models" + ("_" + model_type if model_type else ""))
-    return {"obj_ids": spec["obj_ids"], "symmetric_obj_ids": spec["symmetric_obj_ids"],
-            "model_tpath": join(folder, "obj_{obj_id:06d}.ply"), "models_info_path": join(folder, "models_info.json")}
-
-
-def get_split_params(datasets_path, dataset_name, split, split_type=None):
-    if dataset_name != "spm":
-        return _split(datasets_path, dataset_name, split, split_type)
-    # A classic-format dataset (LM's layout), paths moved to "spm", its own sizes and scenes.
-    p = _split(datasets_path, "lm", split, split_type)
-    old, new = join(datasets_path, "lm"), join(datasets_path, "spm")
-    p = {k: (v.replace(old, new, 1) if isinstance(v, str) else v) for k, v in p.items()}
-    full = split + ("_" + split_type if split_type else "")
-    p.update(name="spm", im_size=tuple(spec["im_size"]), scene_ids=spec["scene_ids"][full], depth_range=None,
-             azimuth_range=None, elev_range=None)
-    return p
-
-
-dataset_params.get_model_params, dataset_params.get_split_params = get_model_params, get_split_params
+exec(REGISTRATION, vars(dataset_params))   # bop_registration.REGISTRATION, written into this file
 tree = ast.parse(open(script).read(), script)
 at = next(i for i, node in enumerate(tree.body) if isinstance(node, ast.Assign)
           and any(isinstance(t, ast.Name) and t.id == "p" for t in node.targets))
 tree.body.insert(at + 1, ast.parse("p.update(__OVERRIDES__)").body[0])
 ast.fix_missing_locations(tree)
-sys.argv = [script] + sys.argv[4:]
+sys.argv = [script] + sys.argv[3:]
 exec(compile(tree, script, "exec"), {"__name__": "__main__", "__file__": script, "__OVERRIDES__": overrides})
 '''
 
@@ -96,15 +76,9 @@ def _split_args(split: str) -> tuple[str, str | None]:
     return name, kind or None
 
 
-def _register(export: Path, copy: Path, splits: list[str]) -> Path:
-    """The dataset's description for the runner; and the targets file the scripts open."""
-    camera = json.loads((export / "camera.json").read_text())
-    info = json.loads((export / "models" / "models_info.json").read_text())
-    obj_ids = sorted(int(k) for k in info)
-    symmetric = [int(k) for k, v in info.items() if v.get("symmetries_discrete") or v.get("symmetries_continuous")]
-    scenes = {s: sorted(int(p.name) for p in (export / s).iterdir() if p.is_dir()) for s in splits}
-    spec = {"obj_ids": obj_ids, "symmetric_obj_ids": sorted(symmetric), "im_size": [camera["width"], camera["height"]],
-            "scene_ids": scenes}
+def _register(export: Path, copy: Path, splits: list[str]) -> None:
+    """The dataset's description (bop_registration) and the targets file the scripts open, in ``copy``."""
+    scenes = write_description(export, copy, splits)["scene_ids"]
     targets = []
     for split in splits:
         for scene in scenes[split]:
@@ -114,17 +88,14 @@ def _register(export: Path, copy: Path, splits: list[str]) -> Path:
                     targets.append({"scene_id": scene, "im_id": int(im), "obj_id": obj_id,
                                     "inst_count": sum(o["obj_id"] == obj_id for o in objects)})
     (copy / "test_targets_bop19.json").write_text(json.dumps(targets))
-    path = copy.parent.parent / "spm_dataset.json"
-    path.write_text(json.dumps(spec))
-    return path
 
 
-def _run(python, toolkit: Path, work: Path, spec: Path, script: str, overrides: dict, argv=(), what="") -> None:
+def _run(python, toolkit: Path, work: Path, script: str, overrides: dict, argv=(), what="") -> None:
     from spm_data.commands.cli_support import stage
 
     env = dict(os.environ, PYTHONPATH=str(toolkit), BOP_PATH=str(work / "datasets"), PYOPENGL_PLATFORM="egl")
     env.setdefault("EGL_PLATFORM", "surfaceless")
-    cmd = [python, str(work / "runner.py"), str(toolkit / "scripts" / script), json.dumps(overrides), str(spec), *argv]
+    cmd = [python, str(work / "runner.py"), str(toolkit / "scripts" / script), json.dumps(overrides), *argv]
     with stage(f"bop_toolkit_check: {script}{what}"):
         done = subprocess.run(cmd, env=env, cwd=work, capture_output=True, text=True)
     if done.returncode != 0:
@@ -243,22 +214,22 @@ def main(argv=None) -> dict:
         copy = work / "datasets" / DATASET
         shutil.rmtree(copy, ignore_errors=True)
         shutil.copytree(export, copy)
-        (work / "runner.py").write_text(RUNNER)
+        (work / "runner.py").write_text(RUNNER.replace("__REGISTRATION__", repr(REGISTRATION)))
         splits = _splits(export)
-        spec = _register(export, copy, splits)
+        _register(export, copy, splits)
         common = ["--dataset", DATASET, "--datasets_path", str(work / "datasets")]
         for split in splits:
             name, kind = _split_args(split)
             where = ["--dataset_split", name] + (["--dataset_split_type", kind] if kind else [])
-            _run(args.python, toolkit, work, spec, "calc_gt_masks.py", {}, common + where, f" on {split}")
-            _run(args.python, toolkit, work, spec, "calc_gt_info.py",
+            _run(args.python, toolkit, work, "calc_gt_masks.py", {}, common + where, f" on {split}")
+            _run(args.python, toolkit, work, "calc_gt_info.py",
                  {"dataset": DATASET, "dataset_split": name, "dataset_split_type": kind, "modality": None,
                   "sensor": None, "datasets_path": str(work / "datasets"), "renderer_type": "vispy", "delta": 15,
                   "vis_visibility_masks": False}, what=f" on {split}")
-            _run(args.python, toolkit, work, spec, "calc_gt_coco.py", {},
+            _run(args.python, toolkit, work, "calc_gt_coco.py", {},
                  common + where + ["--use_all_gt", "--bbox_type", "amodal"], f" on {split}")
         for model_type in (None, "eval"):
-            _run(args.python, toolkit, work, spec, "calc_model_info.py",
+            _run(args.python, toolkit, work, "calc_model_info.py",
                  {"dataset": DATASET, "model_type": model_type, "datasets_path": str(work / "datasets")},
                  what=f" on models{'_' + model_type if model_type else ''}/")
         return compare(export, copy, splits, args.show)

@@ -15,6 +15,24 @@ from tests.helpers import (OBJECTS, PLUGIN, coil_image, png_bytes, write_pyrende
                            write_small_specs)
 
 
+@pytest.fixture(autouse=True)
+def _signal_handlers_as_found():
+    """Every test starts with the process's SIGINT and SIGTERM handlers and the interrupt state
+    (spm_data.jobs.outcome) as the worker had them, whatever an earlier test on the same pytest
+    worker did (a command run in-process, ray.init, a test that set its own handler)."""
+    import signal
+
+    from spm_data.jobs import outcome
+
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    state = (outcome._received[0], outcome._pending[0])
+    yield
+    for signum, handler in handlers.items():
+        if handler is not None and signal.getsignal(signum) is not handler:
+            signal.signal(signum, handler)
+    outcome._received[0], outcome._pending[0] = state
+
+
 @pytest.fixture
 def small_specs_dir(tmp_path):
     """A specs folder with two tiny classes (18 views x 2 instances each)."""

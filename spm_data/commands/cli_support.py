@@ -51,9 +51,13 @@ def handle_errors(fn):
             click.echo(f"error: {exc}", err=True)
             sys.exit(1)
         except KeyboardInterrupt:
-            click.echo(f"interrupted ({_signal_name(outcome.received())}); what was complete is kept: run the same "
-                       "command again to resume", err=True)
-            sys.exit(outcome.exit_status())
+            _say_interrupted(outcome)
+        except Exception:
+            # An error raised while a signal's KeyboardInterrupt unwinds a library (a module left
+            # half-imported, a C extension's callback) is the interruption's, not a bug of its own.
+            if outcome.received() is None:
+                raise
+            _say_interrupted(outcome)
         finally:
             outcome.end_of_command()
         if outcome.received() is not None:   # the signal's KeyboardInterrupt was swallowed on the way
@@ -63,6 +67,12 @@ def handle_errors(fn):
         return result
 
     return wrapper
+
+
+def _say_interrupted(outcome) -> None:
+    click.echo(f"interrupted ({_signal_name(outcome.received())}); what was complete is kept: run the same "
+               "command again to resume", err=True)
+    sys.exit(outcome.exit_status())
 
 
 def _signal_name(signum) -> str:

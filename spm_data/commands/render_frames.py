@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import queue
+import sys
 import threading
 import time
 import zlib
@@ -116,6 +117,26 @@ def pipeline_threads() -> int:
     return max(2, min(16, share))
 
 
+PIPELINE_NICE = 10
+# The GIL's switch interval while a pipeline runs (Python's default is 5 ms): the renderer's thread,
+# back from a GL call that let go of the GIL, waits up to this long for a pipeline thread running
+# Python (h5py, numpy's small steps) to hand it back; at 128x128 a frame takes about 5 ms.
+SWITCH_SECONDS = 0.0005
+
+
+def _behind_the_renderer() -> None:
+    """This thread (a pipeline's) yields the cores to the renderer's thread and the GL driver's
+    (llvmpipe rasterises on threads of its own): niceness PIPELINE_NICE (or its own, if higher),
+    on Linux a thread's own (setpriority on its thread id), so compression fills the cores the
+    renderer leaves idle instead of slowing it down. Raising niceness needs no privilege; where
+    it fails, nothing changes."""
+    try:
+        me = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, me, max(PIPELINE_NICE, os.getpriority(os.PRIO_PROCESS, me)))  # never up
+    except (AttributeError, OSError):
+        pass
+
+
 class FramePipeline:
     """A shard's frames from the renderer's thread to the writer: ``put(task)`` hands a frame's
     finishing (``task()`` -> (images, labels): compositing, the opt-in outputs) to a pool of
@@ -134,7 +155,7 @@ class FramePipeline:
         self._lock = threading.Lock()
         self._room = threading.Semaphore(max(1, ahead or 2 * threads))
         self._queue = queue.SimpleQueue()  # Futures in frame order, for the writer thread; None: stop
-        self._pool = ThreadPoolExecutor(max_workers=threads)
+        self._pool = ThreadPoolExecutor(max_workers=threads, initializer=_behind_the_renderer)
         self._thread = threading.Thread(target=self._store_all, name="spm-shard-writer", daemon=True)
         self._thread.start()
 
@@ -169,6 +190,7 @@ class FramePipeline:
 
     def _store_all(self) -> None:
         """The writer thread: blocks of frames, each field's chunks in frame order."""
+        _behind_the_renderer()
         try:
             for start in range(0, self.writer.frames, self.block):
                 block = []
@@ -202,12 +224,17 @@ class FramePipeline:
         return self._labels
 
     def __enter__(self):
+        self._switch = sys.getswitchinterval()
+        sys.setswitchinterval(min(self._switch, SWITCH_SECONDS))
         return self
 
     def __exit__(self, *exc):
-        if self._thread.is_alive():  # left early: the writer thread stops at the next frame it takes
-            self._queue.put(None)
-            self._pool.shutdown(cancel_futures=True)
-            self._thread.join()
-        self._pool.shutdown()
+        try:
+            if self._thread.is_alive():  # left early: the writer thread stops at the next frame it takes
+                self._queue.put(None)
+                self._pool.shutdown(cancel_futures=True)
+                self._thread.join()
+            self._pool.shutdown()
+        finally:
+            sys.setswitchinterval(self._switch)
         return False

@@ -17,10 +17,12 @@ from spm_data.core.randomize import fixed_light_rotations, max_lights
 
 OUTPUTS = ("rgb", "alpha", "depth", "mask")
 GPU_VARIABLE = "SPM_RENDER_GPU"  # the GPU a worker renders on, an index into its backend's GPU list (executors set it)
-# GL contexts (render processes) per GPU when --workers asks for more: two keep a GPU fed while one
-# process's thread is in Python between draws; the other workers' share goes to each process's
-# pipeline threads (compositing, compression). A first guess, not measured on a GPU (docs/scaling.md).
-CONTEXTS_PER_GPU = 2
+# GL contexts (render processes) per GPU when --workers asks for more. From issue 37's measurements on
+# one H100 (bare pyrender loops at 256x256, all processes together): 804 fps in 1 process, 2,193 in 4,
+# 2,423 in 8: four contexts give 90% of eight's frames with half the contexts, and leave the other
+# workers' cores to each process's pipeline threads (compositing, compression). Not measured by us
+# on a GPU (docs/scaling.md).
+CONTEXTS_PER_GPU = 4
 
 
 def spec_intrinsics(spec) -> np.ndarray:

@@ -26,6 +26,10 @@ def command(fail):
         raise ShardError("cup-00000.h5: field 'K' fails its checksum; the shard is corrupt")
     if fail == "bug":
         raise ValueError("a bug")
+    if fail == "signal-then-bug":   # SIGTERM's KeyboardInterrupt swallowed mid-import; the library then fails
+        from spm_data.jobs import outcome
+        outcome._received[0] = 15
+        raise TypeError("'NoneType' object is not callable")
     click.echo("done")
 
 
@@ -45,6 +49,12 @@ def test_success_warns_in_one_line_and_exits_0():
 def test_other_exceptions_are_bugs_and_propagate():
     r = CliRunner().invoke(command, ["--fail", "bug"])
     assert r.exit_code == 1 and isinstance(r.exception, ValueError) and "error:" not in r.stderr
+
+
+def test_an_error_raised_after_a_signal_is_the_interruption_in_one_line():
+    r = CliRunner().invoke(command, ["--fail", "signal-then-bug"])
+    assert r.exit_code == 143 and r.stderr.splitlines()[-1].startswith("interrupted (SIGTERM)"), r.stderr
+    assert not isinstance(r.exception, TypeError) and "Traceback" not in r.stderr
 
 
 def test_other_warnings_go_to_pythons_own_display(monkeypatch):

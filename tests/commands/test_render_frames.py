@@ -253,3 +253,34 @@ def test_merge_of_occluded_and_plain_frames_keeps_what_is_hidden(tmp_path):
     assert np.array_equal(merged["visible_mask"][:4], merged["mask"][:4])   # the plain frames: all seen
     assert np.array_equal(merged["visible_mask"][4:], occluded["visible_mask"])
     assert (merged["visible_mask"][4:].sum(axis=(1, 2)) < merged["mask"][4:].sum(axis=(1, 2))).all()
+
+
+def test_the_pipeline_runs_behind_the_renderer_and_gives_the_switch_interval_back(tmp_path):
+    """Its threads at niceness PIPELINE_NICE (their own), the GIL's switch interval SWITCH_SECONDS
+    while it runs, and Python's own again after it, also when the render fails."""
+    import os
+    import sys
+    import threading
+
+    from spm_data.commands.render_frames import PIPELINE_NICE, SWITCH_SECONDS, FramePipeline
+    from tests.commands.test_render_jobs import pipeline_writer
+
+    arrays, images, shard = pipeline_writer(tmp_path)
+    before, mine = sys.getswitchinterval(), os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+    seen = []
+
+    def frame(i):
+        seen.append((os.getpriority(os.PRIO_PROCESS, threading.get_native_id()), sys.getswitchinterval()))
+        return {f: arrays[f][i] for f in images}, {}
+
+    with shard as writer, FramePipeline(writer, block=4, threads=2) as pipeline:
+        for i in range(4):
+            pipeline.put(lambda i=i: frame(i))
+        pipeline.close()
+    assert seen == [(max(mine, PIPELINE_NICE), SWITCH_SECONDS)] * 4
+    assert sys.getswitchinterval() == before
+    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == mine   # the renderer's thread as it was
+    (tmp_path / "b").mkdir()
+    with pytest.raises(RuntimeError), pipeline_writer(tmp_path / "b")[2] as writer, FramePipeline(writer, 4):
+        raise RuntimeError("the render failed")
+    assert sys.getswitchinterval() == before

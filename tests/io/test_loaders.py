@@ -1,6 +1,7 @@
 """spm_data.io.loaders.ShardDataset: a shard folder as a map-style dataset, read lazily
 per process (fork and spawn workers), verified like every other read."""
 
+from concurrent.futures import ProcessPoolExecutor
 import json
 import multiprocessing
 import os
@@ -176,6 +177,15 @@ def test_running_out_of_file_descriptors_says_so(folder):
 
 # Pool workers: top-level functions, so spawn can import them.
 _DATASET = None
+POOL_SECONDS = 240   # a worker that dies or hangs fails the test (BrokenProcessPool, TimeoutError), never hangs the suite
+
+
+def _pool_read(method: str, ds, n: int) -> list:
+    """_read(0..n-1) in 2 worker processes started by ``method`` with ``ds`` set in each, as a
+    DataLoader's workers get their dataset; in index order."""
+    context = multiprocessing.get_context(method)
+    with ProcessPoolExecutor(2, mp_context=context, initializer=_set_dataset, initargs=(ds,)) as pool:
+        return list(pool.map(_read, range(n), timeout=POOL_SECONDS))
 
 
 def _set_dataset(ds):
@@ -192,8 +202,7 @@ def _read(i):
 def test_pool_workers_read_every_item(folder, method):
     ds = ShardDataset(folder, transform=add_one)
     want = [add_one(item) for item in direct_read(folder)]
-    with multiprocessing.get_context(method).Pool(2, initializer=_set_dataset, initargs=(ds,)) as pool:
-        results = pool.map(_read, range(len(ds)), chunksize=1)
+    results = _pool_read(method, ds, len(ds))
     assert len(results) == len(want)
     for (item, pid, reader_pids), expected in zip(results, want):
         assert_item_equal(item, expected)
@@ -207,8 +216,7 @@ def test_a_dataset_used_before_fork_reopens_in_the_children(folder):
     assert_item_equal(ds[-1], want[-1])
     parent_readers = dict(ds._readers)
     assert {r.pid for r in parent_readers.values()} == {os.getpid()}
-    with multiprocessing.get_context("fork").Pool(2, initializer=_set_dataset, initargs=(ds,)) as pool:
-        results = pool.map(_read, range(len(ds)), chunksize=1)
+    results = _pool_read("fork", ds, len(ds))
     for i, (item, pid, reader_pids) in enumerate(results):
         assert_item_equal(item, want[i])
         assert pid != os.getpid() and set(reader_pids.values()) == {pid}  # its own handles, not the parent's
@@ -352,8 +360,7 @@ def test_workers_forked_each_epoch_hash_each_shard_once_per_run(folder, monkeypa
     hashes = []
     for epoch in range(3):
         _HASHES.value = 0
-        with multiprocessing.get_context("fork").Pool(2, initializer=_set_dataset, initargs=(ds,)) as pool:
-            results = pool.map(_read, range(len(ds)), chunksize=1)
+        results = _pool_read("fork", ds, len(ds))
         for (item, _, _), expected in zip(results, want):
             assert_item_equal(item, expected)
         hashes.append(_HASHES.value)

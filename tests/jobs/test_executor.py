@@ -129,9 +129,9 @@ def test_use_gpus_spreads_workers_over_few_gl_contexts_a_gpu(monkeypatch):
     fake_visible(monkeypatch, (0, 1, 2))
     local = LocalExecutor(workers=8, retries=2, recycle_after=16)
     on_all = use_gpus(local, None, 0.0, {"pyrender"})
-    assert (on_all.gpus, on_all.workers, on_all.retries, on_all.recycle_after) == ((0, 1, 2), 6, 2, 16)
+    assert (on_all.gpus, on_all.workers, on_all.retries, on_all.recycle_after) == ((0, 1, 2), 8, 2, 16)
     one = use_gpus(local, "2", 0.0, {"pyrender"})
-    assert (one.gpus, one.workers) == ((2,), 2)      # 8-way work in 2 GL contexts on GPU 2
+    assert (one.gpus, one.workers) == ((2,), 4)      # 8-way work in 4 GL contexts on GPU 2
     assert use_gpus(LocalExecutor(workers=1), None, 0.0, {"pyrender"}).gpus == ()  # one worker: the first GPU
     blender = use_gpus(local, "0,1", 0.0, {"blender"})   # Blender checks indices in its workers
     assert (blender.gpus, blender.workers) == ((0, 1), 8)

@@ -87,6 +87,8 @@ def test_a_signal_landing_in_a_finaliser_is_recorded_not_raised_there():
         def __del__(self):
             outcome._raise_interrupt(signal.SIGTERM, sys._getframe())
 
+    signal.signal(signal.SIGINT, signal.default_int_handler)   # Python's own handlers, as a command starts with
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     outcome.signals_for_work()
     try:
         Holder()   # collected at once: __del__ runs, nothing raised

@@ -95,12 +95,12 @@ def test_the_gpus_chosen_are_those_wanted_out_of_those_listed():
         choose_gpus((1, 4), (0, 1), "EGL")
 
 
-@pytest.mark.parametrize("workers, gpus, processes", [(1, 0, 1), (8, 0, 8), (8, 1, 2), (8, 4, 8), (3, 2, 3),
-                                                      (1, 4, 1)])
+@pytest.mark.parametrize("workers, gpus, processes", [(1, 0, 1), (8, 0, 8), (8, 1, 4), (16, 2, 8), (8, 4, 8),
+                                                      (3, 2, 3), (1, 4, 1)])
 def test_gl_processes_are_one_per_worker_on_the_cpu_and_few_per_gpu(workers, gpus, processes):
     from spm_data.render.base import CONTEXTS_PER_GPU, gl_processes
 
-    assert CONTEXTS_PER_GPU == 2 and gl_processes(workers, gpus) == processes
+    assert CONTEXTS_PER_GPU == 4 and gl_processes(workers, gpus) == processes
 
 
 def test_a_worker_reads_its_gpu_and_blender_lists_its_gpus_only_in_its_workers():

@@ -5,8 +5,9 @@ zlib releases the GIL, so a pool of threads encodes or decodes a shard's frames 
 parallel where HDF5's filter pipeline (h5py holds its lock) runs on one; each thread
 takes a run of ``RUN`` consecutive frames (one task per frame cost more than a small
 frame's codec work). The bytes are exactly HDF5's (tests/io/shards/test_chunks.py),
-whichever thread computes them. While rendering, each frame is compressed ahead
-(AheadFrame) as the renderer draws the next.
+whichever thread computes them. While rendering, a FramePipeline
+(spm_data/commands/render_frames.py) compresses each frame on its threads as the renderer
+draws the next.
 """
 
 from __future__ import annotations
@@ -76,26 +77,3 @@ def decode_run(raws, out: np.ndarray, start: int, shuffled: bool) -> int | None:
 def runs(n: int, per: int = RUN) -> list[range]:
     """0..n in consecutive runs of ``per`` (the last shorter)."""
     return [range(a, min(n, a + per)) for a in range(0, n, per)]
-
-
-def encode_frame(frames: dict) -> dict:
-    """{field: encode_chunk(frame)} of one frame's fields."""
-    return {field: encode_chunk(frame) for field, frame in frames.items()}
-
-
-class AheadFrame:
-    """One frame's fields ({field: frame}) handed to ``pool`` to compress now; ``chunk(field)``
-    gives that field's encoded chunk. A frame no thread has started when its chunks are
-    needed is compressed by the caller instead of queued behind the others (the same bytes
-    whoever computes them), so a caller at the end of a block never waits on a backlog."""
-
-    def __init__(self, pool, frames: dict):
-        self._frames = frames
-        self._future = pool.submit(encode_frame, frames)
-        self._chunks = None
-
-    def chunk(self, field: str) -> bytes:
-        if self._chunks is None:
-            self._chunks = encode_frame(self._frames) if self._future.cancel() else self._future.result()
-            self._frames = None
-        return self._chunks[field]

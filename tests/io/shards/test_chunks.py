@@ -1,12 +1,9 @@
 """spm_data.io.shards.chunks: frames encoded as HDF5's filters store them and decoded back,
 damaged chunks refused, runs that tile the frames; our chunks are the bytes HDF5's own
-filters store, and a frame compressed ahead gives the same chunks whether a thread or its
-caller computes them."""
+filters store."""
 
 import io
-import threading
 import zlib
-from concurrent.futures import ThreadPoolExecutor
 
 import h5py
 
@@ -14,8 +11,8 @@ import numpy as np
 import pytest
 
 from spm_data.io.shards.checksums import FLETCHER32, fletcher32
-from spm_data.io.shards.chunks import (DEFLATE, SHUFFLE, AheadFrame, decodable, decode_chunk, decode_run, encode_chunk,
-                                       encode_frame, encode_run, runs)
+from spm_data.io.shards.chunks import (DEFLATE, SHUFFLE, decodable, decode_chunk, decode_run, encode_chunk,
+                                       encode_run, runs)
 
 
 @pytest.mark.parametrize("dtype, shape", [("uint8", (6, 5, 3)), ("float32", (4, 7)), ("float16", (3, 2, 3))])
@@ -69,28 +66,3 @@ def test_a_chunk_is_what_hdf5s_filters_store(shape, dtype):
     assert encode_run(list(frames)) == stored
 
 
-def _frame(seed=2):
-    rng = np.random.default_rng(seed)
-    return {"rgb": (rng.random((5, 4, 3)) * 255).astype(np.uint8), "depth": rng.random((5, 4), dtype=np.float32)}
-
-
-def test_a_frame_no_thread_has_started_is_compressed_by_its_caller():
-    frame = _frame()
-    release = threading.Event()
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        pool.submit(release.wait)  # the only thread is busy: the frame stays queued
-        ahead = AheadFrame(pool, frame)
-        chunks = {field: ahead.chunk(field) for field in frame}  # does not wait for the thread
-        assert ahead._future.cancelled()
-        release.set()
-    assert chunks == encode_frame(frame)
-    assert chunks["depth"] == encode_chunk(frame["depth"]) and chunks["rgb"] == encode_chunk(frame["rgb"])
-
-
-def test_a_frame_a_thread_has_compressed_gives_the_same_chunks():
-    frame = _frame(3)
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        ahead = AheadFrame(pool, frame)
-        ahead._future.result()  # the thread has done it
-        assert not ahead._future.cancelled()
-        assert {field: ahead.chunk(field) for field in frame} == encode_frame(frame)
