@@ -4,7 +4,8 @@ pyrender (per image size and worker count, best of --rounds interleaved runs): (
 loop of renderer.render over the frames, with the frames' own draws and distractors (made
 before the loop), in each of N processes at once (their frames split as the shards are;
 1 worker: this process) and (2) the whole `spm-data render` path for the same frames
-(render_dataset with N local workers: path generation, meshes, draws, distractors,
+(render_dataset with N local workers as `spm-data render --workers N` builds them: on GPUs
+in at most $SPM_CONTEXTS_PER_GPU (default 4) render processes a GPU; path generation, meshes, draws, distractors,
 compositing, compression, HDF5 shard writing, manifest; with N > 1 the workers' start-up is
 included). Prints fps for both, whole / bare, and the split of the whole path: ms per frame
 busy in each stage (render, readback, composite, compress, write; they overlap, and with
@@ -40,7 +41,7 @@ from spm_data.core.instances import load_instance  # noqa: E402
 from spm_data.commands.render_frames import FrameMaker  # noqa: E402
 from spm_data.commands.render_jobs import RECYCLE_AFTER, plan_shards, render_dataset  # noqa: E402
 from spm_data.core.specs import all_spec_paths, find_spec, load_spec  # noqa: E402
-from spm_data.jobs.executor import LocalExecutor, run_jobs  # noqa: E402
+from spm_data.jobs.executor import LocalExecutor, run_jobs, use_gpus  # noqa: E402
 
 STAGES = ("render", "readback", "composite", "compress", "write")
 
@@ -76,7 +77,10 @@ def bench(spec, frames: int, workers: int, rounds: int = 3) -> dict:
             progress(frames)
             first = _FirstFrame()
             with tempfile.TemporaryDirectory() as out:
-                executor = LocalExecutor(workers=workers, retries=1, recycle_after=RECYCLE_AFTER)
+                # As `spm-data render --workers N` builds it: on GPUs, N-way work in fewer GL contexts.
+                executor = use_gpus(LocalExecutor(workers=workers, retries=1, recycle_after=RECYCLE_AFTER), None,
+                                    0.0, {"pyrender"})
+                best["processes"] = executor.workers
                 started, cpu = time.perf_counter(), _cpu_seconds()
                 summary = render_dataset([spec], out, limit=frames, executor=executor, progress=first)
                 ended = time.perf_counter()
@@ -161,10 +165,11 @@ def bench_pyrender(base, cls: str, frames: int, sizes, workers_list, rounds: int
           "start-up); whole / bare: of the best runs, and the median of each round's; split: ms per frame busy in "
           "each stage of the whole path (they overlap; summed over workers and threads; readback includes the wait "
           "for the drawing); CPU: ms of CPU per frame, all threads and worker processes (start-up included); "
-          "load: 1-minute load average as the row ended")
-    print("| size | workers | bare fps | whole fps | whole fps, warm | whole / bare | whole / bare, median | "
-          "bare CPU | whole CPU | " + " | ".join(STAGES) + " | load |")
-    print("|---|---|---|---|---|---|---|---|---|" + "---|" * len(STAGES) + "---|")
+          "render processes: the whole path's (on GPUs at most $SPM_CONTEXTS_PER_GPU, default 4, a GPU; the bare "
+          "loop always runs one per worker); load: 1-minute load average as the row ended")
+    print("| size | workers | render processes | bare fps | whole fps | whole fps, warm | whole / bare | "
+          "whole / bare, median | bare CPU | whole CPU | " + " | ".join(STAGES) + " | load |")
+    print("|---|---|---|---|---|---|---|---|---|---|" + "---|" * len(STAGES) + "---|")
     for size in sizes:
         spec = base.replace(image=type(base.image)(width=size, height=size, fov=base.image.fov),
                             render=replace(base.render, renderer="pyrender"))
@@ -172,7 +177,7 @@ def bench_pyrender(base, cls: str, frames: int, sizes, workers_list, rounds: int
             n = frames * workers
             r = bench(spec, n, workers, rounds)
             split = " | ".join(f"{1e3 * r['split'].get(k, 0.0) / n:.3f}" for k in STAGES)
-            print(f"| {size}x{size} | {workers} | {n / r['bare']:.0f} | {n / r['whole']:.0f} | {n / r['warm']:.0f} | "
+            print(f"| {size}x{size} | {workers} | {r['processes']} | {n / r['bare']:.0f} | {n / r['whole']:.0f} | {n / r['warm']:.0f} | "
                   f"{r['whole'] / r['bare']:.3f} | {r['paired']:.3f} | {1e3 * r['bare_cpu'] / n:.2f} | "
                   f"{1e3 * r['whole_cpu'] / n:.2f} | {split} | {os.getloadavg()[0]:.2f} |", flush=True)
 

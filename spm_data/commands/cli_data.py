@@ -29,7 +29,8 @@ from spm_data.render import renderer_names
                   task_cpus="Give a Blender task its Cycles threads (render.blender.threads).")
 @click.option("--gpus", default=None, metavar="0,1,...",
               help="GPUs to render on, one per worker in turn (--executor local) [default: every GPU; none: "
-                   "the CPU]. pyrender: at most 2 GL contexts a GPU, --workers' other work on their threads.")
+                   "the CPU]. pyrender: at most 4 GL contexts a GPU ($SPM_CONTEXTS_PER_GPU), --workers' other work "
+                   "on their threads.")
 @click.option("--task-gpus", default=0.0, show_default=True, type=click.FloatRange(min=0.0),
               help="GPUs each Ray task reserves (--executor ray; 0.25: four tasks share one).")
 @handle_errors

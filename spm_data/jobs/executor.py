@@ -321,7 +321,7 @@ def use_gpus(executor, gpus, task_gpus: float, renderers):
     """The render run's ``executor`` with GPUs (the render command's --gpus and --task-gpus):
     Ray tasks ask for ``task_gpus`` each (RayExecutor.with_task_gpus); local workers get the
     GPUs ``gpus`` names ("0,1"; None: every GPU the ``renderers`` list here) in turn, in at
-    most CONTEXTS_PER_GPU processes a GPU for a renderer that lists its GPUs here (pyrender:
+    most contexts_per_gpu() processes a GPU for a renderer that lists its GPUs here (pyrender:
     one GL context a process). RenderError / SpmError (one line) for a refusal."""
     from spm_data.render.base import choose_gpus, gl_processes, parse_gpus, visible_gpus
 

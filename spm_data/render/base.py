@@ -166,13 +166,29 @@ def choose_gpus(wanted, listed, lister: str = "this machine") -> tuple[int, ...]
     return tuple(wanted)
 
 
-def gl_processes(workers: int, gpus: int, per_gpu: int = CONTEXTS_PER_GPU) -> int:
+CONTEXTS_VARIABLE = "SPM_CONTEXTS_PER_GPU"  # a user's own CONTEXTS_PER_GPU (docs/scaling.md: measure it)
+
+
+def contexts_per_gpu(environ=None) -> int:
+    """GL contexts per GPU: $SPM_CONTEXTS_PER_GPU (1-64), else CONTEXTS_PER_GPU. RenderError
+    (one line) for another value."""
+    value = (os.environ if environ is None else environ).get(CONTEXTS_VARIABLE, "").strip()
+    if not value:
+        return CONTEXTS_PER_GPU
+    if not value.isdigit() or not 1 <= int(value) <= 64:
+        raise RenderError(f"{CONTEXTS_VARIABLE}={value!r}: expected a whole number of GL contexts per GPU from 1 "
+                          f"to 64; unset it for the default, {CONTEXTS_PER_GPU}")
+    return int(value)
+
+
+def gl_processes(workers: int, gpus: int, per_gpu: int | None = None) -> int:
     """Render processes (one GL context each) carrying ``workers``-way work: one per worker on
-    the CPU (``gpus`` = 0: llvmpipe draws on the process's own cores), at most ``per_gpu`` per GPU
-    otherwise (contexts on one GPU take turns; more of them only add switches)."""
+    the CPU (``gpus`` = 0: llvmpipe draws on the process's own cores), at most ``per_gpu``
+    (default: contexts_per_gpu()) per GPU otherwise (contexts on one GPU take turns; more of
+    them only add switches)."""
     if gpus <= 0:
         return max(1, workers)
-    return max(1, min(workers, per_gpu * gpus))
+    return max(1, min(workers, (per_gpu or contexts_per_gpu()) * gpus))
 
 
 def assigned_gpu(environ=None) -> int | None:

@@ -1,11 +1,14 @@
 """spm_data.render.base: the Renderer interface and what the backends share (intrinsics from the
 spec, lights around the camera, masks from depth)."""
 
+import re
+
 import numpy as np
 import pytest
 
 from spm_data.core.poses import intrinsics_from_fov
 from spm_data.core.specs import parse_spec
+from spm_data.errors import RenderError
 from spm_data.render.base import Renderer, light_rotations, mask_from_depth, spec_intrinsics
 
 SPEC = 'class = "cup"\n[image]\nwidth = 64\nheight = 48\nfov = 40\n[render]\nrenderer = "pyrender"\n'
@@ -110,3 +113,16 @@ def test_a_worker_reads_its_gpu_and_blender_lists_its_gpus_only_in_its_workers()
     assert visible_gpus("blender") is None
     gpus, lister = visible_gpus("pyrender")
     assert lister == "pyrender's EGL" and all(isinstance(g, int) for g in gpus)
+
+
+def test_contexts_per_gpu_is_the_users_own_when_set_and_refused_in_one_line_when_wrong(monkeypatch):
+    from spm_data.render.base import CONTEXTS_PER_GPU, contexts_per_gpu, gl_processes
+
+    assert contexts_per_gpu({}) == CONTEXTS_PER_GPU == contexts_per_gpu({"SPM_CONTEXTS_PER_GPU": " "})
+    assert contexts_per_gpu({"SPM_CONTEXTS_PER_GPU": "8"}) == 8
+    monkeypatch.setenv("SPM_CONTEXTS_PER_GPU", "2")
+    assert gl_processes(8, 1) == 2 and gl_processes(8, 0) == 8 and gl_processes(8, 1, per_gpu=3) == 3
+    for bad in ("0", "65", "-1", "two", "1.5"):
+        with pytest.raises(RenderError, match=rf"^SPM_CONTEXTS_PER_GPU='{re.escape(bad)}': expected a whole number "
+                                              r"of GL contexts per GPU from 1 to 64; unset it for the default, 4$"):
+            contexts_per_gpu({"SPM_CONTEXTS_PER_GPU": bad})
