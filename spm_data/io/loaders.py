@@ -183,13 +183,22 @@ class _SharedChecks:
     def __init__(self, n: int):
         self._memory = multiprocessing.Array("b", max(n, 1) * self.RECORD.itemsize)  # zeroed, with a lock
 
+    # A process killed while it held the shared lock (a DataLoader worker stopped mid-read) leaves
+    # it held: the others wait this long, then do without the record (hash the shard themselves).
+    LOCK_SECONDS = 2.0
+
     def known(self, shard: int, path) -> tuple | None:
         """This process's check of ``path``, else the shared record of shard ``shard``, else None."""
         mine = verification(path)
         if mine is not None:
             return mine
-        with self._memory.get_lock():
+        lock = self._memory.get_lock()
+        if not lock.acquire(timeout=self.LOCK_SECONDS):
+            return None
+        try:
             key, digest = np.frombuffer(self._memory.get_obj(), dtype=self.RECORD)[shard].tolist()
+        finally:
+            lock.release()
         return (tuple(key), digest.decode("ascii")) if digest else None
 
     def take(self, shard: int, path) -> None:
@@ -197,9 +206,12 @@ class _SharedChecks:
 
     def record(self, shard: int, path) -> None:
         mine = verification(path)  # None for a file changed within seal.RACY_SECONDS: hashed on every open
-        if mine is not None:
-            with self._memory.get_lock():
+        lock = self._memory.get_lock()
+        if mine is not None and lock.acquire(timeout=self.LOCK_SECONDS):
+            try:
                 np.frombuffer(self._memory.get_obj(), dtype=self.RECORD)[shard] = (mine[0], mine[1].encode("ascii"))
+            finally:
+                lock.release()
 
 
 class _OpenShard:

@@ -31,14 +31,18 @@ def make_arrays(n, seed, h=6, w=5):
     return arrays
 
 
-@pytest.fixture
-def folder(tmp_path):
-    out = tmp_path / "shards"
+def shard_folder(out, counts):
+    """``out`` made a folder of shards cup-00000.h5, ... of ``counts`` frames each, with its manifest."""
     out.mkdir()
-    for k, n in enumerate(COUNTS):
+    for k, n in enumerate(counts):
         write_shard(out / f"cup-{k:05d}.h5", make_arrays(n, seed=k), {"renderer": "test", "seed": k})
     write_manifest(out)
     return out
+
+
+@pytest.fixture
+def folder(tmp_path):
+    return shard_folder(tmp_path / "shards", COUNTS)
 
 
 def direct_read(folder, fields=None):
@@ -248,11 +252,7 @@ THREE = (3, 4, 2)  # frames per shard of the three_shards fixture
 @pytest.fixture
 def three_shards(tmp_path):
     """A 3-shard folder and every frame of it read before anything is damaged: [{field: value}]."""
-    out = tmp_path / "three"
-    out.mkdir()
-    for k, n in enumerate(THREE):
-        write_shard(out / f"cup-{k:05d}.h5", make_arrays(n, seed=k), {"renderer": "test", "seed": k})
-    write_manifest(out)
+    out = shard_folder(tmp_path / "three", THREE)
     return out, direct_read(out)
 
 
@@ -365,3 +365,39 @@ def test_workers_forked_each_epoch_hash_each_shard_once_per_run(folder, monkeypa
             assert_item_equal(item, expected)
         hashes.append(_HASHES.value)
     assert hashes[0] <= 2 * 3 and hashes[1:] == [0, 0]  # 3 non-empty shards, 2 workers; none again later
+
+
+def test_a_shared_record_held_by_a_stopped_process_is_done_without_not_waited_for(folder, monkeypatch):
+    """A worker killed inside the shared record's lock leaves it held: readers wait LOCK_SECONDS,
+    then verify the shard themselves (the same items), and never hang."""
+    import threading
+
+    from spm_data.io.loaders import _SharedChecks
+    from spm_data.io.shards import forget_checks
+
+    monkeypatch.setattr(_SharedChecks, "LOCK_SECONDS", 0.05)
+    ds = ShardDataset(folder)
+    want = direct_read(folder)
+    held, done = threading.Event(), threading.Event()
+
+    def stopped_worker():   # takes the lock and never gives it back while the test reads
+        lock = ds._checks._memory.get_lock()
+        lock.acquire()
+        held.set()
+        done.wait()
+        lock.release()
+
+    thread = threading.Thread(target=stopped_worker, daemon=True)
+    thread.start()
+    held.wait()
+    got = []
+    forget_checks()   # nothing verified in this process: every shard's record is asked for
+    reader = threading.Thread(target=lambda: got.extend(ds[i] for i in range(len(ds))), daemon=True)
+    reader.start()
+    reader.join(timeout=60)   # a reader that waits for the lock for ever fails here instead of hanging
+    finished = not reader.is_alive()
+    done.set()
+    thread.join()
+    assert finished and len(got) == len(want)
+    for item, expected in zip(got, want):
+        assert_item_equal(item, expected)
