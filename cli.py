@@ -15,7 +15,9 @@ import sys
 # this module (tests, notebooks) keeps its own handlers.
 from spm_data.jobs.outcome import catch_signals_early
 
-if os.path.basename(sys.argv[0]) in ("spm", "spm-data"):
+# Not in a worker process that multiprocessing spawned: it runs this module again (as part of the
+# program's main script) with the parent's sys.argv, and its signals are the parent's to handle.
+if os.path.basename(sys.argv[0]) in ("spm", "spm-data") and "--multiprocessing-fork" not in sys.orig_argv:
     catch_signals_early()
 
 import click  # noqa: E402 - after the signal handlers, on purpose

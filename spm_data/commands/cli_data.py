@@ -36,11 +36,11 @@ from spm_data.render import renderer_names
 @handle_errors
 def render_cmd(classes, all_classes, spec_files, specs_dir, out, renderer, seed, limit, executor, gpus, task_gpus):
     """Render classes (--class, --all, --spec) over their camera paths into shards in --out; a rerun resumes."""
+    from spm_data.commands.render_gpus import render_executor
     from spm_data.commands.render_jobs import load_run_specs, render_dataset
-    from spm_data.jobs.executor import use_gpus
 
     specs = load_run_specs(classes, all_classes, spec_files, specs_dir, renderer=renderer, seed=seed)
-    executor = use_gpus(executor, gpus, task_gpus, {spec.render.renderer for spec in specs})
+    executor = render_executor(executor, gpus, task_gpus, specs)
     run_with_progress(lambda bar: render_dataset(specs, out, limit=limit, progress=bar, executor=executor))
 
 

@@ -82,8 +82,27 @@ def environment(values: dict):
                 os.environ[name] = value
 
 
+@contextmanager
+def _sigint_held():
+    """SIGINT blocked on this thread while a worker is spawned: the child inherits the mask, so a
+    Ctrl-C to the process group during the child's start-up (imports: a second or more) waits
+    instead of printing a KeyboardInterrupt traceback from the child, and _worker_main then
+    ignores it. The parent's own SIGINT is not lost: another thread takes it, or this one when
+    the mask is restored, a few milliseconds later."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
+
+
 def _worker_main(fn, conn, recycle_after):
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent owns Ctrl-C and stops us
+    if hasattr(signal, "pthread_sigmask"):   # started with SIGINT blocked (_sigint_held): ignored from now on
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     # A parent that imported bpy hands us Blender's script folders on sys.path;
     # with them, `import bpy` here would find Blender's scripts/modules/bpy instead.
     sys.path[:] = [p for p in sys.path if not is_blender_script_dir(p)]
@@ -211,7 +230,7 @@ class _Pool:
         parent, child = self.ctx.Pipe()
         proc = self.ctx.Process(target=_worker_main, args=(self.fn, child, self.recycle_after), daemon=True)
         slot = min(set(range(len(self.pool) + 1)) - {w.slot for w in self.pool.values()})  # a free place
-        with environment(worker_environment(self.workers, slot, self.gpus)):
+        with environment(worker_environment(self.workers, slot, self.gpus)), _sigint_held():
             proc.start()
         child.close()
         self.pool[self.next_id] = _Worker(proc, parent, slot=slot)
@@ -315,32 +334,3 @@ class LocalExecutor:
         return run_jobs(fn, jobs, workers=workers, retries=self.retries, recycle_after=self.recycle_after,
                         on_progress=on_progress, on_outcome=on_outcome, on_worker_death=on_worker_death,
                         parent_works=parent_works and in_process, gpus=self.gpus)
-
-
-def use_gpus(executor, gpus, task_gpus: float, renderers):
-    """The render run's ``executor`` with GPUs (the render command's --gpus and --task-gpus):
-    Ray tasks ask for ``task_gpus`` each (RayExecutor.with_task_gpus); local workers get the
-    GPUs ``gpus`` names ("0,1"; None: every GPU the ``renderers`` list here) in turn, in at
-    most contexts_per_gpu() processes a GPU for a renderer that lists its GPUs here (pyrender:
-    one GL context a process). RenderError / SpmError (one line) for a refusal."""
-    from spm_data.render.base import choose_gpus, gl_processes, parse_gpus, visible_gpus
-
-    wanted = parse_gpus(gpus)
-    if executor.name != "local":
-        if wanted is not None:
-            raise SpmError("--gpus picks this machine's GPUs (--executor local); Ray tasks ask for theirs "
-                           "with --task-gpus")
-        return executor.with_task_gpus(task_gpus) if task_gpus else executor
-    if task_gpus:
-        raise SpmError("--task-gpus is for --executor ray; on this machine, pick GPUs with --gpus")
-    if wanted is None and executor.workers <= 1:
-        return executor  # one worker: the renderer takes the first GPU itself
-    listed = [found for found in (visible_gpus(r) for r in sorted(set(renderers))) if found is not None]
-    if not listed:  # Blender alone lists its GPUs in its workers, which check the indices
-        return LocalExecutor(executor.workers, executor.retries, executor.recycle_after, wanted or ())
-    chosen = choose_gpus(wanted, *listed[0])
-    processes = gl_processes(executor.workers, len(chosen))
-    if processes < len(chosen):
-        warnings.warn(f"--workers {executor.workers} renders on {processes} of the {len(chosen)} GPUs; give "
-                      f"--workers {len(chosen)} or more to use them all", SpmWarning)
-    return LocalExecutor(processes, executor.retries, executor.recycle_after, chosen)

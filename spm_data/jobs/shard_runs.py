@@ -42,15 +42,31 @@ class RunSummary:
     complete: int = 0             # planned shards complete on disk when the run ended
 
     def report(self, details=()) -> str:
-        """What happened, in a few lines for a person; ``details``: extra lines."""
-        lines = [f"{self.verb} {len(self.done)} shards ({self.frames} frames) in {self.seconds:.1f} s; "
-                 f"{len(self.skipped)} already complete; {len(self.failed)} failed -> {self.out_dir}/", *details]
+        """What happened, in a few lines for a person; ``details``: extra lines. Interrupted: one
+        line (and the shards that failed), from what is on disk when the run ended: workers may
+        have finished shards the run was not told of."""
+        lines = [] if self.interrupted else [
+            f"{self.verb} {_count(len(self.done), 'shard')} ({_count(self.frames, 'frame')}) in {self.seconds:.1f} s; "
+            f"{len(self.skipped)} already complete; {len(self.failed)} failed -> {self.out_dir}/", *details]
         lines += [f"  redone {name}: {why}" for name, why in self.redone]
         lines += [f"  failed {name}: {err}" for name, err in self.failed]
         if self.interrupted:
-            lines.append(f"interrupted: {self.complete} of {self.planned} shards are complete in {self.out_dir}/ "
-                         "(listed in manifest.json); run the same command again to resume")
+            lines.append(self._interrupted_line())
         return "\n".join(lines)
+
+    def _interrupted_line(self) -> str:
+        out = Path(self.out_dir)
+        if not out.is_dir():
+            return "interrupted before any shard was complete; nothing was written"
+        listed = " (listed in manifest.json)" if (out / MANIFEST).is_file() else ""
+        verb = "is" if self.planned == 1 else "are"
+        return (f"interrupted: {self.complete} of {_count(self.planned, 'shard')} {verb} complete in "
+                f"{self.out_dir}/{listed}; run the same command again to resume")
+
+
+def _count(n: int, noun: str) -> str:
+    """"1 shard", "2 shards"."""
+    return f"{n:,} {noun}" + ("" if n == 1 else "s")
 
 
 def prepare_out_dir(out_dir) -> Path:

@@ -11,7 +11,7 @@ def test_cli_import_reports_skips_and_resumes(coil_folder, tmp_path):
     args = ["import", "coil100", str(coil_folder), "--out", str(tmp_path / "o")]
     r = CliRunner().invoke(data_cli, args)
     assert r.exit_code == 0, r.output
-    assert "imported 1 shards (142 frames)" in r.output
+    assert "imported 1 shard (142 frames)" in r.output
     assert "skipped 3 images:" in r.output and "missing view" in r.output and "foreign file" in r.output
     assert "truncated" in r.output
     r = CliRunner().invoke(data_cli, args)

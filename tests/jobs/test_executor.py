@@ -117,51 +117,48 @@ def test_workers_take_the_gpus_in_turn_and_in_process_jobs_the_first(monkeypatch
     assert here[0].result[:2] == ("3", None) and GPU_VARIABLE not in os.environ  # restored after the run
 
 
-def fake_visible(monkeypatch, gpus):
-    from spm_data.render import pyrender_backend
-
-    monkeypatch.setattr(pyrender_backend, "visible_gpus", lambda: (tuple(gpus), "pyrender's EGL"))
-
-
-def test_use_gpus_spreads_workers_over_few_gl_contexts_a_gpu(monkeypatch):
-    from spm_data.jobs.executor import LocalExecutor, use_gpus
-
-    fake_visible(monkeypatch, (0, 1, 2))
-    local = LocalExecutor(workers=8, retries=2, recycle_after=16)
-    on_all = use_gpus(local, None, 0.0, {"pyrender"})
-    assert (on_all.gpus, on_all.workers, on_all.retries, on_all.recycle_after) == ((0, 1, 2), 8, 2, 16)
-    one = use_gpus(local, "2", 0.0, {"pyrender"})
-    assert (one.gpus, one.workers) == ((2,), 4)      # 8-way work in 4 GL contexts on GPU 2
-    assert use_gpus(LocalExecutor(workers=1), None, 0.0, {"pyrender"}).gpus == ()  # one worker: the first GPU
-    blender = use_gpus(local, "0,1", 0.0, {"blender"})   # Blender checks indices in its workers
-    assert (blender.gpus, blender.workers) == ((0, 1), 8)
-    from spm_data.errors import SpmWarning
-
-    with pytest.warns(SpmWarning, match=r"^--workers 1 renders on 1 of the 3 GPUs; give --workers 3 or more to use "
-                                        r"them all$"):
-        assert use_gpus(LocalExecutor(workers=1), "0,1,2", 0.0, {"pyrender"}).gpus == (0, 1, 2)
-    fake_visible(monkeypatch, ())
-    cpu = use_gpus(LocalExecutor(workers=4), None, 0.0, {"pyrender"})
-    assert (cpu.gpus, cpu.workers) == ((), 4)        # no GPU: one llvmpipe process per worker
+def sigint_state(job, report):
+    report(1)
+    return signal.getsignal(signal.SIGINT) == signal.SIG_IGN, signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, [])
 
 
-def test_use_gpus_refusals_are_one_line(monkeypatch):
-    from spm_data.errors import RenderError
-    from spm_data.jobs.executor import LocalExecutor, use_gpus
-    from spm_data.jobs.ray_executor import RayExecutor
+def report_mask(queue):
+    queue.put(signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, []))
 
-    fake_visible(monkeypatch, (0, 1))
-    with pytest.raises(RenderError, match=r"^--gpus 0,2: there is no GPU 2; pyrender's EGL lists 2: 0, 1$"):
-        use_gpus(LocalExecutor(workers=2), "0,2", 0.0, {"pyrender"})
-    with pytest.raises(RenderError, match=r"^--gpus 'x': expected GPU indices"):
-        use_gpus(LocalExecutor(workers=2), "x", 0.0, {"pyrender"})
-    with pytest.raises(SpmError, match=r"^--task-gpus is for --executor ray; on this machine, pick GPUs with --gpus$"):
-        use_gpus(LocalExecutor(), None, 1.0, {"pyrender"})
-    with pytest.raises(SpmError, match=r"^--gpus picks this machine's GPUs \(--executor local\); Ray tasks ask for "
-                                       r"theirs with --task-gpus$"):
-        use_gpus(RayExecutor(), "0", 0.0, {"pyrender"})
-    assert use_gpus(RayExecutor(task_cpus=2), None, 0.5, {"pyrender"}).task_gpus == 0.5
-    fake_visible(monkeypatch, ())
-    with pytest.raises(RenderError, match=r"^--gpus 0: no GPU here \(pyrender's EGL lists none\); leave --gpus out "
-                                          r"to render on the CPU$"):
-        use_gpus(LocalExecutor(), "0", 0.0, {"pyrender"})
+
+def test_a_process_spawned_while_sigint_is_held_starts_with_it_blocked():
+    import multiprocessing
+
+    from spm_data.jobs.executor import _sigint_held
+
+    ctx = multiprocessing.get_context("spawn")
+    queue = ctx.Queue()
+    with _sigint_held():
+        proc = ctx.Process(target=report_mask, args=(queue,))
+        proc.start()
+    assert queue.get(timeout=120) is True   # blocked through the child's start-up (its imports)
+    proc.join(timeout=120)
+    assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+
+
+def test_a_worker_starts_with_sigint_held_and_then_ignores_it_and_the_parent_keeps_its_own():
+    """A Ctrl-C to the process group while a worker is still importing must not print from the
+    worker: it is spawned with SIGINT blocked, and ignores it (unblocked) once it runs jobs."""
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    got = run_jobs(sigint_state, [0, 1], workers=2)
+    assert [o.result for o in got] == [(True, False), (True, False)]
+    assert signal.pthread_sigmask(signal.SIG_BLOCK, []) == before and signal.SIGINT not in before
+
+
+def test_a_spawned_worker_of_the_programs_does_not_take_their_early_signal_handlers(tmp_path):
+    """cli.py, run again in a spawned worker (the program's main script is imported there with the
+    parent's sys.argv), leaves the worker's signals alone."""
+    import subprocess
+    import sys
+
+    code = ("import sys, signal; sys.argv = ['/usr/bin/spm-data']; import cli; "
+            "print(signal.getsignal(signal.SIGINT) is signal.default_int_handler)")
+    for extra, want in (([], "False"), (["--multiprocessing-fork"], "True")):
+        done = subprocess.run([sys.executable, "-c", code, *extra], capture_output=True, text=True, timeout=120,
+                              cwd=Path(__file__).resolve().parents[2])
+        assert done.stdout.strip() == want, done.stderr
