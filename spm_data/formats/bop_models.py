@@ -188,8 +188,11 @@ def _eval_surface(mesh: TexturedMesh, diameter_mm: float, unit: TexturedMesh | N
     points relative to the diameter, resampled once per pool mesh instead of once per size."""
     if unit is None:
         return _remembered_resample(mesh.vertices * MM_PER_M, mesh.faces, EVAL_CELL_FRACTION * diameter_mm)
-    v, f, n = _remembered_resample(unit.vertices * MM_PER_M, unit.faces,
-                                   EVAL_CELL_FRACTION * diameter_mm / size)
+    # diameter_mm / size is the unit mesh's diameter up to float32 rounding (the PLY's vertices),
+    # which differs in the last digits from size to size: 6 significant digits make it one cell,
+    # and one resampling, per pool mesh.
+    cell = float(f"{EVAL_CELL_FRACTION * diameter_mm / size:.6g}")
+    v, f, n = _remembered_resample(unit.vertices * MM_PER_M, unit.faces, cell)
     return v * size, f, n
 
 

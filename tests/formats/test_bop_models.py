@@ -118,3 +118,25 @@ def test_row_keys_order_rows_as_unique_with_axis_0_does():
     _, inverse = np.unique(_row_keys(rows), return_inverse=True)
     _, expected = np.unique(rows, axis=0, return_inverse=True)
     np.testing.assert_array_equal(inverse, expected.ravel())
+
+
+def test_a_pool_mesh_drawn_at_several_sizes_is_resampled_once(tmp_path, monkeypatch):
+    """Distractors: one mesh of the pool at its drawn sizes; the cell (a fraction of each model's
+    float32 diameter over its size) differs in the last digits from size to size, and still
+    names one resampling."""
+    from spm_data.core.meshes import TexturedMesh
+    from spm_data.core.shapes import procedural_mesh
+    from spm_data.formats import bop_models
+
+    calls = []
+    monkeypatch.setattr(bop_models, "_RESAMPLED", {})
+    monkeypatch.setattr(bop_models, "eval_resample", lambda *a: calls.append(a[2]) or eval_resample(*a))
+    unit = procedural_mesh("ball", 2)
+    for sub in ("models", "models_eval"):
+        (tmp_path / sub).mkdir()
+    for obj_id, size in enumerate((0.0713, 0.0927, 0.1131, 0.0588), start=1):
+        mesh = TexturedMesh(unit.name, unit.vertices * size, unit.faces, unit.normals, unit.uv, unit.texture,
+                            unit.symmetries)
+        info = bop_models.save_bop_model(tmp_path, obj_id, mesh, unit, size)
+        assert info["diameter"] > 0
+    assert len(calls) == 1
