@@ -162,7 +162,7 @@ def test_a_folder_being_written_is_refused_with_who_writes_it(tmp_path):
             r = run(data_cli, "occlude", out, "--out", tmp_path / "occ", "--allow-partial")
             assert r.exit_code == 0, r.output
             assert f"warning: {out}/ is still being written by pid {proc.pid}" in r.output
-            assert f"occluded {done} shards" in r.output
+            assert f"occluded {done} shard{'' if done == 1 else 's'} (" in r.output
         finally:
             proc.send_signal(signal.SIGCONT)
             proc.send_signal(signal.SIGINT)
