@@ -92,6 +92,11 @@ def _sigint_held():
     if not hasattr(signal, "pthread_sigmask"):
         yield
         return
+    from multiprocessing import resource_tracker
+
+    # Started by the first spawn, the resource tracker unblocks SIGINT when it has started
+    # (CPython 3.11), which would undo the mask for that first worker: start it before.
+    resource_tracker.ensure_running()
     before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield

@@ -122,23 +122,38 @@ def sigint_state(job, report):
     return signal.getsignal(signal.SIGINT) == signal.SIG_IGN, signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, [])
 
 
-def report_mask(queue):
-    queue.put(signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, []))
+SPAWN_WHILE_HELD = """
+import multiprocessing, signal, sys
+from spm_data.jobs.executor import _sigint_held
 
+def report(conn):
+    conn.send(signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, []))
 
-def test_a_process_spawned_while_sigint_is_held_starts_with_it_blocked():
-    import multiprocessing
-
-    from spm_data.jobs.executor import _sigint_held
-
+if __name__ == "__main__":
     ctx = multiprocessing.get_context("spawn")
-    queue = ctx.Queue()
+    reader, writer = ctx.Pipe(duplex=False)   # as the executor's workers: a Pipe (a Queue would start the tracker)
     with _sigint_held():
-        proc = ctx.Process(target=report_mask, args=(queue,))
+        proc = ctx.Process(target=report, args=(writer,))
         proc.start()
-    assert queue.get(timeout=120) is True   # blocked through the child's start-up (its imports)
+    if not reader.poll(120):
+        sys.exit("the child said nothing")
+    print(reader.recv(), signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, []))
     proc.join(timeout=120)
-    assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+"""
+
+
+def test_a_process_spawned_while_sigint_is_held_starts_with_it_blocked(tmp_path):
+    """Also the first process a program spawns (multiprocessing starts its resource tracker then),
+    in a fresh interpreter; the parent's mask is as it was."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "spawn_while_held.py"
+    script.write_text(SPAWN_WHILE_HELD)
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300,
+                          cwd=Path(__file__).resolve().parents[2],
+                          env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])})
+    assert done.stdout.split() == ["True", "False"], done.stderr   # blocked through the child's start-up
 
 
 def test_a_worker_starts_with_sigint_held_and_then_ignores_it_and_the_parent_keeps_its_own():
