@@ -36,14 +36,14 @@ def use_gpus(executor, gpus, task_gpus: float, renderers):
         return executor.with_task_gpus(task_gpus) if task_gpus else executor
     if task_gpus:
         raise SpmError("--task-gpus is for --executor ray; on this machine, pick GPUs with --gpus")
-    contexts_per_gpu()   # a wrong $SPM_CONTEXTS_PER_GPU is refused here, with or without a GPU
+    per_gpu = contexts_per_gpu()   # a wrong $SPM_CONTEXTS_PER_GPU is refused here, with or without a GPU
     if wanted is None and executor.workers <= 1:
         return executor  # one worker: the renderer takes the first GPU itself
     listed = [found for found in (visible_gpus(r) for r in sorted(set(renderers))) if found is not None]
     if not listed:  # Blender alone lists its GPUs in its workers, which check the indices
         return LocalExecutor(executor.workers, executor.retries, executor.recycle_after, wanted or ())
     chosen = choose_gpus(wanted, *listed[0])
-    processes = gl_processes(executor.workers, len(chosen))
+    processes = gl_processes(executor.workers, len(chosen), per_gpu)
     if processes < len(chosen):
         warnings.warn(f"--workers {executor.workers} renders on {processes} of the {len(chosen)} GPUs; give "
                       f"--workers {len(chosen)} or more to use them all", SpmWarning)
