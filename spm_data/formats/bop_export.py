@@ -26,13 +26,14 @@ import numpy as np
 
 from spm_data.errors import SpmError
 from spm_data.core.meshes import TexturedMesh
-from spm_data.core.poses import K_to_corner_origin
+from spm_data.core.poses import K_to_corner_origin, intrinsics_from_fov
+from spm_data.core.specs import parse_spec
 from spm_data.formats.bop_ids import OBJECTS_FILE, folder_objects, read_objects  # noqa: F401 (read_objects: bop.py's)
 from spm_data.formats.bop_gt import DEPTH_SCALES
 from spm_data.formats.bop_models import save_bop_model, save_models_info
 from spm_data.formats.bop_scene import SceneWriter
 from spm_data.io.outputs import check_creatable, check_out_name, space_fix, top_created
-from spm_data.io.shards import read_shard
+from spm_data.io.shards import read_attrs, read_shard
 
 SPLIT_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")  # one folder inside the dataset, never a path
 RGB_SUFFIX = {True: ".jpg", False: ".png"}  # keyed by "a PBR split": BOP stores PBR renders as JPEG
@@ -57,6 +58,28 @@ def _check_out(out_dir: Path) -> None:
         raise SpmError(f"{out_dir} exists and is not empty; export into a new folder")
     check_creatable(out_dir, "create", "give --out a new folder to export into",
                     "give --out a folder in a writable place")
+
+
+def nominal_camera(shards) -> tuple[np.ndarray, tuple[int, int]]:
+    """camera.json's camera, (K (3, 3) OpenCV, (H, W)): the spec's own (its field of view at its
+    image size, never a frame's randomised K) of the first shard rendered from a spec; for
+    imported or merged shards, the K most frames share (the first frame's when none is shared)."""
+    size = read_shard(shards[0], ["rgb"], frames=slice(0, 1))["rgb"].shape[1:3]
+    for path in shards:
+        text = read_attrs(path).get("spec")
+        if text:
+            try:
+                spec = parse_spec(str(text), "the shard's spec")
+            except SpmError:
+                continue   # a spec this spm no longer accepts: the frames' K below
+            return intrinsics_from_fov(spec.image.fov, spec.image.width, spec.image.height), \
+                (spec.image.height, spec.image.width)
+    counts: dict[bytes, list] = {}
+    for path in shards:
+        for K in read_shard(path, ["K"])["K"]:
+            counts.setdefault(K.tobytes(), [K, 0])[1] += 1
+    K = max(counts.values(), key=lambda kc: kc[1])[0]   # max keeps the first of equals: frame 0's on a tie
+    return K, size
 
 
 class _Export:
@@ -109,10 +132,10 @@ class _Export:
         self.writer.add_frame(data, i, objects)
         self.frames += 1
 
-    def finish(self, first_shard) -> None:
+    def finish(self, shards) -> None:
         self.writer.finish(self.ids.values())   # COCO files list every category of the dataset, as bop_toolkit's
-        first = read_shard(first_shard, ["K", "rgb"], frames=slice(0, 1))
-        K, (h, w) = K_to_corner_origin(first["K"][0]), first["rgb"].shape[1:3]
+        K, (h, w) = nominal_camera(shards)
+        K = K_to_corner_origin(K)
         (self.root / "camera.json").write_text(json.dumps({"cx": K[0, 2], "cy": K[1, 2], "fx": K[0, 0],
                                                            "fy": K[1, 1], "width": int(w), "height": int(h),
                                                            "depth_scale": max(self.scales)}))
@@ -156,7 +179,7 @@ def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=F
                 frame += 1
                 if progress:
                     progress(1)
-        export.finish(shards[0])
+        export.finish(shards)
         from spm_data.formats.bop_results import write_test_targets   # what eval_bop19_pose.py scores against
         write_test_targets(tmp, split)
         if out_dir.exists():

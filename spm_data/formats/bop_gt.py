@@ -70,10 +70,12 @@ def depth_with_occluders(depth: np.ndarray, mask: np.ndarray, visible: np.ndarra
     OCCLUDER_DEPTH of the object's nearest depth. BOP's tools (calc_gt_info, VSD) find what is
     visible from depth, so without it they would call every occluded object fully visible."""
     hidden = mask & ~visible
-    if not hidden.any():
+    if not hidden.any() or not (mask & (depth > 0)).any():
         return depth
     out = depth.copy()
-    out[hidden] = OCCLUDER_DEPTH * depth[mask & (depth > 0)].min()
+    stand_in = OCCLUDER_DEPTH * depth[mask & (depth > 0)].min()
+    # Nearer things already in the depth (a 3-D distractor over a rectangle) stay in front.
+    out[hidden] = np.where(depth[hidden] > 0, np.minimum(depth[hidden], stand_in), stand_in)
     return out
 
 

@@ -6,7 +6,9 @@ Objects are meshes: a frame's target is identified by the digest of the mesh it 
 ``instance`` names get ``~`` and the digest's first 8 digits), and one mesh under two names is
 one object (named by the first name, sorted; ``names`` lists all). A frame without a mesh
 (imported) is identified by its (class, instance) name. A 3-D distractor is the pool mesh it was
-drawn from at the size it was drawn, an object of its own (a BOP model has one size).
+drawn from at the size it was drawn, an object of its own (a BOP model has one size), its
+``instance`` name its pool name and that size (``box-10000@73.1mm``; ``~`` and the digest's first
+8 digits where two meshes share the pool name).
 
 Object ids: the targets sorted by (class name, instance number, instance name, digest) are
 numbered 1, 2, ..., then the distractors (sorted by name, digest, size), so leaving the
@@ -107,17 +109,35 @@ def _distractors(path, attrs: dict, meshes: FrameMeshes, names: dict) -> list:
     return frames
 
 
+def _size_labels(sizes) -> dict[float, str]:
+    """Each of ``sizes`` (metres; one pool mesh's drawn sizes) as a label in mm, to the fewest
+    decimals that tell them apart (``@73.1mm``), else the float itself."""
+    for decimals in (1, 3, 6):
+        labels = {s: f"@{s * 1000:.{decimals}f}mm" for s in sizes}
+        if len(set(labels.values())) == len(labels):
+            return labels
+    return {s: f"@{s!r}m" for s in sizes}
+
+
 def _name_objects(found: Objects, names: dict) -> None:
     by_name: dict[tuple, set] = {}
     for identity, seen in names.items():
         for cls, _, name in seen:
             by_name.setdefault((cls, name), set()).add(identity)
+    sizes: dict[str, set] = {}   # a distractor mesh's digest -> its drawn sizes: each its own object
+    for identity in names:
+        if identity[0] == "distractor":
+            sizes.setdefault(identity[1], set()).add(identity[2])
+    labels = {digest: _size_labels(sorted(s)) for digest, s in sizes.items()}
     for identity, seen in names.items():
         cls, inst, name = min(seen)
         entry = {"class": cls, "instance": name, "instance_id": inst}
         if identity[0] != "name":
-            if len(by_name[(cls, name)]) > 1:   # one name, several meshes: the name says which
+            meshes = {i[1] for i in by_name[(cls, name)]}
+            if len(meshes) > 1:   # one name, several meshes: the name says which
                 entry["instance"] = f"{name}~{identity[1][:8]}"
+            if identity[0] == "distractor":   # one mesh, several sizes: the name says its size
+                entry["instance"] += labels[identity[1]][identity[2]]
             entry["mesh"] = identity[1]
         if len(seen) > 1:
             entry["names"] = [f"{c}/{n}" for c, _, n in sorted(seen)]

@@ -4,7 +4,7 @@ The export's driver (bop_export.py) hands :meth:`SceneWriter.add_frame` a frame 
 objects, ``[(obj_id, mesh or None, R (3, 3), t (3,) metres), ...]``, the target first (its
 obj_id names the scene, ``scene_id = obj_id - 1``), then the frame's other objects (its 3-D
 distractors). The writer does the rest: ``rgb/`` (JPEG in ``*_pbr`` splits), ``depth/``
-(the render's depth, our 2-D occluders as a flat stand-in), per object ``k`` of image ``im``
+(the render's depth, each frame's own 2-D occluders as a flat stand-in: :func:`scene_depth`), per object ``k`` of image ``im``
 ``mask/{im:06d}_{k:06d}.png`` and ``mask_visib/``, and per scene ``scene_camera.json``,
 ``scene_gt.json``, ``scene_gt_info.json`` and ``scene_gt_coco.json``.
 
@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from spm_data.errors import SpmError
+from spm_data.core.occlusion import black_out
 from spm_data.core.poses import K_to_corner_origin
 from spm_data.formats.bop_gt import (depth_scale_for, depth_units, depth_with_occluders, image_gt, object_gt,
                                      png_depth_mm)
@@ -30,6 +31,24 @@ from spm_data.formats.coco import FILE_NAME as COCO_FILE
 from spm_data.formats.coco import save_scene_gt_coco, scene_coco
 
 SCENE_FILES = {"camera": "scene_camera.json", "gt": "scene_gt.json", "info": "scene_gt_info.json"}
+
+
+def scene_depth(data: dict, i: int, mask: np.ndarray, visible: np.ndarray) -> np.ndarray:
+    """Frame ``i``'s depth (H, W) metres as the export writes it: the render's, with a flat stand-in
+    (bop_gt.depth_with_occluders) where the frame's own 2-D occluders hide the target. Decided per
+    frame, as a merged shard mixes frames: one with 3-D distractors has them in its rendered depth
+    already, so only its pixels inside its occlusion rectangles (if any) get the stand-in; a frame
+    without them gets it wherever the target is hidden (occlude's rectangles, an import's mask)."""
+    depth = data["depth"][i]
+    placed = "distractor_mesh" in data and bool((np.asarray(data["distractor_mesh"][i]) >= 0).any())
+    if not placed:
+        return depth_with_occluders(depth, mask, visible)
+    rects = np.asarray(data["occlusion_rects"][i]) if "occlusion_rects" in data else np.zeros((0, 4), int)
+    if not rects.any():
+        return depth
+    outside = np.ones(mask.shape, bool)
+    black_out(outside, rects=rects)
+    return depth_with_occluders(depth, mask, visible | outside)
 
 
 class SceneWriter:
@@ -59,8 +78,7 @@ class SceneWriter:
         visible = data["visible_mask"][i] > 0 if "visible_mask" in data else mask
         rgb_name = f"rgb/{im:06d}{self.rgb_suffix}"
         self.encode(sdir / rgb_name, data["rgb"][i])
-        # Rendered distractors are in the depth already; only 2-D rectangles need a stand-in.
-        depth = data["depth"][i] if "distractor_mesh" in data else depth_with_occluders(data["depth"][i], mask, visible)
+        depth = scene_depth(data, i, mask, visible)
         scale = depth_scale_for(depth)
         self.scales.add(scale)
         units = depth_units(depth, scale)
