@@ -15,8 +15,9 @@ from spm_data.core.specs import class_name_problem
 from spm_data.errors import SpmError
 from spm_data.io.folders import open_folder
 from spm_data.io.outputs import check_out_name
+from spm_data.io.shards.identity import read_twice
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
-from spm_data.io.shards import (FIELDS, OPTIONAL_FIELDS, SIZED_FIELDS, listed_twice, manifest_entry, read_attrs,
+from spm_data.io.shards import (FIELDS, OPTIONAL_FIELDS, SIZED_FIELDS, manifest_entry, read_attrs,
                                 read_shard, shard_digest, shard_layout, verify_shard, write_shard)
 
 
@@ -71,9 +72,10 @@ def plan_merge(inputs, out_dir, *, sources=None, renames=None, frames_per_shard=
             raise SpmError(f"{path.name} is in the inputs twice ({first.parent} and {path.parent}); give each "
                            "folder once")
     info = {p: _shard_info(p) for p in shards}  # attrs, sources, fields and checksum, read once each
-    twice = listed_twice([{"file": str(p), "sha256": info[p]["sha256"]} for p in shards])
-    if twice:  # the rule every reader applies (read_manifest): no frame is read twice
-        raise SpmError(f"merge: {twice}; give each folder once (a copy of a folder is the same frames)")
+    twice = read_twice(shards)   # the rule every reader applies (io/folders.py): no frame is read twice
+    if twice:
+        raise SpmError(f"merge: {twice}; give each folder once (a copy of a folder, or a merge of it, holds "
+                       "the same frames)")
     renames = renames or {}
     groups: dict[tuple, list] = {}   # (H, W) -> [(shard, frames)]
     for path in shards:

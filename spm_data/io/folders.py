@@ -5,7 +5,9 @@ run made. A reader takes those, refuses a folder a live run is still writing
 (its lock names the run), treats a listed shard that is missing or changed
 size as an error, and ignores (with a warning) an ``.h5`` the manifest does not
 list. ``allow_partial`` reads what is complete so far instead, warning about
-each gap. Shards themselves verify as they are read (shards.py).
+each gap. Shards themselves verify as they are read (shards.py). No frame is read twice:
+a shard whose bytes another holds, or a frame another shard holds, is refused, from what the
+shards hold (io/shards/identity.py), whatever the manifest says.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from pathlib import Path
 from spm_data.errors import ShardError, SpmWarning
 from spm_data.io.locking import lock_owner
 from spm_data.io.shards import MANIFEST, MISSING, SHARD_SUFFIX, list_shards, no_shards, read_manifest
+from spm_data.io.shards.identity import read_twice
 
 
 @dataclass(frozen=True)
@@ -63,6 +66,7 @@ def open_folder(folder, *, allow_partial: bool = False) -> ShardFolder:
                              "(a run writes it last, also when interrupted); run that command again to "
                              "finish it, or pass --allow-partial")
         _warn(f"{folder}: no {MANIFEST}; reading the {len(on_disk)} complete shards on disk (--allow-partial)")
+        _check_read_once(folder, on_disk)
         return ShardFolder(folder, tuple(on_disk))
     _check_finished(folder, manifest, allow_partial)
     shards, problems = _listed_shards(folder, manifest)
@@ -71,12 +75,21 @@ def open_folder(folder, *, allow_partial: bool = False) -> ShardFolder:
                          + "; run `spm-data validate` on it, or pass --allow-partial to skip such shards")
     for problem in problems:
         _warn(problem + "; skipped (--allow-partial)")
+    _check_read_once(folder, shards)
     listed = {Path(e.get("file", "")).name for e in manifest["shards"] if isinstance(e, dict)}
     ignored = tuple(p for p in on_disk if p.name not in listed)
     if ignored:
         names = ", ".join(p.name for p in ignored[:3]) + (" ..." if len(ignored) > 3 else "")
         _warn(f"{folder}: ignoring {len(ignored)} shard(s) {MANIFEST} does not list ({names})")
     return ShardFolder(folder, tuple(shards), ignored, manifest)
+
+
+def _check_read_once(folder: Path, shards) -> None:
+    """No frame read twice, decided from the shards' bytes (io/shards/identity.py), never from the
+    manifest's sha256: a copy under another name is refused, also with --allow-partial."""
+    twice = read_twice(shards, name=lambda p: p.name)
+    if twice:
+        raise ShardError(f"{folder}: {twice}; remove the copy (or the {MANIFEST} entry that lists it)")
 
 
 def _check_finished(folder: Path, manifest: dict, allow_partial: bool) -> None:
@@ -135,4 +148,7 @@ def open_tree(root, *, allow_partial: bool = False) -> list[Path]:
     shards = [s for d in find_folders(root) for s in open_folder(d, allow_partial=allow_partial).shards]
     if not shards:
         raise no_shards(root)
+    twice = read_twice(shards)   # across folders: a folder and its copy, or a merge of another
+    if twice:
+        raise ShardError(f"{root}: {twice}; keep one of them under {root}")
     return shards

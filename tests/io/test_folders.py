@@ -14,9 +14,10 @@ from spm_data.io.shards import write_manifest, write_shard
 from tests.helpers import make_arrays
 
 
-def shard_folder(folder, names=("a-00000.h5", "a-00001.h5"), manifest=True):
+def shard_folder(folder, names=("a-00000.h5", "a-00001.h5"), manifest=True, first_seed=0):
+    """Shards of 2 frames each, shard k of seed first_seed + k (a seed's frames are the same frames)."""
     folder.mkdir(parents=True)
-    for k, name in enumerate(names):
+    for k, name in enumerate(names, start=first_seed):
         write_shard(folder / name, make_arrays(n=2, seed=k), {"renderer": "test", "seed": k})
     if manifest:
         write_manifest(folder)
@@ -90,7 +91,7 @@ def test_a_folder_a_live_run_holds_is_refused_naming_it(tmp_path):
 
 def test_a_tree_of_folders_hidden_ones_skipped(tmp_path):
     root = tmp_path / "root"
-    shard_folder(root / "render", names=("r-00000.h5",))
+    shard_folder(root / "render", names=("r-00000.h5",), first_seed=5)
     shard_folder(root / "deep" / "occluded", names=("o-00000.h5", "o-00001.h5"))
     shard_folder(root / ".spm-features", names=("cache.h5",))
     (root / "notes").mkdir()
@@ -101,3 +102,21 @@ def test_a_tree_of_folders_hidden_ones_skipped(tmp_path):
         find_folders(tmp_path / "none")
     with pytest.raises(ShardError, match="no shards"):
         open_tree(root / "notes")
+
+
+def test_a_copy_is_refused_whatever_the_manifest_says_and_across_a_tree(tmp_path):
+    import json
+    import shutil
+
+    folder = shard_folder(tmp_path / "f")
+    shutil.copy(folder / "a-00000.h5", folder / "copy.h5")
+    payload = json.loads((folder / "manifest.json").read_text())
+    payload["shards"].append({"file": "copy.h5", "frames": 2})   # no sha256: the bytes decide
+    (folder / "manifest.json").write_text(json.dumps(payload))
+    for partial in (False, True):
+        with pytest.raises(ShardError, match=re.escape("a-00000.h5 and copy.h5 have the same content (SHA-256 ")):
+            open_folder(folder, allow_partial=partial)
+    shard_folder(tmp_path / "tree" / "one")
+    shard_folder(tmp_path / "tree" / "two", names=("b-00000.h5",), first_seed=1)   # a-00001's frames again
+    with pytest.raises(ShardError, match="have the same content"):
+        open_tree(tmp_path / "tree")

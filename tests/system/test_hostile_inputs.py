@@ -127,12 +127,76 @@ def test_a_shard_listed_twice_or_copied_is_refused_by_every_reader(folder, tmp_p
     assert not out.exists()
 
 
+@pytest.fixture(scope="module")
+def template_model(tmp_path_factory):
+    """A reference model file (spm evaluate loads it before reading shards)."""
+    from tests.system.test_flip_scan import model
+
+    return model.__wrapped__(tmp_path_factory)
+
+
+def reader_commands(folder, out, model):
+    return {"info": [data_cli, "info", folder], "occlude": [data_cli, "occlude", "--in", folder, "--out", out],
+            "merge": [data_cli, "merge", folder, "--out", out], "export": [data_cli, "export", "bop", folder, "--out", out],
+            "train": [model_cli, "train", folder, "--out", out],
+            "hist": [data_cli, "hist", folder, "--out", out.with_suffix(".png")],
+            "evaluate": [model_cli, "evaluate", "--model", model, "--shards", folder]}
+
+
+@pytest.mark.parametrize("command", ["info", "occlude", "merge", "export", "train", "hist", "evaluate"])
+@pytest.mark.parametrize("sha256", ["wrong", "none"])
+def test_a_copy_is_refused_from_its_bytes_whatever_the_manifest_says(folder, tmp_path, template_model, command,
+                                                                     sha256):
+    """Issue 47: a byte copy listed with a wrong or no sha256 in the manifest was read twice by
+    every reader, exit 0 (train: 16 frames for 8). Decided from the shards' own digests now."""
+    shutil.copy(folder / "cup-00000.h5", folder / "copy.h5")
+    payload = json.loads((folder / "manifest.json").read_text())
+    entry = {**payload["shards"][0], "file": "copy.h5"}
+    entry.pop("sha256") if sha256 == "none" else entry.update(sha256="0" * 64)
+    payload["shards"].append(entry)
+    (folder / "manifest.json").write_text(json.dumps(payload))
+    out = tmp_path / "out"
+    line = one_error(run(*reader_commands(folder, out, template_model)[command]))
+    assert "cup-00000.h5 and copy.h5 have the same content (SHA-256" in line, line
+    assert not out.exists() and not out.with_suffix(".png").exists()
+
+
+@pytest.mark.parametrize("command", ["info", "occlude", "merge", "export", "train", "hist", "evaluate"])
+def test_a_merge_of_a_folder_beside_it_is_refused_frame_by_frame(folder, tmp_path, template_model, command):
+    """A folder holding `merge A` and A's shards (under one tree, or merged again): each frame
+    would be read twice; refused by every reader, from the frames' own bytes."""
+    tree = tmp_path / "tree"
+    shutil.copytree(folder, tree / "a")
+    assert run(data_cli, "merge", folder, "--out", tree / "m").exit_code == 0
+    out = tmp_path / "out"
+    args = reader_commands(tree, out, template_model)[command]
+    if command not in ("train", "evaluate"):   # commands of one folder: A's shards listed in M's manifest
+        for shard in (tree / "a").glob("*.h5"):
+            shutil.copy(shard, tree / "m" / shard.name)
+        payload = json.loads((tree / "m" / "manifest.json").read_text())
+        payload["shards"] += json.loads((tree / "a" / "manifest.json").read_text())["shards"]
+        (tree / "m" / "manifest.json").write_text(json.dumps(payload))
+        args = reader_commands(tree / "m", out, template_model)[command]
+    line = one_error(run(*args))
+    assert "(the same image, camera and names), so it would be read twice" in line, line
+    assert not out.exists() and not out.with_suffix(".png").exists()
+
+
+def test_merging_a_merge_of_a_folder_with_it_is_refused(folder, tmp_path):
+    assert run(data_cli, "merge", folder, "--out", tmp_path / "m").exit_code == 0
+    line = one_error(run(data_cli, "merge", folder, tmp_path / "m", "--out", tmp_path / "mm"))
+    assert line.startswith(f"error: merge: frame 0 of {tmp_path}/m/merged-16x16-00000.h5 is frame 0 of "
+                           f"{folder}/cup-00000.h5 (the same image, camera and names), so it would be read twice; "
+                           "give each folder once"), line
+    assert not (tmp_path / "mm").exists()
+
+
 def test_merging_a_folder_with_a_copy_of_itself_is_refused(folder, tmp_path):
     shutil.copytree(folder, tmp_path / "copy")
     line = one_error(run(data_cli, "merge", folder, tmp_path / "copy", "--out", tmp_path / "m"))
     assert line.startswith(f"error: merge: {folder}/cup-00000.h5 and {tmp_path}/copy/cup-00000.h5 have the same "
-                           "content (SHA-256 ") and line.endswith("give each folder once (a copy of a folder is the "
-                                                                  "same frames)")
+                           "content (SHA-256 ") and line.endswith("give each folder once (a copy of a folder, or a "
+                                                                  "merge of it, holds the same frames)")
     assert not (tmp_path / "m").exists()
 
 

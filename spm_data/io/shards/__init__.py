@@ -5,7 +5,7 @@ checked on every open), ``reader`` (every read verified),
 ``writer`` (streamed, checksummed, atomic), ``chunks`` (image frames encoded and
 decoded as HDF5's filters store them, on threads; compressed ahead while the renderer
 draws), ``manifest`` (a folder's shards and
-``manifest.json``), ``checksums`` (Fletcher-32 as HDF5 computes it, CRC-32 of
+``manifest.json``), ``identity`` (no frame read twice, from the shards' bytes), ``checksums`` (Fletcher-32 as HDF5 computes it, CRC-32 of
 attributes and layouts). Nothing else in spm opens an HDF5 file; import from here.
 """
 
