@@ -82,8 +82,25 @@ def read_regular_file(path, limit: int) -> bytes:
     if not stat.S_ISREG(st.st_mode):
         os.close(fd)
         raise ValueError("is a folder" if stat.S_ISDIR(st.st_mode) else f"is {file_kind(st.st_mode)}")
-    with os.fdopen(fd, "rb") as fh:
-        data = fh.read(limit + 1) if st.st_size <= limit else b""
+    with os.fdopen(fd, "rb", buffering=0) as fh:
+        data = _read_at_most(fh, limit + 1, first=st.st_size + 1, size=st.st_size) if st.st_size <= limit else b""
     if st.st_size > limit or len(data) > limit:
         raise ValueError(f"{max(st.st_size, len(data)):,} bytes is over the limit of {limit:,} bytes")
     return data
+
+
+def _read_at_most(fh, most: int, first: int, size: int) -> bytes:
+    """Up to ``most`` bytes of ``fh``: ``first`` bytes (what the file held, and one more to see it
+    grow), then 1 MiB pieces; never an allocation of ``most`` bytes up front (a 4 GiB limit under
+    ``ulimit -v`` was a MemoryError). ValueError when what the file holds does not fit in memory."""
+    pieces, got = [], 0
+    try:
+        while got < most:
+            piece = fh.read(min(first if not pieces else 1 << 20, most - got))
+            if not piece:
+                break
+            pieces.append(piece)
+            got += len(piece)
+        return b"".join(pieces)   # one piece (the usual case): that piece itself, not a copy
+    except MemoryError:
+        raise ValueError(f"its {size:,} bytes do not fit in this process's memory (ulimit -v?)") from None

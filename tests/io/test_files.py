@@ -68,3 +68,30 @@ def test_write_json_atomic_is_sorted_indented_and_ends_in_a_newline(tmp_path):
     assert text == '{\n  "a": [\n    1,\n    2\n  ],\n  "b": 1\n}\n'
     assert json.loads(text) == {"a": [1, 2], "b": 1}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.json"]
+
+
+def test_a_bounded_read_allocates_what_the_file_holds_not_the_limit(tmp_path):
+    """Issue 47: read(limit + 1) with a 4 GiB limit was a MemoryError under `ulimit -v` below
+    ~4 GiB (spm predict, spm evaluate on small VMs). In a child under a 1.5 GiB address-space limit."""
+    import subprocess
+    import sys
+
+    (tmp_path / "small.bin").write_bytes(b"x" * 1000)
+    code = ("import resource, sys; resource.setrlimit(resource.RLIMIT_AS, (1536 << 20, 1536 << 20)); "
+            "from spm_data.io.files import read_regular_file; "
+            "print(len(read_regular_file(sys.argv[1], 4 << 30)))")
+    r = subprocess.run([sys.executable, "-c", code, str(tmp_path / "small.bin")], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0 and r.stdout == "1000\n", r.stderr
+
+
+def test_a_bounded_read_reads_a_file_in_pieces_and_refuses_one_over_the_limit(tmp_path, monkeypatch):
+    from spm_data.io import files
+
+    data = bytes(range(256)) * 9000   # 2.2 MB: the first piece, then 1 MiB pieces if it grew
+    (tmp_path / "f").write_bytes(data)
+    assert files.read_regular_file(tmp_path / "f", len(data)) == data
+    with pytest.raises(ValueError, match=f"{len(data):,} bytes is over the limit of 1,000 bytes"):
+        files.read_regular_file(tmp_path / "f", 1000)
+    with open(tmp_path / "f", "rb", buffering=0) as fh:   # a file that grew since it was measured
+        assert files._read_at_most(fh, len(data) + 1, first=10, size=9) == data
