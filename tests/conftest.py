@@ -8,6 +8,11 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 # matrices are small and many tests run two worker processes: OpenBLAS's threads spin on the
 # 2 cores and cost 2-3x the CPU (e.g. SPMEstimator's batched simplex) for no gain.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# No progress lines unless a test asks for them (monkeypatch.setenv("SPM_PROGRESS_EVERY", ...)): off a
+# terminal a command prints one every 10 s, so on a busy machine a slow step added a line to the output
+# of tests that expect an exact one (issue 47). Set here, so commands run in-process and the
+# subprocesses tests start (they inherit os.environ) alike; whatever the shell had set is overridden.
+os.environ["SPM_PROGRESS_EVERY"] = "86400"
 
 import pytest  # noqa: E402
 
