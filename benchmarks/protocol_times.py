@@ -42,14 +42,35 @@ def leaves(value, prefix=""):
     return {}
 
 
+class CompareError(Exception):
+    """An input --compare cannot read (main prints it as one ``error:`` line)."""
+
+
+def _methods(path: Path) -> dict:
+    """results.json's summary.methods; CompareError saying why not."""
+    try:
+        methods = json.loads(path.read_text())["summary"]["methods"]
+        if not isinstance(methods, dict):
+            raise TypeError(f"summary.methods is {type(methods).__name__}, not a table")
+        return methods
+    except OSError as exc:
+        raise CompareError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    except (ValueError, KeyError, TypeError) as exc:
+        detail = f"no {exc}" if isinstance(exc, KeyError) else f"{type(exc).__name__}: {exc}"
+        raise CompareError(f"{path}: not a results.json spm train wrote ({detail}); give two --out folders "
+                           "of this script") from None
+
+
 def compare(a: Path, b: Path) -> None:
+    for folder in (a, b):
+        if not folder.is_dir():
+            raise CompareError(f"{folder}: no such folder; give two --out folders of this script")
     for folder in sorted(p for p in a.iterdir() if (p / "results.json").exists()):
         other = b / folder.name / "results.json"
         if not other.exists():
             print(f"{folder.name}: missing in {b}")
             continue
-        A = json.loads((folder / "results.json").read_text())["summary"]["methods"]
-        B = json.loads(other.read_text())["summary"]["methods"]
+        A, B = _methods(folder / "results.json"), _methods(other)
         for method in A:
             la, lb = leaves(A[method]), leaves(B.get(method, {}))
             keys = set(la) | set(lb)
@@ -68,7 +89,11 @@ def main() -> None:
     parser.add_argument("--compare", type=Path, nargs=2)
     args = parser.parse_args()
     if args.compare:
-        return compare(*args.compare)
+        try:
+            return compare(*args.compare)
+        except CompareError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
     if args.shards is None or args.out is None:
         parser.error("give SHARDS and --out")
     builtins = args.methods.split(",") if args.methods else None
@@ -89,4 +114,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

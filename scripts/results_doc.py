@@ -35,6 +35,7 @@ the snapshot is read under ``summary``):
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime
 import json
 import os
@@ -181,18 +182,36 @@ def dumps(obj, depth: int = 0, open_levels: int = 4) -> str:
     return "[\n" + ",\n".join(items) + "\n" + " " * depth + "]"
 
 
+class InputError(Exception):
+    """An input file that is not what the script reads (main prints it as one ``error:`` line)."""
+
+
+@contextlib.contextmanager
+def _input(path, what: str):
+    """Any failure reading ``path`` (missing, truncated, not JSON, keys missing) as one InputError."""
+    try:
+        yield
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read it ({exc.strerror or exc}); give {what}") from None
+    except (ValueError, KeyError, TypeError, AttributeError, IndexError) as exc:
+        detail = f"no {exc}" if isinstance(exc, KeyError) else f"{type(exc).__name__}: {exc}"
+        raise InputError(f"{path}: not {what} ({detail}); give {what}") from None
+
+
 def write_snapshot(name: str, results_json: Path, command: str, wall_s: float, date: str | None = None,
                    note: str | None = None, folder: Path = SNAPSHOTS, parameters: dict | None = None,
                    before: list | None = None, bop_eval: Path | None = None) -> Path:
     """``bop_eval``: benchmarks/bop_eval.py's JSON for the same run: its per-method AR figures
     become the snapshot's ``bop`` block (bop_toolkit's eval_bop19_pose on the run's export)."""
-    results = json.loads(Path(results_json).read_text())
     path = folder / f"{name}.json"
-    snap = trim(results, made_block(command, wall_s, date, note, parameters, before))
+    with _input(results_json, "a results.json spm train wrote (with its summary)"):
+        snap = trim(json.loads(Path(results_json).read_text()),
+                    made_block(command, wall_s, date, note, parameters, before))
     if bop_eval is not None:
-        bop = json.loads(Path(bop_eval).read_text())
-        snap["bop"] = {"date": bop["date"][:10], "targets": bop["targets"], "protocol": bop["protocol"],
-                       "commands": [c["command"] for c in bop["commands"]], "figures": bop["figures"]}
+        with _input(bop_eval, "benchmarks/bop_eval.py's JSON"):
+            bop = json.loads(Path(bop_eval).read_text())
+            snap["bop"] = {"date": bop["date"][:10], "targets": bop["targets"], "protocol": bop["protocol"],
+                           "commands": [c["command"] for c in bop["commands"]], "figures": bop["figures"]}
     path.write_text(dumps(snap) + "\n")
     return path
 
@@ -685,8 +704,12 @@ def main(argv=None) -> int:
             p.error("give one --before-wall-s for each --before")
         day = a.before_date or a.date or datetime.date.today().isoformat()
         before = [{"command": c, "wall_s": w, "date": day} for c, w in zip(a.before, a.before_wall_s)] or None
-        path = write_snapshot(a.name, a.results_json, a.command, a.wall_s, a.date, a.note, a.folder, parameters,
-                              before, a.bop_eval)
+        try:
+            path = write_snapshot(a.name, a.results_json, a.command, a.wall_s, a.date, a.note, a.folder, parameters,
+                                  before, a.bop_eval)
+        except InputError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
         print(f"{path} ({path.stat().st_size:,} bytes)")
         return 0
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])

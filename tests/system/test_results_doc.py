@@ -185,3 +185,17 @@ def test_reflow_wraps_prose_and_keeps_tables_code_and_lists():
     assert "| a | b |\n|---|---|" in out and "keep   this    line" in out
     item = lines.index(next(line for line in lines if line.startswith("- item")))
     assert lines[item + 1].startswith("  ") and lines[-1] == "2. next" and out.endswith("\n")
+
+
+@pytest.mark.parametrize("content", ['{"schema": "spm-results", "summ', '{"schema": "spm-results"}', "[1, 2]", ""])
+def test_snapshot_of_a_truncated_or_summary_less_results_json_is_one_error_line(tmp_path, capsys, content):
+    (tmp_path / "results.json").write_text(content)
+    code = results_doc.main(["snapshot", "x", str(tmp_path / "results.json"), "--command", "spm train", "--wall-s", "1",
+                             "--folder", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 1 and err.count("\n") == 1 and err.startswith(f"error: {tmp_path / 'results.json'}: not a "
+                                                                 "results.json spm train wrote"), err
+    assert not (tmp_path / "x.json").exists()
+    code = results_doc.main(["snapshot", "x", str(tmp_path / "none.json"), "--command", "c", "--wall-s", "1",
+                             "--folder", str(tmp_path)])
+    assert code == 1 and capsys.readouterr().err.startswith(f"error: {tmp_path / 'none.json'}: cannot read it (No such")
