@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from spm_data.errors import SpmError
+from spm_data.io.outputs import check_out_name, unwritable
 from spm_data.io.shards import read_attrs
 
 
@@ -32,17 +33,22 @@ class BopOutput:
     ids_from: Path | None = None
 
     def check(self, *shard_folders, allow_partial: bool = False) -> None:
-        """SpmError (one line) for a bad name, a folder that cannot be one, or a shard folder whose
-        frames an export would not number (shards in its subfolders), before any work."""
+        """SpmError (one line) for a bad name, a folder that cannot be one or cannot be written (a
+        read-only place, a name too long), or a shard folder whose frames an export would not number
+        (shards in its subfolders), before any work."""
         from spm_data.formats.bop_results import result_file_name
 
         for shards in (f for f in shard_folders if f is not None):
             _check_one_folder(Path(shards), allow_partial)
 
         result_file_name("m", self.dataset, self.split)
-        folder = Path(self.folder)
+        folder = check_out_name(Path(self.folder), "--bop-results")   # first: a name too long cannot be looked up
         if folder.exists() and not folder.is_dir():
             raise SpmError(f"--bop-results {folder}: expected a folder, got a file; give a folder for the .csv files")
+        problem = unwritable(folder)   # now, not after the features and the fits (issue 47)
+        if problem:
+            state = "is a file" if problem[1] == "file" else "is read-only"
+            raise SpmError(f"--bop-results {folder}: cannot write there: {problem[0]} {state}; give a writable folder")
         if self.ids_from is not None and not Path(self.ids_from).exists():
             raise SpmError(f"--bop-ids-from {self.ids_from}: no such export; give the folder export bop wrote "
                            "(or its objects.json)")

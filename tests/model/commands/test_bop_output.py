@@ -145,3 +145,16 @@ def test_shards_in_subfolders_are_refused_in_one_line_before_any_work(tiny, tmp_
         assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1, r.output
         assert "holds its shards in subfolders (inner/…)" in r.output
     assert not (tmp_path / "r").exists() and not (tmp_path / "report").exists()
+
+
+def test_a_bop_results_folder_that_cannot_be_written_is_refused_before_any_work(tiny, tmp_path):
+    """Issue 47: refused only after the features and the fits (and the report then not written)."""
+    (tmp_path / "file").write_text("in the way")
+    for where, said in ((tmp_path / "file" / "r", f"cannot write there: {tmp_path / 'file'} is a file"),
+                        (tmp_path / ("x" * 300), "is 300 bytes, over the")):
+        for command in (["train", str(tiny / "render"), "--out", str(tmp_path / "report")],
+                        ["evaluate", str(tiny / "render"), "--model", str(tmp_path / "none.npz")]):
+            r = CliRunner().invoke(model_cli, command + ["--bop-results", str(where)])
+            assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1, r.output
+            assert r.output.startswith(f"error: --bop-results") and said in r.output, r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]   # no report, no features, nothing
