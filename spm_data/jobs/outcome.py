@@ -30,13 +30,21 @@ _pending: list = [False]
 BEFORE_WORK = "interrupted before any work began; nothing was written"
 
 
+# Where Python runs weakref callbacks: a WeakValueDictionary's ``remove``, a WeakSet's ``_remove``,
+# ``weakref.finalize``'s ``__call__``; they run whenever an object is freed, from any line.
+_CALLBACK_FILES = ("weakref.py", "_weakrefset.py")
+
+
 def _in_finaliser(frame) -> bool:
-    """Whether the signal landed in a ``__del__`` (or code it called): an exception raised there
-    is printed as "Exception ignored … Traceback" and lost, so the signal is only recorded."""
+    """Whether the signal landed in a ``__del__`` or a weakref callback (or code either called):
+    an exception raised there is printed as "Exception ignored in: <function
+    WeakValueDictionary.__init__.<locals>.remove …> Traceback" and lost, so the signal is only
+    recorded, and acted on at the next safe point or when the command ends."""
     for _ in range(64):
         if frame is None:
             return False
-        if frame.f_code.co_name == "__del__":
+        code = frame.f_code
+        if code.co_name == "__del__" or os.path.basename(code.co_filename) in _CALLBACK_FILES:
             return True
         frame = frame.f_back
     return False
@@ -115,7 +123,7 @@ def deferred_interrupt():
 
     def on_signal(signum, frame):
         _received[0] = signum
-        if stop.is_set():
+        if stop.is_set() and not _in_finaliser(frame):
             raise KeyboardInterrupt
         stop.set()
 

@@ -102,3 +102,55 @@ def test_a_signal_landing_in_a_finaliser_is_recorded_not_raised_there():
         outcome.end_of_command()
         signal.signal(signal.SIGINT, signal.default_int_handler)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def test_a_signal_landing_in_a_weakref_callback_is_recorded_not_raised_there():
+    """Issue 47: SIGTERM 1 s into `spm train` landed in WeakValueDictionary's `remove` callback;
+    the KeyboardInterrupt raised there was printed as "Exception ignored in: <function
+    WeakValueDictionary.__init__.<locals>.remove …>" with a traceback, and lost. The key's
+    __hash__, which that callback calls, stands in for where the signal lands."""
+    import weakref
+
+    from spm_data.jobs import outcome
+
+    handler, unraisable = [None], []
+
+    class Key:
+        def __hash__(self):
+            if handler[0] is not None:
+                handler[0](signal.SIGTERM, sys._getframe())
+            return 1
+
+    class Value:
+        pass
+
+    def free_a_value():   # the dictionary's remove callback runs, and hashes the key
+        table, value = weakref.WeakValueDictionary(), Value()
+        table[Key()] = value
+        del value
+        assert len(table) == 0
+
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    outcome.signals_for_work()
+    hook, sys.unraisablehook = sys.unraisablehook, unraisable.append
+    try:
+        handler[0] = outcome._raise_interrupt
+        free_a_value()
+        assert unraisable == [] and outcome.received() == signal.SIGTERM and outcome.exit_status() == 143
+        with pytest.raises(KeyboardInterrupt):
+            with deferred_interrupt() as stop:
+                assert stop.is_set()   # the next safe point acts on it
+                handler[0] = signal.getsignal(signal.SIGTERM)
+                free_a_value()         # a second signal, in a callback again: recorded
+                assert unraisable == []
+                handler[0](signal.SIGTERM, sys._getframe())   # in plain code: raised at once
+        handler[0] = None
+        with pytest.raises(KeyboardInterrupt):
+            outcome._raise_interrupt(signal.SIGINT, sys._getframe())   # outside a callback: raised as before
+    finally:
+        sys.unraisablehook = hook
+        outcome.signals_for_work()
+        outcome.end_of_command()
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
