@@ -4,7 +4,8 @@ Returns problems as (shard or "manifest.json", message); none means valid. A
 flipped byte is caught by the checksum (and, inside compressed chunks, by the
 decoder), a truncated file by HDF5, a newer schema by its version, a manifest
 that disagrees with the files by comparing the two, a mesh a frame names that the folder's
-store (meshes/) lacks or holds damaged by the store's own check.
+store (meshes/) lacks or holds damaged by the store's own check, and what a writer that was
+killed left (partial files, its lock) named as such.
 """
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ import numpy as np
 from spm_data.errors import MeshError, ShardError
 from spm_data.core.mesh_store import STORE, load_mesh
 from spm_data.core.poses import pose_to_label
-from spm_data.io.files import file_sha256
+from spm_data.io.files import PARTIAL_PREFIX, PARTIAL_SUFFIX, file_sha256
+from spm_data.io.locking import LOCK_NAME, lock_owner
 from spm_data.io.shards import (FIELDS, MANIFEST, MISSING, OPTIONAL_FIELDS, check_arrays, list_shards, no_shards,
                                  read_attrs, read_manifest, read_shard, shard_layout)
 
@@ -96,10 +98,17 @@ def validate_folder(folder, progress=None) -> list[tuple[str, str]]:
         if progress is not None:
             progress(1)
     problems += _store_problems(shards)
+    left = leftovers(folder) if folder.is_dir() else []
     try:
         manifest = read_manifest(folder) if folder.is_dir() else None
     except ShardError as exc:
-        return problems + [(MANIFEST, str(exc).replace(f"{folder}/", "").replace(f"{folder}: ", ""))]
+        said = str(exc).replace(f"{folder}/", "").replace(f"{folder}: ", "").removeprefix(f"{MANIFEST}: ")
+        if left and not (folder / MANIFEST).exists():
+            said += (f": the run that wrote this folder was stopped before it finished (killed?) and left "
+                     f"{', '.join(left)}; run that command again to finish it (it resumes, and removes them)")
+        return problems + [(MANIFEST, said)]
+    problems += [(name, "left by a run that was stopped before it finished (killed?); the next run into this "
+                        "folder removes it") for name in left]
     if manifest is None:
         return problems
     for name in manifest.get(MISSING) or []:
@@ -156,6 +165,18 @@ def _store_problems(shards) -> list[tuple[str, str]]:
         except MeshError as exc:
             problems.append((f"{STORE}/{digest[:12]}…", str(exc).split(": ", 1)[-1]))
     return problems
+
+
+def leftovers(folder: Path) -> list[str]:
+    """What a killed writer leaves in ``folder``: its partial files (``.NAME.partial``, also in the
+    mesh store) and a lock whose process is gone; a live run's lock is said as such."""
+    left = sorted(p.name for p in folder.glob(PARTIAL_PREFIX + "*" + PARTIAL_SUFFIX))
+    left += sorted(f"{STORE}/{p.name}" for p in (folder / STORE).glob(PARTIAL_PREFIX + "*" + PARTIAL_SUFFIX))
+    if (folder / LOCK_NAME).exists():
+        owner = lock_owner(folder)
+        left.append(f"{LOCK_NAME} (its run is gone)" if owner is None else f"{LOCK_NAME} (held by {owner}: "
+                                                                            "still running?)")
+    return left
 
 
 def validation_report(folder, problems) -> str:

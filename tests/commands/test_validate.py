@@ -118,3 +118,29 @@ def test_a_missing_or_damaged_mesh_store_entry_is_a_problem(good, tmp_path):
     assert sorted(where for where, _ in problems) == sorted(f"meshes/{e.name[:12]}…" for e in entries[:2])
     said = " ".join(msg for _, msg in problems)
     assert "missing from the folder's mesh store" in said and ("damaged" in said)
+
+
+def test_a_damaged_manifest_is_named_once(good, tmp_path):
+    d = copy(good, tmp_path)
+    (d / "manifest.json").write_text(json.dumps({"shards": [None]}))
+    found = [f for f in messages(d) if f.startswith("manifest.json")]
+    assert len(found) == 1 and found[0].startswith("manifest.json: shards[0] is null, not an entry"), found
+    r = CliRunner().invoke(data_cli, ["validate", str(d)])
+    assert r.exit_code == 1 and "manifest.json: manifest.json" not in r.output, r.output
+
+
+def test_a_folder_whose_writer_was_killed_names_its_leftovers(good, tmp_path):
+    import os
+
+    d = copy(good, tmp_path)
+    (d / "manifest.json").unlink()
+    (d / ".cup-00002.h5.partial").write_bytes(b"half a shard")
+    (d / ".spm.lock").write_text("not a lock record")
+    os.utime(d / ".spm.lock", (0, 0))   # unreadable and old: its run is gone
+    assert messages(d) == ["manifest.json: no manifest.json: the run that wrote this folder was stopped before it "
+                           "finished (killed?) and left .cup-00002.h5.partial, .spm.lock (its run is gone); run that "
+                           "command again to finish it (it resumes, and removes them)"]
+    write_manifest(d)   # a finished run, beside a partial file of a later one that was killed
+    (d / ".spm.lock").unlink()
+    assert messages(d) == [".cup-00002.h5.partial: left by a run that was stopped before it finished (killed?); the "
+                           "next run into this folder removes it"]
