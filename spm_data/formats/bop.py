@@ -37,7 +37,7 @@ def _load_json(path: Path):
 
 def _find(folder: Path, stem: str):
     for suffix in (".png", ".jpg", ".jpeg", ".tif"):
-        if (folder / f"{stem}{suffix}").is_file():
+        if (folder / f"{stem}{suffix}").exists():   # not only a regular file: the read says what else it is
             return folder / f"{stem}{suffix}"
     return None
 

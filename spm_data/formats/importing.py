@@ -120,6 +120,10 @@ def _load_frame(rec: FrameRecord, job: ImportJob):
     depth = np.zeros((h, w), np.float32)
     if rec.depth is not None:
         d = decode_image(read_bytes(rec.depth), rec.depth, mode="raw")
+        if d.ndim != 2 or d.dtype == np.uint8:   # 8 bits hold 256 depths: not a depth map
+            raise ImageError(f"{rec.depth}: depth is an {d.dtype.itemsize * 8}-bit image with "
+                             f"{1 if d.ndim == 2 else d.shape[2]} channel(s); expected one 16-bit channel (a "
+                             "depth PNG: units x the depth scale)")
         if d.shape != (h, w):
             raise ImageError(f"{rec.depth}: depth is {d.shape[1]}x{d.shape[0]}, image is {w}x{h}")
         depth = (d.astype(np.float64) * rec.depth_scale_m).astype(np.float32)

@@ -169,7 +169,7 @@ def folder_records(poses_csv, *, unit="m", euler="XYZ", fov=None, class_name="fo
         K = _intrinsics(row, where)
         if K is None and fov is None:
             raise SpmError(f"{where}: no intrinsics: fill fx fy cx cy in that row or pass --fov")
-        if not image.is_file():
+        if not image.exists() and not image.is_symlink():   # a FIFO or a folder: said by image_size below
             problems.append((str(image), "missing image listed in the poses table"))
             continue
         try:

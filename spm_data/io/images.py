@@ -60,7 +60,10 @@ def read_bytes(ref: str) -> bytes:
                 if handle is None:
                     raise ImageError(f"{ref}: not a file in the archive")
                 return handle.read()
-        return Path(ref).read_bytes()
+        try:   # a FIFO or a device is refused without reading or waiting (it hung), and said as such
+            return read_image_file(ref)
+        except ImageError as exc:
+            raise ImageError(f"{ref}: {exc}") from None
     except (OSError, KeyError, zipfile.BadZipFile, tarfile.TarError) as exc:
         raise ImageError(f"{ref}: cannot read ({exc})") from None
 

@@ -102,3 +102,20 @@ def test_bop_poses_survive_import_then_export_exactly(tmp_path):
     np.testing.assert_allclose(cams["0"]["cam_K"], [500.0, 0, 79.5, 0, 500.0, 59.5, 0, 0, 1])
     info = json.loads((tmp_path / "again" / "train" / "000000" / "scene_gt_info.json").read_text())
     assert info["0"][0]["visib_fract"] == 0.5
+
+
+def test_an_8_bit_depth_png_is_said_so(tmp_path):
+    """Issue 47: an 8-bit colour depth PNG was skipped as "depth is 160x120, image is 160x120"."""
+    from spm_data.errors import SpmError
+
+    make_bop_scene(tmp_path / "bop")
+    depth = tmp_path / "bop" / "train_pbr" / "000000" / "depth" / "000000.png"
+    for image, channels in ((np.full((120, 160, 3), 70, np.uint8), 3), (np.full((120, 160), 70, np.uint8), 1)):
+        cv2.imwrite(str(depth), image)
+        try:
+            summary, _ = import_bop(tmp_path / "bop", tmp_path / f"out{channels}")
+            said = " ".join(why for r in summary.results.values() for _, why in r.get("skipped", []))
+        except SpmError as exc:   # every frame skipped: the command's one line
+            said = str(exc)
+        assert f"depth is an 8-bit image with {channels} channel(s); expected one 16-bit channel" in said, said
+        assert "image is 160x120" not in said

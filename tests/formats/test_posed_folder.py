@@ -92,3 +92,19 @@ def test_cvl_layout_at_its_real_size_grey_or_colour(tmp_path, size, grey):
     else:
         assert tuple(d["rgb"][0][size // 2, size // 2]) == (40, 160, 250)
     assert d["mask"][0].sum() > 0.1 * size * size
+
+
+def test_a_fifo_or_a_folder_in_place_of_an_image_is_said_so_not_missing(tmp_path):
+    import os
+
+    write_posed_folder(tmp_path / "x", [("a.png", [0, 0, 0, 0, 0, 600]), ("b.png", [0, 0, 0, 0, 0, 600]),
+                                        ("c.png", [0, 0, 0, 0, 0, 600])], ["image", "rx", "ry", "rz", "tx", "ty", "tz"])
+    (tmp_path / "x" / "a.png").unlink()
+    os.mkfifo(tmp_path / "x" / "a.png")   # read, it would wait for a writer for ever
+    (tmp_path / "x" / "b.png").unlink()
+    (tmp_path / "x" / "b.png").mkdir()
+    summary, problems = import_folder(tmp_path / "x", tmp_path / "o", unit="mm", fov=40)
+    said = dict(problems)
+    assert summary.frames == 1 and set(said) == {str(tmp_path / "x" / "a.png"), str(tmp_path / "x" / "b.png")}
+    assert said[str(tmp_path / "x" / "a.png")].endswith("a.png: is a FIFO, not a regular file; give an image file")
+    assert said[str(tmp_path / "x" / "b.png")].endswith("b.png: is a folder, not an image file")

@@ -2,6 +2,7 @@
 16-bit images, and every unreadable image an ImageError naming it."""
 
 import io
+import os
 import tarfile
 import zipfile
 
@@ -46,8 +47,11 @@ def test_references_to_files_and_archive_members(tmp_path):
         assert image_size(ref) == (128, 128)
     with pytest.raises(ImageError, match=r"::nope.png: cannot read \("):
         read_bytes(f"zip:{tmp_path / 'a.zip'}::nope.png")
-    with pytest.raises(ImageError, match=r"none.png: cannot read \("):
+    with pytest.raises(ImageError, match=r"none.png: no such file$"):
         read_bytes(str(tmp_path / "none.png"))
+    os.mkfifo(tmp_path / "fifo.png")   # refused without waiting for a writer (Path.read_bytes hung)
+    with pytest.raises(ImageError, match=r"fifo.png: is a FIFO, not a regular file; give an image file$"):
+        read_bytes(str(tmp_path / "fifo.png"))
 
 
 def test_unreadable_data_is_an_image_error_naming_the_image():
