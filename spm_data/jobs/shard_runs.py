@@ -13,10 +13,12 @@ that a refusal names what differs (plan_diff.py).
 
 from __future__ import annotations
 
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from spm_data.core.mesh_store import STORE
 from spm_data.errors import ShardError
 from spm_data.jobs.executor import LocalExecutor
 from spm_data.io.locking import GUARD_NAME, OutputLock
@@ -138,12 +140,16 @@ def run_shard_jobs(fn, jobs, out_dir, *, executor=None, in_process=True, progres
 
 
 def remove_if_empty(folder: Path) -> None:
-    """Remove a folder this run created when nothing is left in it but the lock's
-    guard file (no shard, no manifest, no other run's lock)."""
+    """Remove a folder this run created when nothing is left in it but the lock's guard file and
+    the mesh store its jobs filled before their shards failed (no shard, no manifest, no other
+    run's lock): a failed run (a full disk) leaves nothing, OUT/meshes/*.npz included."""
     try:
-        if [p.name for p in folder.iterdir()] in ([], [GUARD_NAME]):
-            (folder / GUARD_NAME).unlink(missing_ok=True)
-            folder.rmdir()
+        if not {p.name for p in folder.iterdir()} <= {GUARD_NAME, STORE}:
+            return
+        if (folder / STORE).is_dir():
+            shutil.rmtree(folder / STORE)
+        (folder / GUARD_NAME).unlink(missing_ok=True)
+        folder.rmdir()
     except OSError:
         pass  # someone else is using it: leave it
 

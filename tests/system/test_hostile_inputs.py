@@ -217,6 +217,35 @@ def test_a_full_disk_in_occludes_object_copy_is_one_line(folder, tmp_path, monke
     assert not occ.exists()  # every shard failed: the folder it made is removed
 
 
+@pytest.mark.parametrize("command", ["occlude", "merge"])
+def test_a_full_disk_leaves_no_mesh_store_behind(small_specs_dir, tmp_path, monkeypatch, command):
+    """Issue 47: a rendered folder's meshes travel into OUT/meshes/ before each shard lands; a
+    full disk failed every shard and left OUT/meshes/*.npz, though the folder it made is removed."""
+    import h5py
+
+    from spm_data.commands import merge as merge_module
+    from spm_data.errors import ShardError
+    from spm_data.commands.render_jobs import load_run_specs, render_dataset
+
+    render_dataset(load_run_specs(["cup"], specs_dir=small_specs_dir), tmp_path / "r", limit=4)
+    error = ("Unable to synchronously copy object (file write failed: errno = 28, error message = 'No space left "
+             "on device')")
+
+    def full(*args, **kwargs):
+        raise RuntimeError(error)
+
+    monkeypatch.setattr(h5py.Group, "copy", full)                  # occlude's object copy
+    def merge_full(path, *args, **kwargs):   # what the writer raises for a full disk (io/shards/writer.py)
+        raise ShardError(f"could not write shard {path}: No space left on device")
+
+    monkeypatch.setattr(merge_module, "write_shard", merge_full)
+    args = {"occlude": ["occlude", "--in", tmp_path / "r", "--out", tmp_path / "out"],
+            "merge": ["merge", tmp_path / "r", "--out", tmp_path / "out"]}[command]
+    r = run(data_cli, *args)
+    assert r.exit_code == 1 and "Traceback" not in r.output and "failed " in r.output, r.output
+    assert not (tmp_path / "out").exists(), sorted(p.name for p in (tmp_path / "out").rglob("*"))
+
+
 @pytest.fixture(scope="module")
 def trained(model_shards, tmp_path_factory):
     """A copy of model_shards (with their cached features, keyed by content), trained on, and its model."""
