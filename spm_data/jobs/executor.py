@@ -22,7 +22,8 @@ from contextlib import contextmanager
 from multiprocessing.connection import wait
 
 from spm_data.errors import SpmError, SpmWarning
-from spm_data.jobs.outcome import JobOutcome, deferred_interrupt, error_text, is_blender_script_dir
+from spm_data.jobs.outcome import (JobOutcome, deferred_interrupt, error_text, is_blender_script_dir,
+                                   warnings_as_lines)
 
 
 @dataclass
@@ -111,6 +112,7 @@ def _worker_main(fn, conn, recycle_after):
     # A parent that imported bpy hands us Blender's script folders on sys.path;
     # with them, `import bpy` here would find Blender's scripts/modules/bpy instead.
     sys.path[:] = [p for p in sys.path if not is_blender_script_dir(p)]
+    warnings_as_lines()
     conn.send(("ready", None, None))
     done = 0
     while True:

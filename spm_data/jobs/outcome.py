@@ -5,10 +5,12 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import sys
 import threading
+import warnings
 from dataclasses import dataclass
 
-from spm_data.errors import SpmError
+from spm_data.errors import SpmError, SpmWarning
 
 
 @dataclass
@@ -140,6 +142,22 @@ def deferred_interrupt():
         signal.signal(signal.SIGINT, before)
         if term is _raise_interrupt:
             signal.signal(signal.SIGTERM, term)
+
+
+def warnings_as_lines() -> None:
+    """In a worker process: the library's warnings (SpmWarning) as one ``warning: …`` line on its
+    stderr (the command's), as the command prints its own (cli_support), not Python's two-line
+    ``FILE:LINE: SpmWarning: …`` format; other warnings as Python shows them."""
+    python = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, SpmWarning):
+            sys.stderr.write(f"warning: {message}\n")
+            sys.stderr.flush()
+        else:
+            python(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = show
 
 
 def error_text(exc: BaseException) -> str:

@@ -29,7 +29,8 @@ import os
 import sys
 
 from spm_data.errors import SpmError
-from spm_data.jobs.outcome import JobOutcome, deferred_interrupt, error_text, is_blender_script_dir
+from spm_data.jobs.outcome import (JobOutcome, deferred_interrupt, error_text, is_blender_script_dir,
+                                    warnings_as_lines)
 
 INSTALL_HINT = "the Ray executor needs Ray: pip install 'spm[ray]' (or pip install ray)"
 
@@ -61,6 +62,7 @@ def _ray_task(fn, job, gpu_variable=None):
     """Runs in a Ray worker: the job, its frame count and any error as a message.
     gpu_variable: with --task-gpus, where the renderer reads the GPU Ray gave the task."""
     sys.path[:] = [p for p in sys.path if not is_blender_script_dir(p)]
+    warnings_as_lines()
     if gpu_variable:
         import ray
 

@@ -183,7 +183,7 @@ def _write(key: bytes, value: tuple) -> None:
     exc = _store(key, value)
     if exc is not None:
         warnings.warn(f"cannot write the feature memo {_folder[0]} ({exc.strerror or exc}); "
-                      "features are kept in memory only")
+                      "features are kept in memory only", SpmWarning)
         _folder[0] = None
 
 

@@ -177,3 +177,23 @@ def test_a_spawned_worker_of_the_programs_does_not_take_their_early_signal_handl
         done = subprocess.run([sys.executable, "-c", code, *extra], capture_output=True, text=True, timeout=120,
                               cwd=Path(__file__).resolve().parents[2])
         assert done.stdout.strip() == want, done.stderr
+
+
+def warning_job(job, report):
+    """Warns as the library does (an SpmWarning), then returns the job."""
+    import warnings
+
+    from spm_data.errors import SpmWarning
+
+    warnings.warn(f"feature memo entry {job} is damaged", SpmWarning)
+    report(1)
+    return job
+
+
+def test_a_workers_warning_is_one_warning_line(capfd):
+    """Issue 47: a worker printed the memo's warning as two lines in Python's warnings format
+    (`FILE:LINE: SpmWarning: …` and the source line)."""
+    outcomes = run_jobs(warning_job, ["a", "b"], workers=2)
+    assert [o.result for o in outcomes] == ["a", "b"]
+    lines = capfd.readouterr().err.splitlines()
+    assert sorted(lines) == ["warning: feature memo entry a is damaged", "warning: feature memo entry b is damaged"]
