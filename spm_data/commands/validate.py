@@ -20,6 +20,7 @@ from spm_data.core.mesh_store import STORE, load_mesh
 from spm_data.core.poses import pose_to_label
 from spm_data.io.files import PARTIAL_PREFIX, PARTIAL_SUFFIX, file_sha256
 from spm_data.io.locking import LOCK_NAME, lock_owner
+from spm_data.io.shards.identity import read_twice
 from spm_data.io.shards import (FIELDS, MANIFEST, MISSING, OPTIONAL_FIELDS, check_arrays, list_shards, no_shards,
                                  read_attrs, read_manifest, read_shard, shard_layout)
 
@@ -120,6 +121,9 @@ def validate_folder(folder, progress=None) -> list[tuple[str, str]]:
         problems.append((MANIFEST, f"lists {name}, which is not in the folder"))
     for name in sorted(set(on_disk) - set(listed)):
         problems.append((MANIFEST, f"does not list {name}"))
+    twice = read_twice([on_disk[n] for n in listed if n in on_disk], name=lambda p: p.name)   # from the bytes
+    if twice:
+        problems.append((MANIFEST, f"{twice}; remove the copy (or the entry that lists it)"))
     _phase(progress, "validate checksums", len(set(listed) & set(on_disk)))
     for name in sorted(set(listed) & set(on_disk)):
         if progress is not None:

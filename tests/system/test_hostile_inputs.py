@@ -143,7 +143,7 @@ def reader_commands(folder, out, model):
             "evaluate": [model_cli, "evaluate", "--model", model, "--shards", folder]}
 
 
-@pytest.mark.parametrize("command", ["info", "occlude", "merge", "export", "train", "hist", "evaluate"])
+@pytest.mark.parametrize("command", ["validate", "info", "occlude", "merge", "export", "train", "hist", "evaluate"])
 @pytest.mark.parametrize("sha256", ["wrong", "none"])
 def test_a_copy_is_refused_from_its_bytes_whatever_the_manifest_says(folder, tmp_path, template_model, command,
                                                                      sha256):
@@ -156,6 +156,11 @@ def test_a_copy_is_refused_from_its_bytes_whatever_the_manifest_says(folder, tmp
     payload["shards"].append(entry)
     (folder / "manifest.json").write_text(json.dumps(payload))
     out = tmp_path / "out"
+    if command == "validate":   # validate lists problems
+        r = run(data_cli, "validate", folder)
+        assert r.exit_code == 1 and "manifest.json: cup-00000.h5 and copy.h5 have the same content (SHA-256" \
+            in r.output and "Traceback" not in r.output, r.output
+        return
     line = one_error(run(*reader_commands(folder, out, template_model)[command]))
     assert "cup-00000.h5 and copy.h5 have the same content (SHA-256" in line, line
     assert not out.exists() and not out.with_suffix(".png").exists()
