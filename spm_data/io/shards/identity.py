@@ -8,8 +8,10 @@ fingerprint (encode_chunk's bytes are deterministic: a frame merged, imported or
 from the same pixels has the same bytes; the fingerprint is their length, zlib's Adler-32 of the
 pixels and the chunk's Fletcher-32) with its ``K``, ``R``, ``t``, class and instance name; so ``merge A M``
 where M is ``merge A`` is found, while an occluded copy of a frame (other pixels), or one mesh
-rendered under another class name, is a frame of its own. A shard's keys are a function of
-its bytes: computed once per process for each content digest.
+rendered under another class name, is a frame of its own. Frames are compared where merge put
+them: a merged shard's against every other shard's (render, import and occlude write frames of
+their own). A shard's keys are a function of its bytes: computed once per process for each
+content digest.
 """
 
 from __future__ import annotations
@@ -20,9 +22,10 @@ from pathlib import Path
 from spm_data.errors import ShardError
 from spm_data.io.shards.chunks import decodable
 from spm_data.io.shards.checksums import dataset_layout
-from spm_data.io.shards.reader import H5_ERRORS, ShardReader, shard_digest
+from spm_data.io.shards.reader import H5_ERRORS, ShardReader, read_attrs, shard_digest
 from spm_data.io.shards.seal import hash_ahead
 
+MERGED = "merged"   # the renderer attribute of a shard spm-data merge wrote
 _keys: dict[str, tuple] = {}   # content digest -> the shard's frame keys
 
 
@@ -81,16 +84,33 @@ def read_twice(shards, name=str) -> str | None:
                     "frames would be read twice")
         by_digest[digest] = path
         readable.append(path)
+    return _merged_frame_twice(readable, name)
+
+
+def _is_merged(path) -> bool:
+    try:
+        return str(read_attrs(path).get("renderer", "")) == MERGED
+    except ShardError:
+        return False
+
+
+def _merged_frame_twice(shards: list, name) -> str | None:
+    """A frame of a merged shard that another shard holds too; the frames of the others first,
+    so the merged copy is the one named. Only merged shards are compared: merge writes frames
+    again as they were, while a render, import or occlude makes frames of its own (an occluded
+    copy whose rectangle covered nothing has its source's pixels, and is still its own copy)."""
+    merged = [p for p in shards if _is_merged(p)]
+    if not merged:
+        return None
     where: dict[bytes, tuple] = {}
-    for path in readable:
+    for path in [p for p in shards if p not in merged] + merged:
         try:
             keys = frame_keys(path)
         except ShardError:
             continue
         for i, key in enumerate(keys):
             first = where.setdefault(key, (path, i))
-            if first[0] != path:
+            if first[0] != path and path in merged:
                 return (f"frame {i} of {name(path)} is frame {first[1]} of {name(first[0])} (the same image, "
-                        "camera and names), "
-                        "so it would be read twice")
+                        "camera and names), so it would be read twice")
     return None

@@ -48,7 +48,7 @@ def test_other_pixels_or_another_camera_is_another_frame(tmp_path, change):
         d["rgb"][:, 2:5, 2:5] = 0
     else:
         d["R"] = d["R"][:, :, [1, 0, 2]] * [1, 1, -1]
-    b = write_shard(tmp_path / "b.h5", d, {"renderer": "test", "seed": 0})
+    b = write_shard(tmp_path / "b.h5", d, {"renderer": "merged", "seed": 0})
     assert read_twice([a, b]) is None
 
 
@@ -56,3 +56,14 @@ def test_a_shard_that_cannot_be_read_is_left_to_its_reader(tmp_path):
     a, b = shard(tmp_path / "a.h5", seed=0), shard(tmp_path / "b.h5", seed=1)
     flip_stored_byte(b, "rgb")
     assert read_twice([a, b]) is None   # the read that follows names the corrupt shard
+
+
+def test_only_merged_shards_are_compared_frame_by_frame(tmp_path):
+    """An occluded copy whose rectangle covered nothing (or two such copies) has its source's
+    pixels and labels: its own copy, not a merge's repeat, so not refused."""
+    a = shard(tmp_path / "a.h5", seed=0)
+    copy = write_shard(tmp_path / "copy.h5", {**read_shard(a), "occlusion_fraction": np.zeros(3, np.float32)},
+                       {"renderer": "test", "seed": 1})   # other attributes: other bytes, the same frames
+    assert read_twice([a, copy]) is None
+    merged = write_shard(tmp_path / "m.h5", read_shard(a), {"renderer": "merged", "seed": 0})
+    assert read_twice([a, copy, merged], name=lambda p: p.name).startswith("frame 0 of m.h5 is frame 0 of a.h5")
