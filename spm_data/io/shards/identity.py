@@ -98,7 +98,8 @@ def _merged_frame_twice(shards: list, name) -> str | None:
     """A frame of a merged shard that another shard holds too; the frames of the others first,
     so the merged copy is the one named. Only merged shards are compared: merge writes frames
     again as they were, while a render, import or occlude makes frames of its own (an occluded
-    copy whose rectangle covered nothing has its source's pixels, and is still its own copy)."""
+    copy whose rectangle covered nothing has its source's pixels, and is still its own copy; so
+    are two such frames one merge put in two of its shards, whose inputs it had checked)."""
     merged = [p for p in shards if _is_merged(p)]
     if not merged:
         return None
@@ -110,7 +111,8 @@ def _merged_frame_twice(shards: list, name) -> str | None:
             continue
         for i, key in enumerate(keys):
             first = where.setdefault(key, (path, i))
-            if first[0] != path and path in merged:
+            one_merge = first[0] in merged and first[0].parent == path.parent   # one run's shards: its frames
+            if first[0] != path and path in merged and not one_merge:
                 return (f"frame {i} of {name(path)} is frame {first[1]} of {name(first[0])} (the same image, "
                         "camera and names), so it would be read twice")
     return None

@@ -67,3 +67,8 @@ def test_only_merged_shards_are_compared_frame_by_frame(tmp_path):
     assert read_twice([a, copy]) is None
     merged = write_shard(tmp_path / "m.h5", read_shard(a), {"renderer": "merged", "seed": 0})
     assert read_twice([a, copy, merged], name=lambda p: p.name).startswith("frame 0 of m.h5 is frame 0 of a.h5")
+    # merged, the two land in two shards of one merge: still two copies of the merge's own inputs
+    (tmp_path / "m").mkdir()
+    one = write_shard(tmp_path / "m" / "m0.h5", read_shard(a), {"renderer": "merged", "seed": 0})
+    two = write_shard(tmp_path / "m" / "m1.h5", read_shard(copy), {"renderer": "merged", "seed": 1})
+    assert read_twice([one, two]) is None
