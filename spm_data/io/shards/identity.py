@@ -101,8 +101,8 @@ def _merged_frame_twice(shards: list, name) -> str | None:
     copy whose rectangle covered nothing has its source's pixels, and is still its own copy; so
     are two such frames one merge put in two of its shards, whose inputs it had checked)."""
     merged = [p for p in shards if _is_merged(p)]
-    if not merged:
-        return None
+    if not merged or (len(merged) == len(shards) and len({p.parent for p in shards}) == 1):
+        return None   # nothing to compare: no merge, or one merge's own folder
     where: dict[bytes, tuple] = {}
     for path in [p for p in shards if p not in merged] + merged:
         try:
