@@ -16,7 +16,7 @@ import numpy as np
 
 from spm_data.errors import MeshError, ShardError
 from spm_data.core.mesh_store import STORE, load_mesh
-from spm_data.core.poses import pose_to_label
+from spm_data.core.poses import STORED_ROTATION_TOLERANCE, pose_to_label, rotation_error
 from spm_data.io.files import file_sha256
 from spm_data.io.shards import (FIELDS, MANIFEST, MISSING, OPTIONAL_FIELDS, check_arrays, list_shards, no_shards,
                                  read_attrs, read_manifest, read_shard, shard_layout)
@@ -52,8 +52,7 @@ def validate_shard(path) -> list[str]:
             problems.append(f"non-finite {name} in frames {np.flatnonzero(bad)[:10].tolist()}")
     R = data["R"]
     if n and np.isfinite(R).all():
-        ortho = np.abs(R @ np.transpose(R, (0, 2, 1)) - np.eye(3)).reshape(n, -1).max(axis=1)
-        bad = (ortho > 1e-6) | (np.abs(np.linalg.det(R) - 1) > 1e-6)
+        bad = rotation_error(R) > STORED_ROTATION_TOLERANCE
         if bad.any():
             problems.append(f"R is not a rotation in frames {np.flatnonzero(bad)[:10].tolist()}")
         elif np.isfinite(data["t"]).all() and np.isfinite(data["pose"]).all():
@@ -62,6 +61,9 @@ def validate_shard(path) -> list[str]:
                   (np.abs(label[:, 3:] - data["pose"][:, 3:]).max(axis=1) > 1e-9)
             if off.any():
                 problems.append(f"pose disagrees with R, t in frames {np.flatnonzero(off)[:10].tolist()}")
+    infinite = np.isinf(data["distance"])  # NaN: not known (an import may leave it so), inf: never
+    if infinite.any():
+        problems.append(f"infinite distance in frames {np.flatnonzero(infinite)[:10].tolist()}")
     empty = ~data["mask"].reshape(n, -1).any(axis=1)
     if empty.any():
         problems.append(f"empty mask in {int(empty.sum())} frames (first: {np.flatnonzero(empty)[:10].tolist()})")

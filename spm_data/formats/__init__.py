@@ -106,7 +106,9 @@ IMPORTERS: dict[str, Importer] = {
                       Option("--mask-dir", "mask_dir", "path", None, "Masks named as the images (any image suffix), "
                                                                     "for frames without alpha or mask_path."),
                       Option("--depth-unit", "depth_unit", UNITS, "mm", "What one step of a uint16 depth image "
-                                                                        "(depth_file_path) is."))),
+                                                                        "(depth_file_path) is."),
+                      Option("--strict", "strict", "flag", False, "Refuse a capture with missing or unreadable "
+                                                                  "images [default: skip those frames, listed]."))),
 }
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +19,8 @@ import numpy as np
 from spm_data import __version__
 from spm_data.core.specs import class_name_problem
 from spm_data.errors import SpmError
-from spm_data.core.poses import is_rotation, pose_to_label
+from spm_data.core.poses import (MAX_DISTANCE_M, MAX_FOCAL_PX, ROTATION_TOLERANCE, is_rotation, nearest_rotation,
+                                  pose_to_label)
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
 from spm_data.io.images import ImageError, decode_alpha, decode_image, read_bytes
 from spm_data.io.shards import SCHEMA_VERSION, manifest_entry, write_shard
@@ -95,6 +96,29 @@ def undistort(image: np.ndarray, K: np.ndarray, distortion: tuple, fisheye: bool
     return cv2.remap(image, maps[0], maps[1], flag, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
 
+def lens_coverage(K, distortion: tuple, fisheye: bool, width: int, height: int) -> float:
+    """The fraction of the undistorted image (K, ``width`` x ``height``) that :func:`undistort`
+    fills from inside the photo (a 16 x 16 grid of its pixels); 1.0 without distortion. A lens whose
+    coefficients are absurd (k1 = 1e10) fills almost nothing: every mask would be empty."""
+    if not any(distortion):
+        return 1.0
+    import cv2
+
+    K = np.asarray(K, dtype=np.float64).reshape(3, 3)
+    u, v = np.meshgrid(np.linspace(0, width - 1, 16), np.linspace(0, height - 1, 16))
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1).reshape(1, -1, 3)
+    dist = np.asarray(distortion, dtype=np.float64)
+    with np.errstate(all="ignore"):
+        if fisheye:
+            uv = cv2.fisheye.projectPoints(rays, np.zeros(3), np.zeros(3), K, dist)[0]
+        else:
+            uv = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, dist)[0]
+        uv = uv.reshape(-1, 2)
+        inside = np.isfinite(uv).all(axis=1) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= width - 0.5) \
+            & (uv[:, 1] >= -0.5) & (uv[:, 1] <= height - 0.5)
+    return float(inside.mean())
+
+
 def _load_frame(rec: FrameRecord, job: ImportJob):
     import cv2
 
@@ -155,6 +179,9 @@ def _load_frame(rec: FrameRecord, job: ImportJob):
         # The crop's pixel centres: u' = (u - x0 + 0.5) * sx - 0.5.
         K = np.array([[K[0, 0] * sx, 0, (K[0, 2] - x0 + 0.5) * sx - 0.5],
                       [0, K[1, 1] * sy, (K[1, 2] - y0 + 0.5) * sy - 0.5], [0, 0, 1.0]])
+    if not mask.any():  # validate refuses an empty mask: the frame is skipped, listed
+        raise ImageError(f"{rec.image}: the object's mask is empty{' after undistortion' if any(rec.distortion) else ''}"
+                         "; give a mask that covers the object")
     return rgb, mask, depth, K, visible
 
 
@@ -208,29 +235,45 @@ def check_fov_option(fov) -> None:
 
 def pose_problem(R, t, K=None) -> str | None:
     """Why a pose (R (3, 3), t (3,) metres, K (3, 3) or None) cannot be imported, or None:
-    non-finite values, R not a rotation, fx or fy not > 0. Importers call it before writing."""
+    non-finite values, R not a rotation (core/poses.ROTATION_TOLERANCE), the camera farther
+    than MAX_DISTANCE_M, fx or fy not in (0, MAX_FOCAL_PX], cx or cy beyond it, K's last row
+    not (0, 0, 1). Importers call it before writing."""
     R = np.asarray(R, dtype=np.float64).reshape(3, 3)
     t = np.asarray(t, dtype=np.float64).reshape(3)
     fmt = lambda a: "[" + ", ".join(f"{v:g}" for v in np.ravel(a)) + "]"  # noqa: E731
     if not np.isfinite(R).all():
         return f"the rotation has a non-finite value (R = {fmt(R)}); expected finite numbers"
     if not is_rotation(R):
-        return f"R = {fmt(R)} is not a rotation matrix (orthonormal, determinant +1)"
+        return (f"R = {fmt(R)} is not a rotation matrix (orthonormal within {ROTATION_TOLERANCE:g}, "
+                "determinant +1)")
     if not np.isfinite(t).all():
         return f"the translation has a non-finite value (t = {fmt(t)}); expected finite numbers"
-    if K is not None:
-        K = np.asarray(K, dtype=np.float64).reshape(3, 3)
-        if not np.isfinite(K).all():
-            return f"the intrinsics have a non-finite value (K = {fmt(K)}); expected finite fx, fy, cx, cy"
-        if not (K[0, 0] > 0 and K[1, 1] > 0):
-            return f"focal length fx = {K[0, 0]:g}, fy = {K[1, 1]:g}; expected fx, fy > 0 pixels"
+    with np.errstate(over="ignore"):
+        distance = float(np.linalg.norm(t))
+    if not distance <= MAX_DISTANCE_M:
+        return f"the camera is {distance:g} m from the object (t = {fmt(t)}); expected at most {MAX_DISTANCE_M:g} m"
+    return None if K is None else intrinsics_problem(K)
+
+
+def intrinsics_problem(K) -> str | None:
+    """Why K (3, 3) cannot be imported (see pose_problem), or None."""
+    K = np.asarray(K, dtype=np.float64).reshape(3, 3)
+    fmt = lambda a: "[" + ", ".join(f"{v:g}" for v in np.ravel(a)) + "]"  # noqa: E731
+    if not np.isfinite(K).all():
+        return f"the intrinsics have a non-finite value (K = {fmt(K)}); expected finite fx, fy, cx, cy"
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        return f"focal length fx = {K[0, 0]:g}, fy = {K[1, 1]:g}; expected fx, fy > 0 pixels"
+    if max(K[0, 0], K[1, 1], abs(K[0, 2]), abs(K[1, 2])) > MAX_FOCAL_PX or not np.array_equal(K[2], [0, 0, 1]):
+        return f"K = {fmt(K)} is not a camera (fx, fy, |cx|, |cy| up to {MAX_FOCAL_PX:g} pixels, last row 0, 0, 1)"
     return None
 
 
-def check_records(records) -> None:
-    """SpmError naming the first record whose pose or intrinsics cannot be imported (see pose_problem),
-    or whose class name render would refuse (class_name_problem: a class names shard files)."""
-    named = set()
+def check_records(records) -> list:
+    """``records`` with each R replaced by the rotation nearest it (stored rotations are exact,
+    as validate wants them); SpmError naming the first record whose pose or intrinsics cannot be
+    imported (see pose_problem), or whose class name render would refuse (class_name_problem: a
+    class names shard files)."""
+    named, checked = set(), []
     for rec in records:
         problem = pose_problem(rec.R, rec.t, rec.K)
         if problem is not None:
@@ -240,14 +283,18 @@ def check_records(records) -> None:
             if problem is not None:
                 raise SpmError(f"{rec.image}: class {problem}; give another class name (nothing was written)")
             named.add(rec.class_name)
+        checked.append(replace(rec, R=tuple(nearest_rotation(rec.R).ravel())))
+    return checked
 
 
 def import_records(records, out_dir, *, source: str, prefix: str, frames_per_shard=256, threshold=10,
-                   size=None, attrs=None, progress=None, executor=None) -> RunSummary:
-    """Write ``records`` as shards ``PREFIX-NNNNN.h5`` in ``out_dir`` (resuming)."""
+                   size=None, attrs=None, progress=None, executor=None, problems=()) -> RunSummary:
+    """Write ``records`` as shards ``PREFIX-NNNNN.h5`` in ``out_dir`` (resuming). ``problems``:
+    (what, why) the importer skipped while planning, named when no frame is left to import.
+    SpmError when nothing can be imported: no records, or every frame skipped as it was read."""
     if not records:
-        raise SpmError("nothing to import: no frames were found")
-    check_records(records)  # every pose before the first shard: a bad one writes nothing
+        raise SpmError(f"nothing to import: no frames were found{_first_problems(problems)}")
+    records = check_records(records)  # every pose before the first shard: a bad one writes nothing
     attrs_json = json.dumps(attrs or {}, sort_keys=True)
     key_base = json.dumps([SCHEMA_VERSION, source, threshold, size, attrs_json], sort_keys=True)
     jobs = []
@@ -256,7 +303,20 @@ def import_records(records, out_dir, *, source: str, prefix: str, frames_per_sha
         key = hashlib.sha256((key_base + repr(chunk)).encode()).hexdigest()
         jobs.append(ImportJob(f"{prefix}-{i:05d}.h5", key, str(out_dir), chunk, source, threshold,
                               tuple(size) if size else None, attrs_json))
-    return run_shard_jobs(import_shard, jobs, out_dir, executor=executor, progress=progress, verb="imported")
+    summary = run_shard_jobs(import_shard, jobs, out_dir, executor=executor, progress=progress, verb="imported")
+    if summary.frames == 0 and not (summary.interrupted or summary.failed or summary.skipped):
+        skipped = [tuple(s) for r in summary.results.values() for s in r.get("skipped", [])] + list(problems)
+        raise SpmError(f"nothing imported: every one of {len(records)} frames was skipped"
+                       f"{_first_problems(skipped)}; nothing was written")
+    return summary
+
+
+def _first_problems(problems) -> str:
+    """" (N skipped; first: WHAT: WHY; ...)" of (what, why) pairs, the first three; "" when none."""
+    if not problems:
+        return ""
+    first = "; ".join(f"{what}: {str(why).removeprefix(f'{what}: ')}" for what, why in list(problems)[:3])
+    return f" ({len(problems)} skipped; first: {first})"
 
 
 def import_report(summary: RunSummary, problems=()) -> str:

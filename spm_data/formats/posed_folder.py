@@ -26,7 +26,7 @@ from scipy.spatial.transform import Rotation
 from spm_data.errors import SpmError
 from spm_data.formats.importing import FrameRecord, check_fov_option, import_records
 from spm_data.io.images import ImageError, image_size
-from spm_data.core.poses import is_rotation
+from spm_data.core.poses import ROTATION_TOLERANCE, is_rotation
 
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 MATRIX = [f"r{i}{j}" for i in (1, 2, 3) for j in (1, 2, 3)]
@@ -56,8 +56,9 @@ def rotation_from_row(row: dict, euler: str, where: str) -> np.ndarray:
     """(3, 3) rotation from a CSV row: matrix, quaternion (w first) or Euler degrees."""
     if all(k in row for k in MATRIX):
         R = np.array([_float(row, k, where) for k in MATRIX]).reshape(3, 3)
-        if not is_rotation(R, atol=1e-4):
-            raise SpmError(f"{where}: r11..r33 is not a rotation matrix (orthonormal, determinant +1); fix that row")
+        if not is_rotation(R):
+            raise SpmError(f"{where}: r11..r33 is not a rotation matrix (orthonormal within {ROTATION_TOLERANCE:g}, "
+                           "determinant +1); fix that row")
         return R
     if all(k in row for k in QUATERNION):
         q = np.array([_float(row, k, where) for k in ("qx", "qy", "qz", "qw")])
