@@ -107,6 +107,12 @@ IMPORTERS: dict[str, Importer] = {
                                                                     "for frames without alpha or mask_path."),
                       Option("--depth-unit", "depth_unit", UNITS, "mm", "What one step of a uint16 depth image "
                                                                         "(depth_file_path) is."),
+                      Option("--mask", "mask", ("none", "sphere", "grabcut"), None,
+                             "Make every frame's mask (captures without masks): none = the whole frame, sphere = "
+                             "the projection of a sphere of --radius around --center, grabcut = OpenCV GrabCut "
+                             "seeded by it [default: mask_path, --mask-dir or the alpha channel]."),
+                      Option("--radius", "radius", "float", None, "The sphere of --mask sphere/grabcut: the "
+                                                                  "object's radius around --center, world units."),
                       Option("--strict", "strict", "flag", False, "Refuse a capture with missing or unreadable "
                                                                   "images [default: skip those frames, listed]."))),
 }

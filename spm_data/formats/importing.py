@@ -18,6 +18,7 @@ import numpy as np
 
 from spm_data import __version__
 from spm_data.core.specs import class_name_problem
+from spm_data.formats.capture_images import capture_mask, undistort
 from spm_data.errors import SpmError
 from spm_data.core.poses import (MAX_DISTANCE_M, MAX_FOCAL_PX, ROTATION_TOLERANCE, is_rotation, nearest_rotation,
                                   pose_to_label)
@@ -55,6 +56,8 @@ class FrameRecord:
     mask_alpha: bool = False           # the mask is ``mask``'s opacity (alpha at least 128 of 255)
     distortion: tuple = ()             # OpenCV's k1, k2, p1, p2[, k3] (or k1..k4 with fisheye): undistorted to K
     fisheye: bool = False              # ``distortion`` is OpenCV's fisheye model (cv2.fisheye)
+    mask_method: str = ""              # "none", "sphere", "grabcut": the mask is made (formats/capture_images.py)
+    mask_radius_m: float = 0.0         # the sphere's radius (metres, around the object origin) for those
 
 
 def threshold_mask(rgb: np.ndarray, threshold: int) -> np.ndarray:
@@ -78,45 +81,6 @@ class ImportJob:
     @property
     def frames(self) -> int:
         return len(self.records)
-
-
-def undistort(image: np.ndarray, K: np.ndarray, distortion: tuple, fisheye: bool, nearest: bool) -> np.ndarray:
-    """``image`` (H, W[, C]) seen through the lens ``distortion`` (OpenCV's coefficients, or its
-    fisheye model's k1..k4) as the pinhole camera ``K`` (3, 3) would see it: OpenCV's undistortion
-    map, sampled bilinearly (``nearest``: nearest neighbour, for masks and depth)."""
-    import cv2
-
-    h, w = image.shape[:2]
-    dist = np.asarray(distortion, dtype=np.float64)
-    if fisheye:
-        maps = cv2.fisheye.initUndistortRectifyMap(K, dist, np.eye(3), K, (w, h), cv2.CV_32FC1)
-    else:
-        maps = cv2.initUndistortRectifyMap(K, dist, None, K, (w, h), cv2.CV_32FC1)
-    flag = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
-    return cv2.remap(image, maps[0], maps[1], flag, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-
-
-def lens_coverage(K, distortion: tuple, fisheye: bool, width: int, height: int) -> float:
-    """The fraction of the undistorted image (K, ``width`` x ``height``) that :func:`undistort`
-    fills from inside the photo (a 16 x 16 grid of its pixels); 1.0 without distortion. A lens whose
-    coefficients are absurd (k1 = 1e10) fills almost nothing: every mask would be empty."""
-    if not any(distortion):
-        return 1.0
-    import cv2
-
-    K = np.asarray(K, dtype=np.float64).reshape(3, 3)
-    u, v = np.meshgrid(np.linspace(0, width - 1, 16), np.linspace(0, height - 1, 16))
-    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1).reshape(1, -1, 3)
-    dist = np.asarray(distortion, dtype=np.float64)
-    with np.errstate(all="ignore"):
-        if fisheye:
-            uv = cv2.fisheye.projectPoints(rays, np.zeros(3), np.zeros(3), K, dist)[0]
-        else:
-            uv = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, dist)[0]
-        uv = uv.reshape(-1, 2)
-        inside = np.isfinite(uv).all(axis=1) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= width - 0.5) \
-            & (uv[:, 1] >= -0.5) & (uv[:, 1] <= height - 0.5)
-    return float(inside.mean())
 
 
 def _load_frame(rec: FrameRecord, job: ImportJob):
@@ -147,15 +111,16 @@ def _load_frame(rec: FrameRecord, job: ImportJob):
         if d.shape != (h, w):
             raise ImageError(f"{rec.depth}: depth is {d.shape[1]}x{d.shape[0]}, image is {w}x{h}")
         depth = (d.astype(np.float64) * rec.depth_scale_m).astype(np.float32)
-    if mask is None:
+    if mask is None and not rec.mask_method:
         mask = threshold_mask(rgb, job.threshold)
-    if visible is None:
-        visible = mask
     K = np.array(rec.K, dtype=np.float64).reshape(3, 3)
     if any(rec.distortion):
         rgb = undistort(rgb, K, rec.distortion, rec.fisheye, nearest=False)
-        mask, visible, depth = (undistort(a, K, rec.distortion, rec.fisheye, nearest=True)
+        mask, visible, depth = (None if a is None else undistort(a, K, rec.distortion, rec.fisheye, nearest=True)
                                 for a in (mask, visible, depth))
+    if rec.mask_method:  # made from the undistorted image, whose camera is K
+        mask = capture_mask(rec.mask_method, rgb, K, rec.t, rec.mask_radius_m)
+    visible = mask if visible is None else visible
     if rec.crop == "mask":
         ys, xs = np.nonzero(mask)
         if len(ys) == 0:

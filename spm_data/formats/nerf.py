@@ -40,7 +40,8 @@ import numpy as np
 
 from spm_data.core.poses import K_from_corner_origin, gl_camera_to_world_to_object
 from spm_data.errors import SpmError
-from spm_data.formats.importing import FrameRecord, import_records, lens_coverage
+from spm_data.formats.capture_images import MASK_METHODS, lens_coverage, mask_source
+from spm_data.formats.importing import FrameRecord, import_records
 from spm_data.io.images import IMAGE_SUFFIXES, ImageError, image_header
 
 FILES = ("transforms.json",)
@@ -213,11 +214,13 @@ def parse_center(text) -> np.ndarray:
 
 
 def nerf_records(path, *, class_name=None, scale=1.0, center=(0.0, 0.0, 0.0), mask_dir=None, depth_unit="mm",
-                 strict=False):
+                 strict=False, mask=None, radius=None):
     """(records, problems) of every frame of a capture, each checked (matrix, intrinsics, lens, mask):
     SpmError naming the file and frame for the first that cannot be imported. A frame whose image,
     mask or depth image is missing or unreadable is skipped, listed in problems; with ``strict``
-    they are refused together, in one SpmError (their count and the first few)."""
+    they are refused together, in one SpmError (their count and the first few). ``mask``: one of
+    MASK_METHODS, the mask every frame is given instead of its files' (``radius``: the sphere's,
+    world units around ``center``)."""
     if not (isinstance(scale, (int, float)) and 0 < scale < math.inf):
         raise SpmError(f"--scale {scale}: expected metres per world unit, a finite number > 0")
     if depth_unit not in UNITS:
@@ -226,6 +229,7 @@ def nerf_records(path, *, class_name=None, scale=1.0, center=(0.0, 0.0, 0.0), ma
     mask_dir = Path(mask_dir) if mask_dir else None
     if mask_dir is not None and not mask_dir.is_dir():
         raise SpmError(f"--mask-dir {mask_dir}: no such folder")
+    made = _made_masks(mask, radius, scale, mask_dir)
     files = transforms_files(path)
     root = files[0].parent
     name = class_name or root.resolve().name or "capture"
@@ -243,7 +247,8 @@ def nerf_records(path, *, class_name=None, scale=1.0, center=(0.0, 0.0, 0.0), ma
             try:
                 records.append(_record(frame, {**shared, **{k: frame[k] for k in CAMERA_KEYS if k in frame}},
                                        image, file.parent, where, name=name, scale=scale, center=center,
-                                       mask_dir=mask_dir, depth_scale=UNITS[depth_unit], index=len(records)))
+                                       mask_dir=mask_dir, depth_scale=UNITS[depth_unit], index=len(records),
+                                       made=made))
             except ImageError as exc:
                 problems.append((f"frame {i} ({_short(frame.get('file_path'))})", str(exc)))
     if strict and problems:
@@ -259,7 +264,26 @@ def _short(text, limit: int = 200) -> str:
     return text if len(text) <= limit else f"{text[:limit // 2]}... ({len(text)} characters)"
 
 
-def _record(frame, camera, image, base, where, *, name, scale, center, mask_dir, depth_scale, index) -> FrameRecord:
+def _made_masks(method, radius, scale, mask_dir) -> tuple:
+    """(method, sphere radius in metres) of ``--mask``/``--radius``; () without --mask."""
+    if method is None:
+        if radius is not None:
+            raise SpmError("--radius is the sphere of --mask sphere or --mask grabcut; give one of them too")
+        return ()
+    if method not in MASK_METHODS:
+        raise SpmError(f"--mask takes one of {', '.join(MASK_METHODS)}, got {method!r}")
+    if mask_dir is not None:
+        raise SpmError(f"--mask {method} makes every frame's mask; give it or --mask-dir, not both")
+    if method == "none":
+        return ("none", 0.0)
+    if radius is None or not 0 < radius < math.inf:
+        raise SpmError(f"--mask {method} needs --radius R: the object's radius around --center, in the capture's "
+                       f"world units (a finite number > 0){'' if radius is None else f', got {radius}'}")
+    return (method, float(radius) * scale)
+
+
+def _record(frame, camera, image, base, where, *, name, scale, center, mask_dir, depth_scale, index,
+            made=()) -> FrameRecord:
     """One frame's record; ``base``: the folder its JSON is in (paths are relative to it). ImageError
     when its image, mask or depth image is missing or unreadable (the frame is skipped)."""
     R, t = gl_camera_to_world_to_object(frame_matrix(frame, where), scale, center, where)
@@ -271,8 +295,10 @@ def _record(frame, camera, image, base, where, *, name, scale, center, mask_dir,
         raise SpmError(f"{where}: the lens ({', '.join(f'{d:g}' for d in distortion)}) leaves {covered:.0%} of the "
                        "undistorted image inside the photo, so its masks would be empty; check the distortion "
                        "coefficients")
-    # The masks a user names win over the image's alpha (apps write opaque RGBA PNGs too).
-    if isinstance(frame.get("mask_path"), str):
+    # --mask makes every mask; else the masks a user names win over the alpha (apps write opaque RGBA PNGs too).
+    if made:
+        mask, alpha = None, False
+    elif isinstance(frame.get("mask_path"), str):
         mask = _image_path(base, frame["mask_path"], where)
         _header(mask, "mask")
     else:
@@ -280,26 +306,28 @@ def _record(frame, camera, image, base, where, *, name, scale, center, mask_dir,
         if mask is None:
             hint = f"no {image.name} (any image suffix) in --mask-dir {mask_dir}" if mask_dir else \
                 "give --mask-dir DIR with a mask of the same name per image"
-            raise SpmError(f"{where}: no mask: the image has no alpha channel and the frame no mask_path; {hint}")
+            raise SpmError(f"{where}: no mask: the image has no alpha channel and the frame no mask_path; {hint}, "
+                           "or make masks with --mask none|sphere|grabcut (docs/datasets.md)")
         alpha = mask == image
     depth = None
     if isinstance(frame.get("depth_file_path"), str):
         depth = _image_path(base, frame["depth_file_path"], where)
         _header(depth, "depth image")
     return FrameRecord(image=str(image), class_name=name, instance_name=name, instance_id=0, R=tuple(R.ravel()),
-                       t=tuple(t), K=tuple(K.ravel()), mask=str(mask), mask_alpha=bool(alpha),
+                       t=tuple(t), K=tuple(K.ravel()), mask=None if mask is None else str(mask), mask_alpha=bool(alpha),
                        depth=None if depth is None else str(depth), depth_scale_m=depth_scale,
-                       path_index=index, distance=float(np.linalg.norm(t)), distortion=distortion, fisheye=fisheye)
+                       path_index=index, distance=float(np.linalg.norm(t)), distortion=distortion, fisheye=fisheye,
+                       mask_method=made[0] if made else "", mask_radius_m=made[1] if made else 0.0)
 
 
 def import_nerf(path, out_dir, *, class_name=None, scale=1.0, center="0,0,0", mask_dir=None, depth_unit="mm",
-                strict=False, frames_per_shard=256, progress=None, executor=None):
+                strict=False, mask=None, radius=None, frames_per_shard=256, progress=None, executor=None):
     """Import a transforms.json capture into ``out_dir``; returns (RunSummary, problems)."""
     records, problems = nerf_records(path, class_name=class_name, scale=scale, center=center, mask_dir=mask_dir,
-                                     depth_unit=depth_unit, strict=strict)
+                                     depth_unit=depth_unit, strict=strict, mask=mask, radius=radius)
     attrs = {"import": "nerf", "transforms": json.dumps([str(f) for f in transforms_files(path)]),
              "scale": float(scale), "center": json.dumps(_center(center).tolist()),
-             "mask_source": "mask_path, --mask-dir, or alpha >= 128", "path_steps": 0}
+             "mask_source": mask_source(mask, radius), "mask_method": mask or "file", "path_steps": 0}
     summary = import_records(records, out_dir, source="nerf", prefix="nerf", frames_per_shard=frames_per_shard,
                              attrs=attrs, progress=progress, executor=executor, problems=problems)
     return summary, problems

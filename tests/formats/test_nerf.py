@@ -94,7 +94,7 @@ def test_camera_angle_x_and_the_nerf_synthetic_split_files(tmp_path):
 def test_lens_distortion_is_removed_to_the_pinhole_k(tmp_path):
     """An image taken through OpenCV's lens model, undistorted on import: straight back to the pinhole
     image (within interpolation) and exactly the pinhole K."""
-    from spm_data.formats.importing import undistort
+    from spm_data.formats.capture_images import undistort
 
     h, w = 120, 160
     K = np.array([[140.0, 0, 79.5], [0, 140, 59.5], [0, 0, 1]])
