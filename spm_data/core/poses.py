@@ -217,6 +217,15 @@ def K_from_corner_origin(K) -> np.ndarray:
     return out
 
 
+def scale_K(K, sx: float, sy: float) -> np.ndarray:
+    """OpenCV ``K`` (3, 3) of an image resized by ``sx`` (new width / old width) and ``sy``: the
+    image's extent maps onto the new one, so a pixel centre ``u`` goes to ``(u + 0.5) sx - 0.5``
+    (``fx sx``, ``(cx + 0.5) sx - 0.5``; the same in y). (3, 3) float64."""
+    K = np.array(K, dtype=np.float64).reshape(3, 3)
+    S = np.array([[sx, 0.0, PIXEL_CORNER_SHIFT * (sx - 1)], [0.0, sy, PIXEL_CORNER_SHIFT * (sy - 1)], [0, 0, 1.0]])
+    return S @ K
+
+
 def project_points(points, K, R, t):
     """Project object-frame points into the image.
 

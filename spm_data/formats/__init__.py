@@ -113,6 +113,8 @@ IMPORTERS: dict[str, Importer] = {
                              "seeded by it [default: mask_path, --mask-dir or the alpha channel]."),
                       Option("--radius", "radius", "float", None, "The sphere of --mask sphere/grabcut: the "
                                                                   "object's radius around --center, world units."),
+                      Option("--max-side", "max_side", "int", None, "Downscale frames whose longer side is over "
+                             "this many pixels to it, K with them [default: keep the size].", 16),
                       Option("--strict", "strict", "flag", False, "Refuse a capture with missing or unreadable "
                                                                   "images [default: skip those frames, listed]."))),
 }

@@ -11,20 +11,16 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass, field, replace
-from pathlib import Path
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from spm_data import __version__
 from spm_data.core.specs import class_name_problem
-from spm_data.formats.capture_images import capture_mask, undistort
 from spm_data.errors import SpmError
-from spm_data.core.poses import (MAX_DISTANCE_M, MAX_FOCAL_PX, ROTATION_TOLERANCE, is_rotation, nearest_rotation,
-                                  pose_to_label)
+from spm_data.formats.import_frames import ImportJob, import_shard, threshold_mask  # noqa: F401 (re-exported)
+from spm_data.core.poses import MAX_DISTANCE_M, MAX_FOCAL_PX, ROTATION_TOLERANCE, is_rotation, nearest_rotation
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
-from spm_data.io.images import ImageError, decode_alpha, decode_image, read_bytes
-from spm_data.io.shards import SCHEMA_VERSION, manifest_entry, write_shard
+from spm_data.io.shards import SCHEMA_VERSION
 
 NAN3 = (float("nan"),) * 3
 
@@ -58,138 +54,6 @@ class FrameRecord:
     fisheye: bool = False              # ``distortion`` is OpenCV's fisheye model (cv2.fisheye)
     mask_method: str = ""              # "none", "sphere", "grabcut": the mask is made (formats/capture_images.py)
     mask_radius_m: float = 0.0         # the sphere's radius (metres, around the object origin) for those
-
-
-def threshold_mask(rgb: np.ndarray, threshold: int) -> np.ndarray:
-    """(H, W) uint8 mask of pixels whose brightest channel exceeds ``threshold`` (0..255)."""
-    return (rgb.max(axis=2) > threshold).astype(np.uint8)
-
-
-# --------------------------------------------------------------------------- shards of imported frames
-
-@dataclass(frozen=True)
-class ImportJob:
-    name: str
-    plan_key: str
-    out_dir: str
-    records: tuple = field(repr=False)
-    source: str = ""
-    threshold: int = 10
-    size: tuple | None = None       # (width, height) to resize crops to
-    attrs_json: str = "{}"
-
-    @property
-    def frames(self) -> int:
-        return len(self.records)
-
-
-def _load_frame(rec: FrameRecord, job: ImportJob):
-    import cv2
-
-    rgb = decode_image(read_bytes(rec.image), rec.image)
-    h, w = rgb.shape[:2]
-    mask = None
-    if rec.mask is not None:
-        if rec.mask_alpha:  # the object: at least half opaque
-            mask = decode_alpha(read_bytes(rec.mask), rec.mask) >= 128
-            if mask.all():
-                raise ImageError(f"{rec.mask}: its alpha channel is opaque everywhere, so it holds no mask; give "
-                                 "masks with --mask-dir")
-        else:
-            m = decode_image(read_bytes(rec.mask), rec.mask, mode="raw")
-            mask = (m.max(axis=2) if m.ndim == 3 else m) > 0
-        if mask.shape != (h, w):
-            raise ImageError(f"{rec.mask}: mask is {mask.shape[1]}x{mask.shape[0]}, image is {w}x{h}")
-        mask = mask.astype(np.uint8)
-    visible = mask
-    if rec.visible_mask is not None:
-        v = decode_image(read_bytes(rec.visible_mask), rec.visible_mask, mode="raw")
-        visible = ((v.max(axis=2) if v.ndim == 3 else v) > 0).astype(np.uint8)
-    depth = np.zeros((h, w), np.float32)
-    if rec.depth is not None:
-        d = decode_image(read_bytes(rec.depth), rec.depth, mode="raw")
-        if d.shape != (h, w):
-            raise ImageError(f"{rec.depth}: depth is {d.shape[1]}x{d.shape[0]}, image is {w}x{h}")
-        depth = (d.astype(np.float64) * rec.depth_scale_m).astype(np.float32)
-    if mask is None and not rec.mask_method:
-        mask = threshold_mask(rgb, job.threshold)
-    K = np.array(rec.K, dtype=np.float64).reshape(3, 3)
-    if any(rec.distortion):
-        rgb = undistort(rgb, K, rec.distortion, rec.fisheye, nearest=False)
-        mask, visible, depth = (None if a is None else undistort(a, K, rec.distortion, rec.fisheye, nearest=True)
-                                for a in (mask, visible, depth))
-    if rec.mask_method:  # made from the undistorted image, whose camera is K
-        mask = capture_mask(rec.mask_method, rgb, K, rec.t, rec.mask_radius_m)
-    visible = mask if visible is None else visible
-    if rec.crop == "mask":
-        ys, xs = np.nonzero(mask)
-        if len(ys) == 0:
-            raise ImageError(f"{rec.image}: the object's mask is empty; nothing to crop around")
-        cx, cy = (xs.min() + xs.max() + 1) / 2, (ys.min() + ys.max() + 1) / 2
-        half = int(np.ceil(max(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1) * 0.6))
-        x0, y0 = int(round(cx)) - half, int(round(cy)) - half
-        x1, y1 = x0 + 2 * half, y0 + 2 * half
-        pad = max(0, -x0, -y0, x1 - w, y1 - h)  # squares near the border are padded with black
-        if pad:
-            rgb, mask, visible, depth = (np.pad(a, ((pad, pad), (pad, pad)) + ((0, 0),) * (a.ndim - 2))
-                                         for a in (rgb, mask, visible, depth))
-        X0, Y0 = x0 + pad, y0 + pad
-        tw, th = job.size or (x1 - x0, y1 - y0)
-        sx, sy = tw / (x1 - x0), th / (y1 - y0)
-        rgb = cv2.resize(rgb[Y0:Y0 + 2 * half, X0:X0 + 2 * half], (tw, th), interpolation=cv2.INTER_AREA)
-        mask = cv2.resize(mask[Y0:Y0 + 2 * half, X0:X0 + 2 * half], (tw, th), interpolation=cv2.INTER_NEAREST)
-        visible = cv2.resize(visible[Y0:Y0 + 2 * half, X0:X0 + 2 * half], (tw, th),
-                             interpolation=cv2.INTER_NEAREST)
-        depth = cv2.resize(depth[Y0:Y0 + 2 * half, X0:X0 + 2 * half], (tw, th), interpolation=cv2.INTER_NEAREST)
-        # The crop's pixel centres: u' = (u - x0 + 0.5) * sx - 0.5.
-        K = np.array([[K[0, 0] * sx, 0, (K[0, 2] - x0 + 0.5) * sx - 0.5],
-                      [0, K[1, 1] * sy, (K[1, 2] - y0 + 0.5) * sy - 0.5], [0, 0, 1.0]])
-    if not mask.any():  # validate refuses an empty mask: the frame is skipped, listed
-        raise ImageError(f"{rec.image}: the object's mask is empty{' after undistortion' if any(rec.distortion) else ''}"
-                         "; give a mask that covers the object")
-    return rgb, mask, depth, K, visible
-
-
-def import_shard(job: ImportJob, report=lambda n: None) -> dict:
-    """Read the job's frames (skipping unreadable ones, listed) and write its shard."""
-    frames, skipped = [], []
-    for rec in job.records:
-        try:
-            frames.append((rec, *_load_frame(rec, job)))
-        except ImageError as exc:
-            skipped.append([rec.image, str(exc)])
-        report(1)
-    if not frames:
-        return {"entry": None, "skipped": skipped, "frames": 0}
-    sizes = {f[1].shape for f in frames}
-    if len(sizes) > 1:
-        raise SpmError(f"{job.name}: images of different sizes {sorted(sizes)} in one shard; pass --size WxH")
-    n = len(frames)
-    R = np.array([f[0].R for f in frames], dtype=np.float64).reshape(n, 3, 3)
-    t = np.array([f[0].t for f in frames], dtype=np.float64).reshape(n, 3)
-    arrays = {
-        "rgb": np.stack([f[1] for f in frames]), "depth": np.stack([f[3] for f in frames]),
-        "mask": np.stack([f[2] for f in frames]), "K": np.stack([f[4] for f in frames]), "R": R, "t": t,
-        "pose": pose_to_label(R, t).reshape(n, 6),
-        "azimuth": np.array([f[0].azimuth for f in frames]), "elevation": np.array([f[0].elevation for f in frames]),
-        "roll": np.array([f[0].roll for f in frames]), "distance": np.array([f[0].distance for f in frames]),
-        "look_at": np.zeros((n, 3)), "path_index": np.array([f[0].path_index for f in frames], dtype=np.int64),
-        "instance_id": np.array([f[0].instance_id for f in frames], dtype=np.int64),
-        "instance_name": [f[0].instance_name for f in frames], "class_name": [f[0].class_name for f in frames],
-        "source": [job.source] * n, "label_measured": np.array([f[0].label_measured for f in frames], dtype=bool),
-        "occlusion_fraction": np.zeros(n, np.float32), "occlusion_rects": np.zeros((n, 1, 4), np.int32),
-        "source_shard": [f[0].image for f in frames], "source_frame": np.arange(n, dtype=np.int64),
-    }
-    if any(f[0].visible_mask is not None for f in frames):
-        visible = np.stack([f[5] for f in frames])
-        full = arrays["mask"].reshape(n, -1).sum(axis=1)
-        arrays["visible_mask"] = visible
-        arrays["occlusion_fraction"] = np.where(
-            full > 0, 1.0 - visible.reshape(n, -1).sum(axis=1) / np.maximum(full, 1), 0.0).astype(np.float32)
-    attrs = {**json.loads(job.attrs_json), "plan_key": job.plan_key, "renderer": "none (imported)",
-             "seed": 0, "source": job.source, "spm_version": __version__, "import_skipped": json.dumps(skipped)}
-    target = write_shard(Path(job.out_dir) / job.name, arrays, attrs)
-    return {"entry": manifest_entry(target), "skipped": skipped, "frames": n}
 
 
 def check_fov_option(fov) -> None:
@@ -253,21 +117,23 @@ def check_records(records) -> list:
 
 
 def import_records(records, out_dir, *, source: str, prefix: str, frames_per_shard=256, threshold=10,
-                   size=None, attrs=None, progress=None, executor=None, problems=()) -> RunSummary:
-    """Write ``records`` as shards ``PREFIX-NNNNN.h5`` in ``out_dir`` (resuming). ``problems``:
+                   size=None, attrs=None, progress=None, executor=None, problems=(), max_side=None) -> RunSummary:
+    """Write ``records`` as shards ``PREFIX-NNNNN.h5`` in ``out_dir`` (resuming); frames whose longer
+    side is over ``max_side`` are downscaled to it (K with them). ``problems``:
     (what, why) the importer skipped while planning, named when no frame is left to import.
     SpmError when nothing can be imported: no records, or every frame skipped as it was read."""
     if not records:
         raise SpmError(f"nothing to import: no frames were found{_first_problems(problems)}")
     records = check_records(records)  # every pose before the first shard: a bad one writes nothing
     attrs_json = json.dumps(attrs or {}, sort_keys=True)
-    key_base = json.dumps([SCHEMA_VERSION, source, threshold, size, attrs_json], sort_keys=True)
+    key_base = json.dumps([SCHEMA_VERSION, source, threshold, size, attrs_json] + ([max_side] if max_side else []),
+                          sort_keys=True)
     jobs = []
     for i, start in enumerate(range(0, len(records), frames_per_shard)):
         chunk = tuple(records[start:start + frames_per_shard])
         key = hashlib.sha256((key_base + repr(chunk)).encode()).hexdigest()
         jobs.append(ImportJob(f"{prefix}-{i:05d}.h5", key, str(out_dir), chunk, source, threshold,
-                              tuple(size) if size else None, attrs_json))
+                              tuple(size) if size else None, attrs_json, int(max_side or 0)))
     summary = run_shard_jobs(import_shard, jobs, out_dir, executor=executor, progress=progress, verb="imported")
     if summary.frames == 0 and not (summary.interrupted or summary.failed or summary.skipped):
         skipped = [tuple(s) for r in summary.results.values() for s in r.get("skipped", [])] + list(problems)

@@ -321,7 +321,8 @@ def _record(frame, camera, image, base, where, *, name, scale, center, mask_dir,
 
 
 def import_nerf(path, out_dir, *, class_name=None, scale=1.0, center="0,0,0", mask_dir=None, depth_unit="mm",
-                strict=False, mask=None, radius=None, frames_per_shard=256, progress=None, executor=None):
+                strict=False, mask=None, radius=None, max_side=None, frames_per_shard=256, progress=None,
+                executor=None):
     """Import a transforms.json capture into ``out_dir``; returns (RunSummary, problems)."""
     records, problems = nerf_records(path, class_name=class_name, scale=scale, center=center, mask_dir=mask_dir,
                                      depth_unit=depth_unit, strict=strict, mask=mask, radius=radius)
@@ -329,5 +330,5 @@ def import_nerf(path, out_dir, *, class_name=None, scale=1.0, center="0,0,0", ma
              "scale": float(scale), "center": json.dumps(_center(center).tolist()),
              "mask_source": mask_source(mask, radius), "mask_method": mask or "file", "path_steps": 0}
     summary = import_records(records, out_dir, source="nerf", prefix="nerf", frames_per_shard=frames_per_shard,
-                             attrs=attrs, progress=progress, executor=executor, problems=problems)
+                             attrs=attrs, progress=progress, executor=executor, problems=problems, max_side=max_side)
     return summary, problems
