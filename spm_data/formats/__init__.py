@@ -99,8 +99,8 @@ IMPORTERS: dict[str, Importer] = {
                      "A posed capture at PATH: a folder with transforms.json (or transforms_train/_val/_test.json), "
                      "as instant-ngp and nerfstudio write it (COLMAP, Polycam, Record3D exports), or that file.",
                      (Option("--class", "class_name", "str", None, "Class of the object [default: the folder's name]."),
-                      Option("--scale", "scale", "float", 1.0, "Metres per unit of the capture's world frame "
-                                                               "(> 0)."),
+                      Option("--scale", "scale", "float", None, "Metres per unit of the capture's world frame "
+                                                                "(> 0) [default: 1, with a warning]."),
                       Option("--center", "center", "str", "0,0,0", "The object frame's origin, x,y,z in the "
                                                                  "capture's world units."),
                       Option("--mask-dir", "mask_dir", "path", None, "Masks named as the images (any image suffix), "

@@ -34,12 +34,13 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from spm_data.core.poses import K_from_corner_origin, gl_camera_to_world_to_object
-from spm_data.errors import SpmError
+from spm_data.errors import SpmError, SpmWarning
 from spm_data.formats.capture_images import MASK_METHODS, lens_coverage, mask_source
 from spm_data.formats.importing import FrameRecord, import_records
 from spm_data.io.images import IMAGE_SUFFIXES, ImageError, image_header
@@ -320,15 +321,21 @@ def _record(frame, camera, image, base, where, *, name, scale, center, mask_dir,
                        mask_method=made[0] if made else "", mask_radius_m=made[1] if made else 0.0)
 
 
-def import_nerf(path, out_dir, *, class_name=None, scale=1.0, center="0,0,0", mask_dir=None, depth_unit="mm",
+def import_nerf(path, out_dir, *, class_name=None, scale=None, center="0,0,0", mask_dir=None, depth_unit="mm",
                 strict=False, mask=None, radius=None, max_side=None, frames_per_shard=256, progress=None,
                 executor=None):
-    """Import a transforms.json capture into ``out_dir``; returns (RunSummary, problems)."""
-    records, problems = nerf_records(path, class_name=class_name, scale=scale, center=center, mask_dir=mask_dir,
-                                     depth_unit=depth_unit, strict=strict, mask=mask, radius=radius)
+    """Import a transforms.json capture into ``out_dir``; returns (RunSummary, problems). ``scale``
+    None: the world unit is taken as a metre (attribute length_unit "capture unit", and a warning)."""
+    records, problems = nerf_records(path, class_name=class_name, scale=1.0 if scale is None else scale,
+                                     center=center, mask_dir=mask_dir, depth_unit=depth_unit, strict=strict,
+                                     mask=mask, radius=radius)
     attrs = {"import": "nerf", "transforms": json.dumps([str(f) for f in transforms_files(path)]),
-             "scale": float(scale), "center": json.dumps(_center(center).tolist()),
-             "mask_source": mask_source(mask, radius), "mask_method": mask or "file", "path_steps": 0}
+             "scale": 1.0 if scale is None else float(scale), "length_unit": "m" if scale else "capture unit",
+             "center": json.dumps(_center(center).tolist()), "mask_source": mask_source(mask, radius),
+             "mask_method": mask or "file", "path_steps": 0}
     summary = import_records(records, out_dir, source="nerf", prefix="nerf", frames_per_shard=frames_per_shard,
                              attrs=attrs, progress=progress, executor=executor, problems=problems, max_side=max_side)
+    if scale is None:
+        warnings.warn(SpmWarning("no --scale: the capture's world unit is taken as 1 m, so the reports' mm are "
+                                 "thousandths of that unit; give --scale (metres per unit) for true mm"))
     return summary, problems

@@ -53,7 +53,8 @@ def choose_protocol(protocol: str | None, test, shards, log) -> str:
     classes = listed_classes(shards) if protocol in (None, "loco") else None
     if protocol is None and classes is not None and len(classes) == 1:
         log(f"one class ({next(iter(classes))}): leave-one-class-out cannot run, so the views protocol does "
-            "(new views of seen objects); give --protocol to choose another")
+            "(new views of seen objects); frames on a camera path (a capture, a turntable) test more views "
+            "with --protocol interleaved")
         return "views"
     if protocol == "loco" and classes is not None and len(classes) < 2:
         raise ModelError(f"leave-one-class-out needs at least 2 classes, found {sorted(classes)}; add shards of "

@@ -251,3 +251,16 @@ def test_missing_and_unreadable_images_are_listed_and_skipped_or_refused_with_st
     assert re.fullmatch(r"error: 5 of 8 frames cannot be read \(frame 1 \(images/frame_00001.png\): image .* is "
                         r"missing; frame 3 .*; frame 4 .*; \.\.\.\); restore those files, or drop --strict to skip "
                         r"them\n", r.output), r.output
+
+
+def test_without_scale_the_unit_is_said_and_recorded(rendered, tmp_path):
+    d = rendered
+    capture = write_capture(tmp_path / "c", d["rgb"][:2], d["mask"][:2], d["K"][:2], d["R"][:2], d["t"][:2])
+    r = CliRunner().invoke(data_cli, ["import", "nerf", str(capture), "--out", str(tmp_path / "out")])
+    assert r.exit_code == 0 and "warning: no --scale: the capture's world unit is taken as 1 m, so the reports' mm " \
+                               "are thousandths of that unit; give --scale (metres per unit) for true mm\n" in r.stderr
+    from spm_data.io.shards import read_attrs
+
+    assert read_attrs(list_shards(tmp_path / "out")[0])["length_unit"] == "capture unit"
+    import_nerf(capture, tmp_path / "metric", scale=SCALE, center=CENTER)
+    assert read_attrs(list_shards(tmp_path / "metric")[0])["length_unit"] == "m"

@@ -156,7 +156,9 @@ def test_a_transforms_json_capture_trains_under_views_with_every_method(tmp_path
     import_nerf(tmp_path / "scan", tmp_path / "imported", scale=SCALE, center=CENTER)
     r = CliRunner().invoke(model_cli, ["train", str(tmp_path / "imported"), "--runs", "1", "--ellipse", "direct"])
     assert r.exit_code == 0, r.output
-    assert "one class (scan): leave-one-class-out cannot run, so the views protocol does" in r.output
+    assert "one class (scan): leave-one-class-out cannot run, so the views protocol does (new views of seen " \
+           "objects); frames on a camera path (a capture, a turntable) test more views with --protocol interleaved" \
+           in r.output
     rows = _rows(tmp_path / "imported" / "report")
     assert json.loads((tmp_path / "imported" / "report" / "results.json").read_text())["summary"]["protocol"] == "views"
     assert set(rows) == {"spm", "knn1", "knn3", "pca", "ls", "n3m", "sift-pnp", "smm", "template", "chance"}
