@@ -18,8 +18,8 @@ from spm_data.errors import MeshError, ShardError
 from spm_data.core.mesh_store import STORE, load_mesh
 from spm_data.core.poses import STORED_ROTATION_TOLERANCE, pose_to_label, rotation_error
 from spm_data.io.files import file_sha256
-from spm_data.io.shards import (FIELDS, MANIFEST, MISSING, OPTIONAL_FIELDS, check_arrays, list_shards, no_shards,
-                                 read_attrs, read_manifest, read_shard, shard_layout)
+from spm_data.io.shards import (FIELDS, MANIFEST, MAY_BE_ABSENT, MISSING, OPTIONAL_FIELDS, check_arrays, list_shards,
+                                 no_shards, read_attrs, read_manifest, read_shard, shard_layout)
 
 
 def _angle_difference(a, b):
@@ -34,7 +34,7 @@ def validate_shard(path) -> list[str]:
     except ShardError as exc:
         return [str(exc).replace(f"{path}: ", "")]
     problems = []
-    missing = [f for f in FIELDS if f not in data]
+    missing = [f for f in FIELDS if f not in data and f not in MAY_BE_ABSENT]
     if missing:
         return [f"missing fields {', '.join(missing)}"]
     unknown = [f for f in data if f not in FIELDS and f not in OPTIONAL_FIELDS]
@@ -69,7 +69,7 @@ def validate_shard(path) -> list[str]:
         problems.append(f"empty mask in {int(empty.sum())} frames (first: {np.flatnonzero(empty)[:10].tolist()})")
     if np.any((data["mask"] > 1)):
         problems.append("mask holds values other than 0 and 1")
-    if (data["depth"] < 0).any() or not np.isfinite(data["depth"]).all():
+    if "depth" in data and ((data["depth"] < 0).any() or not np.isfinite(data["depth"]).all()):
         problems.append("depth has negative or non-finite values")
     return problems
 

@@ -84,7 +84,7 @@ def _load_frame(rec, job: ImportJob):
     if rec.visible_mask is not None:
         v = decode_image(read_bytes(rec.visible_mask), rec.visible_mask, mode="raw")
         visible = ((v.max(axis=2) if v.ndim == 3 else v) > 0).astype(np.uint8)
-    depth = np.zeros((h, w), np.float32)
+    depth = None   # no depth image: the shard has no depth field (a read of it gives zeros)
     if rec.depth is not None:
         d = decode_image(read_bytes(rec.depth), rec.depth, mode="raw")
         if d.shape != (h, w):
@@ -113,7 +113,8 @@ def _load_frame(rec, job: ImportJob):
         x1, y1 = x0 + 2 * half, y0 + 2 * half
         pad = max(0, -x0, -y0, x1 - w, y1 - h)  # squares near the border are padded with black
         if pad:
-            rgb, mask, visible, depth = (np.pad(a, ((pad, pad), (pad, pad)) + ((0, 0),) * (a.ndim - 2))
+            rgb, mask, visible, depth = (None if a is None else np.pad(a, ((pad, pad), (pad, pad)) +
+                                                                       ((0, 0),) * (a.ndim - 2))
                                          for a in (rgb, mask, visible, depth))
         X0, Y0 = x0 + pad, y0 + pad
         tw, th = job.size or (x1 - x0, y1 - y0)
@@ -122,12 +123,14 @@ def _load_frame(rec, job: ImportJob):
         mask = cv2.resize(mask[Y0:Y0 + 2 * half, X0:X0 + 2 * half], (tw, th), interpolation=cv2.INTER_NEAREST)
         visible = cv2.resize(visible[Y0:Y0 + 2 * half, X0:X0 + 2 * half], (tw, th),
                              interpolation=cv2.INTER_NEAREST)
-        depth = cv2.resize(depth[Y0:Y0 + 2 * half, X0:X0 + 2 * half], (tw, th), interpolation=cv2.INTER_NEAREST)
+        depth = None if depth is None else cv2.resize(depth[Y0:Y0 + 2 * half, X0:X0 + 2 * half], (tw, th),
+                                                      interpolation=cv2.INTER_NEAREST)
         # The crop's pixel centres: u' = (u - x0 + 0.5) * sx - 0.5.
         K = np.array([[K[0, 0] * sx, 0, (K[0, 2] - x0 + 0.5) * sx - 0.5],
                       [0, K[1, 1] * sy, (K[1, 2] - y0 + 0.5) * sy - 0.5], [0, 0, 1.0]])
     if not mask.any():  # validate refuses an empty mask: the frame is skipped, listed
-        raise ImageError(f"{rec.image}: the object's mask is empty{' after undistortion' if any(rec.distortion) else ''}"
+        after = " after undistortion" if any(rec.distortion) else ""
+        raise ImageError(f"{rec.image}: the object's mask is empty{after}"
                          "; give a mask that covers the object")
     return rgb, mask, depth, K, visible
 
@@ -157,6 +160,7 @@ def _stream(job: ImportJob, records: list, skipped: list, report):
     while the next is read, then stored."""
     labels, writer, stored, pending = [], None, 0, None
     visible_field = any(r.visible_mask is not None for r in records)
+    depth_field = any(r.depth is not None for r in records)
     try:
         with ThreadPoolExecutor(THREADS) as pool:
             for start in range(0, len(records), BLOCK):
@@ -168,8 +172,8 @@ def _stream(job: ImportJob, records: list, skipped: list, report):
                     report(len(failed) - stored)  # the skipped counted, what was stored taken back
                     return {"entry": None, "skipped": skipped, "frames": 0} if not records else None
                 if writer is None:
-                    writer = _writer(job, block, len(records), visible_field)
-                images = _block_images(job, writer, block, visible_field, labels)
+                    writer = _writer(job, block, len(records), visible_field, depth_field)
+                images = _block_images(job, writer, block, visible_field, depth_field, labels)
                 writer.prepare(start, images)
                 if pending is not None:
                     stored += _store(writer, pending, report)
@@ -182,10 +186,10 @@ def _stream(job: ImportJob, records: list, skipped: list, report):
             writer.__exit__(None, None, None)
 
 
-def _writer(job: ImportJob, block: list, frames: int, visible_field: bool):
+def _writer(job: ImportJob, block: list, frames: int, visible_field: bool, depth_field: bool):
     """An open ShardWriter for ``frames`` frames of the size of ``block``'s first."""
     h, w = block[0][1][0].shape[:2]
-    images = ("rgb", "depth", "mask") + (("visible_mask",) if visible_field else ())
+    images = ("rgb", "mask") + (("depth",) if depth_field else ()) + (("visible_mask",) if visible_field else ())
     return ShardWriter(Path(job.out_dir) / job.name, frames=frames, height=h, width=w, images=images).__enter__()
 
 
@@ -196,14 +200,15 @@ def _store(writer, pending, report) -> int:
     return len(images["rgb"])
 
 
-def _block_images(job, writer, block, visible_field, labels) -> dict:
+def _block_images(job, writer, block, visible_field, depth_field, labels) -> dict:
     """{image field: (k, ...) array} of a block; each frame's labels appended to ``labels``."""
     sizes = {frame[0].shape for _, frame in block} | {(writer.height, writer.width, 3)}
     if len(sizes) > 1:
         raise SpmError(f"{job.name}: images of different sizes {sorted(sizes)} in one shard; pass --size WxH "
                        "(or --max-side for a capture)")
-    images = {"rgb": np.stack([f[0] for _, f in block]), "mask": np.stack([f[1] for _, f in block]),
-              "depth": np.stack([f[2] for _, f in block])}
+    images = {"rgb": np.stack([f[0] for _, f in block]), "mask": np.stack([f[1] for _, f in block])}
+    if depth_field:   # frames of a shard with depth whose own depth image is missing: 0, none measured
+        images["depth"] = np.stack([np.zeros(f[1].shape, np.float32) if f[2] is None else f[2] for _, f in block])
     if visible_field:
         images["visible_mask"] = np.stack([f[4] for _, f in block])
     for rec, (_, mask, _, K, visible) in block:

@@ -22,10 +22,17 @@ from spm_model.spm.features import FeatureConfig
 
 
 def class_counts(table: FeatureTable) -> dict:
-    """{class: frames with SPM's training features} (the report's data line; SPM's own need is
-    checked by the benchmark, for SPM alone)."""
-    usable = np.isfinite(table.train_vector).all(axis=1)
-    return {c: int(usable[table.class_name == c].sum()) for c in sorted(set(table.class_name.tolist()))}
+    """{class: frames} (the run's data line, whose counts add up to the frames)."""
+    return {c: int((table.class_name == c).sum()) for c in sorted(set(table.class_name.tolist()))}
+
+
+def data_line(table: FeatureTable, counts: dict) -> str:
+    """"N frames, K classes: a n_a, b n_b; M with SPM's training features" (SPM's own need is checked
+    by the benchmark, for SPM alone)."""
+    usable = int(np.isfinite(table.train_vector).all(axis=1).sum())
+    return (f"{len(table)} frames, {len(counts)} class{'es' if len(counts) != 1 else ''}: "
+            + ", ".join(f"{c} {n}" for c, n in counts.items())
+            + f"; {'all' if usable == len(table) else usable} with SPM's training features")
 
 
 def listed_classes(shards) -> set | None:
@@ -130,8 +137,7 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
         table = offgrid_table(table, load_features(test, features, progress=progress, executor=executor,
                                                    allow_partial=allow_partial, what="test features"))
     counts = class_counts(table)
-    log(f"{len(table)} frames, {len(counts)} class{'es' if len(counts) != 1 else ''}: "
-        + ", ".join(f"{c} {n}" for c, n in counts.items()) + " (frames with SPM's training features)")
+    log(data_line(table, counts))
     alone = int((table.train_neighbours == 0).sum())
     if alone:
         log(f"{alone} frames have no 5-degree path neighbour in their shard; their training features "

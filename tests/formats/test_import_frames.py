@@ -68,3 +68,21 @@ def test_scale_k_maps_the_image_extent_onto_the_new_one():
     S = scale_K(K, 0.25, 0.5)
     assert S[0, 0] == 25.0 and S[1, 1] == 45.0
     assert S[0, 2] == pytest.approx((16 - 1) / 2) and S[1, 2] == pytest.approx((20 - 1) / 2)   # still centred
+
+
+def test_a_capture_without_depth_has_no_depth_field_and_reads_as_zero_depth(tmp_path):
+    """No depth array is written for a capture without depth; validate accepts the shard, a read of
+    depth gives zeros (no surface measured: N3M and SIFT + PnP decline it as before), and a merge
+    with renders keeps their depth."""
+    from spm_data.commands.merge import merge_folders
+    from spm_data.commands.validate import validate_folder
+    from spm_data.io.shards import shard_layout
+
+    import_nerf(_capture(tmp_path / "c", n=3), tmp_path / "out", scale=SCALE, center=CENTER)
+    shard = list_shards(tmp_path / "out")[0]
+    assert "depth" not in shard_layout(shard) and validate_folder(tmp_path / "out") == []
+    depth = read_shard(shard, ["depth"], frames=slice(1, 3))["depth"]
+    assert depth.shape == (2, 40, 60) and depth.dtype == np.float32 and not depth.any()
+    assert read_shard(shard, ["depth"], frames=2)["depth"].shape == (40, 60)
+    merge_folders([tmp_path / "out"], tmp_path / "merged")
+    assert not read_shard(list_shards(tmp_path / "merged")[0], ["depth"])["depth"].any()

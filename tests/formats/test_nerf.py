@@ -32,9 +32,9 @@ def rendered(tmp_path_factory):
 
 
 def _imported(out):
-    parts = [read_shard(p) for p in list_shards(out)]
-    return {k: np.concatenate([p[k] for p in parts]) for k in ("rgb", "mask", "depth", "K", "R", "t", "source",
-                                                               "class_name", "label_measured")}
+    keys = ("rgb", "mask", "depth", "K", "R", "t", "source", "class_name", "label_measured")
+    parts = [read_shard(p, keys) for p in list_shards(out)]   # depth: zeros where the capture has none
+    return {k: np.concatenate([p[k] for p in parts]) for k in keys}
 
 
 def test_a_rendered_class_written_as_a_capture_comes_back_with_the_same_pose_k_and_mask(rendered, tmp_path):
