@@ -329,6 +329,11 @@ def import_nerf(path, out_dir, *, class_name=None, scale=None, center="0,0,0", m
     records, problems = nerf_records(path, class_name=class_name, scale=1.0 if scale is None else scale,
                                      center=center, mask_dir=mask_dir, depth_unit=depth_unit, strict=strict,
                                      mask=mask, radius=radius)
+    if problems and records:   # said now, in one line; the summary lists each at the end
+        first = ", ".join(what for what, _ in problems[:3])
+        warnings.warn(SpmWarning(f"skipping {len(problems)} of {len(problems) + len(records)} frames whose image, mask "
+                                 f"or depth is missing or unreadable ({first}{', ...' if len(problems) > 3 else ''}); "
+                                 "--strict refuses them"))
     attrs = {"import": "nerf", "transforms": json.dumps([str(f) for f in transforms_files(path)]),
              "scale": 1.0 if scale is None else float(scale), "length_unit": "m" if scale else "capture unit",
              "center": json.dumps(_center(center).tolist()), "mask_source": mask_source(mask, radius),

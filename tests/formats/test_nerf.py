@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from cli import data_cli
 from spm_data.core.poses import K_to_corner_origin
-from spm_data.errors import SpmError
+from spm_data.errors import SpmError, SpmWarning
 from spm_data.formats.nerf import import_nerf, nerf_records
 from spm_data.io.shards import list_shards, read_shard
 from tests.helpers import CENTER, SCALE, write_capture
@@ -241,7 +241,11 @@ def test_missing_and_unreadable_images_are_listed_and_skipped_or_refused_with_st
     for i in (1, 3, 4, 6):
         (capture / "images" / f"frame_{i:05d}.png").unlink()
     (capture / "images" / "frame_00007.png").write_bytes(b"not a png")
-    summary, problems = import_nerf(capture, tmp_path / "out", scale=SCALE, center=CENTER)
+    with pytest.warns(SpmWarning) as said:
+        summary, problems = import_nerf(capture, tmp_path / "out", scale=SCALE, center=CENTER)
+    assert [str(w.message) for w in said] == [
+        "skipping 5 of 8 frames whose image, mask or depth is missing or unreadable (frame 1 (images/frame_00001.png), "
+        "frame 3 (images/frame_00003.png), frame 4 (images/frame_00004.png), ...); --strict refuses them"]
     assert summary.frames == 3 and [p[0] for p in problems] == [f"frame {i} (images/frame_{i:05d}.png)"
                                                                 for i in (1, 3, 4, 6, 7)]
     assert problems[0][1] == f"image {capture / 'images' / 'frame_00001.png'} is missing"
