@@ -253,9 +253,9 @@ def nerf_records(path, *, class_name=None, scale=1.0, center=(0.0, 0.0, 0.0), ma
             except ImageError as exc:
                 problems.append((f"frame {i} ({_short(frame.get('file_path'))})", str(exc)))
     if strict and problems:
-        first = "; ".join(f"{what}: {why}" for what, why in problems[:3])
-        raise SpmError(f"{len(problems)} of {listed} frames cannot be read ({first}{'; ...' if len(problems) > 3 else ''}"
-                       "); restore those files, or drop --strict to skip them")
+        first = "; ".join(f"{what}: {why}" for what, why in problems[:3]) + ("; ..." if len(problems) > 3 else "")
+        raise SpmError(f"{len(problems)} of {listed} frames cannot be read ({first}); restore those files, or drop "
+                       "--strict to skip them")
     return records, problems
 
 
