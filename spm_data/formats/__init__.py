@@ -82,7 +82,12 @@ IMPORTERS: dict[str, Importer] = {
                                                               "fx fy cx cy."),
                         Option("--class", "class_name", "str", "folder", "Class when the table has none."),
                         Option("--depth-unit", "depth_unit", UNITS, "mm", "What one step of a uint16 depth image "
-                                                                          "is."))),
+                                                                          "is."),
+                        Option("--mask", "mask", ("none", "sphere", "grabcut"), None,
+                               "Make every frame's mask (none, sphere, grabcut: as import nerf's) [default: the mask "
+                               "column, else the threshold]."),
+                        Option("--radius", "radius", "float", None, "The sphere of --mask sphere/grabcut: the "
+                                                                    "object's radius around its origin, in --unit."))),
     "cvl": Importer("spm_data.formats.posed_folder", "import_cvl",
                     "CVL at PATH in the assumed layout PATH/<object>/poses.csv (docs/datasets.md).",
                     (THRESHOLD,

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from spm_data.errors import SpmError
 from spm_data.io.images import ImageError
 
 MASK_METHODS = ("none", "sphere", "grabcut")
@@ -123,13 +124,30 @@ def capture_mask(method: str, rgb: np.ndarray, K, t, radius_m: float) -> np.ndar
 
 def mask_source(method: str | None, radius) -> str:
     """What a shard's ``mask_source`` attribute says of masks made by ``method`` (None: the capture's
-    own files); ``radius`` in the capture's world units, as given."""
+    own files); ``radius`` in the data's units, as given."""
     if method is None:
         return "mask_path, --mask-dir, or alpha >= 128"
     if method == "none":
         return "none: the whole frame"
-    sphere = f"the projection of a sphere of radius {radius:g} (world units) around --center"
+    sphere = f"the projection of a sphere of radius {radius:g} (the data's units) around the object origin"
     if method == "sphere":
         return f"sphere: {sphere}"
     return (f"grabcut: OpenCV GrabCut seeded by {sphere} (probable foreground inside, background outside; "
             f"{GRABCUT_ITERATIONS} iterations at <= {GRABCUT_SIDE} px, RNG seed {GRABCUT_SEED})")
+
+
+def made_masks(method, radius, metres_per_unit: float, unit: str, origin: str = "the object origin") -> tuple:
+    """(method, sphere radius in metres) of ``--mask``/``--radius`` (``radius`` in ``unit``, metres per
+    unit ``metres_per_unit``, around ``origin``); () without --mask; SpmError for options that do not fit."""
+    if method is None:
+        if radius is not None:
+            raise SpmError("--radius is the sphere of --mask sphere or --mask grabcut; give one of them too")
+        return ()
+    if method not in MASK_METHODS:
+        raise SpmError(f"--mask takes one of {', '.join(MASK_METHODS)}, got {method!r}")
+    if method == "none":
+        return ("none", 0.0)
+    if radius is None or not 0 < radius < float("inf"):
+        raise SpmError(f"--mask {method} needs --radius R: the object's radius around {origin}, in {unit} (a finite "
+                       f"number > 0){'' if radius is None else f', got {radius}'}")
+    return (method, float(radius) * metres_per_unit)

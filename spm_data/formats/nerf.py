@@ -41,7 +41,7 @@ import numpy as np
 
 from spm_data.core.poses import K_from_corner_origin, gl_camera_to_world_to_object
 from spm_data.errors import SpmError, SpmWarning
-from spm_data.formats.capture_images import MASK_METHODS, lens_coverage, mask_source
+from spm_data.formats.capture_images import lens_coverage, made_masks, mask_source
 from spm_data.formats.importing import FrameRecord, import_records
 from spm_data.io.images import IMAGE_SUFFIXES, ImageError, image_header
 
@@ -267,20 +267,9 @@ def _short(text, limit: int = 200) -> str:
 
 def _made_masks(method, radius, scale, mask_dir) -> tuple:
     """(method, sphere radius in metres) of ``--mask``/``--radius``; () without --mask."""
-    if method is None:
-        if radius is not None:
-            raise SpmError("--radius is the sphere of --mask sphere or --mask grabcut; give one of them too")
-        return ()
-    if method not in MASK_METHODS:
-        raise SpmError(f"--mask takes one of {', '.join(MASK_METHODS)}, got {method!r}")
-    if mask_dir is not None:
+    if method is not None and mask_dir is not None:
         raise SpmError(f"--mask {method} makes every frame's mask; give it or --mask-dir, not both")
-    if method == "none":
-        return ("none", 0.0)
-    if radius is None or not 0 < radius < math.inf:
-        raise SpmError(f"--mask {method} needs --radius R: the object's radius around --center, in the capture's "
-                       f"world units (a finite number > 0){'' if radius is None else f', got {radius}'}")
-    return (method, float(radius) * scale)
+    return made_masks(method, radius, scale, "the capture's world units", "--center")
 
 
 def _record(frame, camera, image, base, where, *, name, scale, center, mask_dir, depth_scale, index,

@@ -143,3 +143,26 @@ def test_mask_options_that_do_not_fit_are_one_line(photographed, tmp_path, args,
     assert r.exit_code == 1 and r.output.startswith(f"error: {message}") and len(r.output.splitlines()) == 1, \
         r.output
     assert not (tmp_path / "out").exists()
+
+
+def test_a_posed_folder_takes_the_same_masks(photographed, tmp_path):
+    """spm-data import folder --mask sphere --radius R (R in --unit, around the object origin)."""
+    import cv2
+
+    d = photographed
+    (tmp_path / "in").mkdir()
+    rows = ["image," + ",".join(f"r{i}{j}" for i in (1, 2, 3) for j in (1, 2, 3)) + ",tx,ty,tz,fx,fy,cx,cy"]
+    for i in range(3):
+        cv2.imwrite(str(tmp_path / "in" / f"{i}.jpg"), cv2.cvtColor(d["rgb"][i], cv2.COLOR_RGB2BGR))
+        K = d["K"][i]
+        rows.append(",".join([f"{i}.jpg", *map(repr, d["R"][i].ravel()), *(repr(v * 100) for v in d["t"][i]),
+                              *map(repr, (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))]))
+    (tmp_path / "in" / "poses.csv").write_text("\n".join(rows) + "\n")
+    r = CliRunner().invoke(data_cli, ["import", "folder", str(tmp_path / "in"), "--out", str(tmp_path / "out"),
+                                      "--unit", "cm", "--mask", "sphere", "--radius", "20"])
+    assert r.exit_code == 0, r.output
+    shard = list_shards(tmp_path / "out")[0]
+    got = read_shard(shard, ["mask"])["mask"]
+    for i in range(3):
+        assert (got[i] == sphere_mask(d["K"][i], d["t"][i], 0.2, SIZE, SIZE)).all()
+    assert read_attrs(shard)["mask_method"] == "sphere"
