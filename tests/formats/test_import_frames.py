@@ -86,3 +86,18 @@ def test_a_capture_without_depth_has_no_depth_field_and_reads_as_zero_depth(tmp_
     assert read_shard(shard, ["depth"], frames=2)["depth"].shape == (40, 60)
     merge_folders([tmp_path / "out"], tmp_path / "merged")
     assert not read_shard(list_shards(tmp_path / "merged")[0], ["depth"])["depth"].any()
+
+
+def test_a_shard_whose_every_frame_is_skipped_is_not_missing(tmp_path):
+    """Shards of 2 frames; both frames of the second fail as they are read: that shard is not
+    written and not listed as missing, so validate (tests/conftest.py) accepts the folder."""
+    capture = _capture(tmp_path / "c", n=6)
+    for i in (2, 3):
+        path = capture / "images" / f"frame_{i:05d}.png"
+        path.write_bytes(path.read_bytes()[:60])
+    summary, _ = import_nerf(capture, tmp_path / "out", scale=SCALE, center=CENTER, frames_per_shard=2)
+    from spm_data.io.shards import read_manifest
+
+    manifest = read_manifest(tmp_path / "out")
+    assert summary.frames == 4 and [e["file"] for e in manifest["shards"]] == ["nerf-00000.h5", "nerf-00002.h5"]
+    assert not manifest.get("missing")
