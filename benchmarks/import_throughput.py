@@ -21,6 +21,7 @@ import os
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
@@ -31,6 +32,7 @@ import numpy as np  # noqa: E402
 from spm_data.commands.cli_support import Progress  # noqa: E402
 from spm_data.commands.validate import validate_folder  # noqa: E402
 from spm_data.core.poses import K_to_corner_origin, camera_pose, cv_to_gl_camera_to_world, project_points  # noqa: E402
+from spm_data.errors import SpmWarning  # noqa: E402
 from spm_data.formats.nerf import import_nerf  # noqa: E402
 
 
@@ -70,6 +72,7 @@ def main(argv=None):
     parser.add_argument("--max-side", type=int, default=None)
     parser.add_argument("--repeat", type=int, default=2)
     args = parser.parse_args(argv)
+    warnings.filterwarnings("ignore", category=SpmWarning)   # the skipped frames: counted in the result line
     with tempfile.TemporaryDirectory(prefix="import-throughput-") as tmp:
         capture = write_capture(Path(tmp) / "capture", args.frames, args.missing, args.width, args.height)
         extra = {} if args.mask == "none" else {"radius": 0.3}
@@ -78,7 +81,7 @@ def main(argv=None):
             load = os.getloadavg()[0]
             started = time.perf_counter()
             with Progress() as progress:
-                summary, problems = import_nerf(capture, out, mask=args.mask, progress=progress, **extra,
+                summary, problems = import_nerf(capture, out, scale=1.0, mask=args.mask, progress=progress, **extra,
                                                 **({"max_side": args.max_side} if args.max_side else {}))
             seconds = time.perf_counter() - started
             bad = validate_folder(out)
