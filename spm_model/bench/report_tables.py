@@ -90,7 +90,15 @@ def _intro(summary: dict, context: dict) -> list:
             "**sum < 5° (3°)** (Fig. 5), the summed absolute angle errors below 5° (3°); *sym.*: the same up to "
             "the object's declared symmetries. A frame without an estimate fails. Every success rate is shown as "
             "% [its 95% Wilson interval over the frames it counts] and, over several runs, σ over runs. "
-            "Schema of results.json: docs/results-schema.md.", ""]
+            "Schema of results.json: docs/results-schema.md.", "", *_unit_line(context)]
+
+
+def _unit_line(context: dict) -> list:
+    """A line when the data's lengths are not metres (a capture imported without --scale)."""
+    if context.get("length_unit", "m") == "m":
+        return []
+    return ["**Lengths**: the shards hold the capture's world units (imported without `--scale`), so every "
+            "\"mm\" below is a thousandth of that unit, not a millimetre.", ""]
 
 
 def _fig5_tables(summary: dict, names: list) -> list:

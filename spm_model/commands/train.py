@@ -11,7 +11,7 @@ from spm_data.errors import ModelError, ShardError, SpmError
 from spm_data.io.folders import find_folders
 from spm_data.io.locking import OutputLock
 from spm_data.io.outputs import removing_created
-from spm_data.io.shards import MANIFEST, read_manifest
+from spm_data.io.shards import MANIFEST, list_shards, read_attrs, read_manifest
 from spm_model.base.estimator import needs_of
 from spm_model.bench.feature_cache import FeatureTable, load_features, offgrid_table, progress_phase
 from spm_model.bench.protocols import FINAL_MODELS, evaluate
@@ -33,6 +33,14 @@ def data_line(table: FeatureTable, counts: dict) -> str:
     return (f"{len(table)} frames, {len(counts)} class{'es' if len(counts) != 1 else ''}: "
             + ", ".join(f"{c} {n}" for c, n in counts.items())
             + f"; {'all' if usable == len(table) else usable} with SPM's training features")
+
+
+def length_unit(*folders) -> str:
+    """"m", or "capture unit" where a shard under ``folders`` was imported without a metric scale
+    (import nerf without --scale: its lengths are the capture's world units, taken as metres)."""
+    units = {str(read_attrs(p).get("length_unit", "m")) for f in folders if f is not None
+             for folder in find_folders(f) for p in list_shards(folder)}
+    return "m" if units <= {"m"} else "capture unit"
 
 
 def listed_classes(shards) -> set | None:
@@ -138,6 +146,10 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
                                                    allow_partial=allow_partial, what="test features"))
     counts = class_counts(table)
     log(data_line(table, counts))
+    unit = length_unit(shards, test)
+    if unit != "m":
+        log("lengths are the capture's world units (imported without --scale): the report's mm are thousandths "
+            "of that unit")
     alone = int((table.train_neighbours == 0).sum())
     if alone:
         log(f"{alone} frames have no 5-degree path neighbour in their shard; their training features "
@@ -160,7 +172,7 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
                "model_params": {k: v for k, v in model_params.items() if k != "features"},
                "features": asdict(features), "estimators": {name: f"{cls.__module__}:{cls.__qualname__}"
                                                             for name, cls in plugins.items()},
-               "models": models}
+               "models": models, **({"length_unit": unit} if unit != "m" else {})}
     progress_phase(progress, "report", None, None)
     try:
         model_path = _save(model, out / "model.npz")

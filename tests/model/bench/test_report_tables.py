@@ -49,3 +49,11 @@ def test_paper_columns_of_dashes_alone_are_not_printed():
                                                                              [["scan", 9, "40.0"]])
     kept = [["cup", 9, "40.0", "88.2", "–"], ["scan", 9, "40.0", "–", "–"]]
     assert _paper_columns_kept(header, kept) == (header[:4], [r[:4] for r in kept])
+
+
+def test_lengths_not_in_metres_are_said_under_the_intro():
+    from spm_model.bench.report_tables import _unit_line
+
+    assert _unit_line({}) == [] and _unit_line({"length_unit": "m"}) == []
+    assert _unit_line({"length_unit": "capture unit"})[0].startswith("**Lengths**: the shards hold the capture's "
+                                                                       "world units (imported without `--scale`)")
