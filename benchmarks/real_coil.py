@@ -13,6 +13,7 @@ commands; the reports are in OUT/report-views and OUT/report-interleaved.
 
     python benchmarks/real_coil.py coil-20-proc/ --out out/real-coil20
     python scripts/coil_from_mat.py COIL20.mat --out coil20-32/ && python benchmarks/real_coil.py coil20-32/
+    spm-data import coil20 coil20-32/ --out coil20-imp/ && python benchmarks/real_coil.py coil20-imp/   # imported
 
 COIL-20's processed set is ``coil-20-proc.zip`` from Columbia's CAVE pages (128 x 128 grey);
 copies of it at 32 x 32 circulate as ``COIL20.mat`` in public repositories, which
@@ -39,6 +40,7 @@ from spm_data.commands.cli_support import Progress  # noqa: E402
 from spm_data.errors import SpmError  # noqa: E402
 from spm_data.formats.coil100 import NAME, import_coil20, import_coil100, list_members  # noqa: E402
 from spm_data.io.files import atomic_file  # noqa: E402
+from spm_data.io.shards import list_shards, read_attrs  # noqa: E402
 from spm_data.jobs import make_executor  # noqa: E402
 from spm_model.commands.train import train  # noqa: E402
 from spm_model.methods.registry import METHOD_NAMES  # noqa: E402
@@ -48,11 +50,32 @@ PAPER_TABLE2 = ("The paper's Table 2, KNN on SPM's vectors: 82.6-94.7% within ±
 PROTOCOLS = ("views", "interleaved")
 
 
+TAKES = ("give the COIL-20/COIL-100 images in their original layout (obj{K}__{N}.png: the folder or zip you "
+         "downloaded, or what scripts/coil_from_mat.py wrote), or the folder spm-data import coil20|coil100 wrote")
+
+
+def imported_layout(folder) -> str | None:
+    """"coil20"/"coil100" when ``folder`` holds shards spm-data import coil20|coil100 wrote; None
+    when it holds no shards; SpmError for shards of anything else."""
+    shards = list_shards(folder) if Path(folder).is_dir() else []
+    if not shards:
+        return None
+    kind = read_attrs(shards[0]).get("import")
+    if kind not in ("coil20", "coil100"):
+        raise SpmError(f"{folder}: its shards are {'imported from ' + kind if kind else 'renders'}, not COIL; "
+                       + TAKES)
+    return kind
+
+
 def layout_of(folder) -> str:
     """"coil100" when files are numbered by angle (some number above 71), else "coil20"."""
-    numbers = [int(m.group(2)) for ref in list_members(folder) if (m := NAME.search(ref.split("::")[-1]))]
+    try:
+        refs = list_members(folder)
+    except SpmError:
+        raise SpmError(f"{folder}: not found or not a folder, zip or tar; " + TAKES) from None
+    numbers = [int(m.group(2)) for ref in refs if (m := NAME.search(ref.split("::")[-1]))]
     if not numbers:
-        raise SystemExit(f"{folder}: no obj{{K}}__{{N}}.png files")
+        raise SpmError(f"{folder}: no obj{{K}}__{{N}}.png files and no shards; " + TAKES)
     return "coil100" if max(numbers) > 71 else "coil20"
 
 
@@ -95,7 +118,8 @@ def main(argv=None) -> int:
 
 def run(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("folder", help="a COIL-20 or COIL-100 folder (or zip) in the original layout")
+    parser.add_argument("folder", help="a COIL-20 or COIL-100 folder (or zip) in the original layout, or the "
+                                       "folder spm-data import coil20|coil100 wrote")
     parser.add_argument("--out", default="out/real-coil", help="where the shards, reports and tables go")
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--workers", type=int, default=2)
@@ -103,13 +127,18 @@ def run(argv=None) -> int:
     args = parser.parse_args(argv)
     start = time.monotonic()
     out = Path(args.out)
-    layout = layout_of(args.folder) if args.layout == "auto" else args.layout
-    shards = out / "shards"
-    stamp(f"importing {args.folder} as {layout} into {shards}", start)
-    with Progress("image", f"importing {layout}") as progress:
-        summary, problems = (import_coil20 if layout == "coil20" else import_coil100)(args.folder, shards,
-                                                                                     progress=progress)
-    stamp(f"{summary.frames} frames imported ({len(problems)} problems listed by the importer)", start)
+    imported = imported_layout(args.folder)
+    if imported:
+        layout, shards = imported, Path(args.folder)
+        stamp(f"using the {layout} shards in {shards} (imported already)", start)
+    else:
+        layout = layout_of(args.folder) if args.layout == "auto" else args.layout
+        shards = out / "shards"
+        stamp(f"importing {args.folder} as {layout} into {shards}", start)
+        with Progress("image", f"importing {layout}") as progress:
+            summary, problems = (import_coil20 if layout == "coil20" else import_coil100)(args.folder, shards,
+                                                                                         progress=progress)
+        stamp(f"{summary.frames} frames imported ({len(problems)} problems listed by the importer)", start)
     lines = [f"# Real images: {layout} from `{args.folder}`", "",
              f"{datetime.date.today().isoformat()}, {platform.node()} ({os.cpu_count()} cores), "
              f"`python benchmarks/real_coil.py {' '.join(argv if argv is not None else sys.argv[1:])}`; "

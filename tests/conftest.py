@@ -38,6 +38,27 @@ def _signal_handlers_as_found():
     outcome._received[0], outcome._pending[0] = state
 
 
+@pytest.fixture(autouse=True)
+def _every_import_passes_validate(monkeypatch):
+    """Importers write only what validate accepts (issue 47 item 3): every import any test makes in
+    this process (each importer's own tests, the CLI's, the hostile inputs') is validated as it
+    completes, with spm_data.commands.validate.validate_folder, the library call behind
+    ``spm-data validate``; a problem fails the test that imported."""
+    from spm_data.commands.validate import validate_folder
+    from spm_data.formats import importing
+
+    run = importing.run_shard_jobs
+
+    def run_and_validate(fn, jobs, out_dir, **kwargs):
+        summary = run(fn, jobs, out_dir, **kwargs)
+        if not (summary.interrupted or summary.failed) and summary.frames:
+            problems = validate_folder(out_dir)
+            assert problems == [], f"validate refuses what the importer wrote to {out_dir}: {problems}"
+        return summary
+
+    monkeypatch.setattr(importing, "run_shard_jobs", run_and_validate)
+
+
 @pytest.fixture
 def small_specs_dir(tmp_path):
     """A specs folder with two tiny classes (18 views x 2 instances each)."""

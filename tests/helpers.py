@@ -172,19 +172,20 @@ def ppm16(img, comment=b"# converted by a scanner tool\n"):
 SCALE, CENTER = 0.25, np.array([0.4, -1.2, 2.0])   # metres per world unit; the object's origin in the world
 
 
-def write_capture(root, rgb, mask, K, R, t, *, per_frame=False, alpha=True, depth=None):
-    """Frames as a capture app writes them: RGBA PNGs (alpha = mask) and transforms.json with each
-    frame's OpenGL camera-to-world matrix in a world frame where X_world = X_obj / SCALE + CENTER,
-    and nerfstudio's pixel-corner intrinsics."""
+def write_capture(root, rgb, mask, K, R, t, *, per_frame=False, alpha=True, depth=None, suffix=".png"):
+    """Frames as a capture app writes them: RGBA PNGs (alpha = mask; ``alpha`` False: RGB images of
+    ``suffix``, e.g. a phone's ".jpg") and transforms.json with each frame's OpenGL camera-to-world
+    matrix in a world frame where X_world = X_obj / SCALE + CENTER, and nerfstudio's pixel-corner
+    intrinsics."""
     (root / "images").mkdir(parents=True)
     frames = []
     for i in range(len(rgb)):
         image = np.dstack([rgb[i], mask[i].astype(np.uint8) * 255]) if alpha else rgb[i]
-        cv2.imwrite(str(root / "images" / f"frame_{i:05d}.png"),
+        cv2.imwrite(str(root / "images" / f"frame_{i:05d}{suffix}"),
                     cv2.cvtColor(image, cv2.COLOR_RGBA2BGRA if alpha else cv2.COLOR_RGB2BGR))
         M = cv_to_gl_camera_to_world(R[i], t[i])
         M[:3, 3] = M[:3, 3] / SCALE + CENTER
-        frame = {"file_path": f"images/frame_{i:05d}.png", "transform_matrix": M.tolist()}
+        frame = {"file_path": f"images/frame_{i:05d}{suffix}", "transform_matrix": M.tolist()}
         if depth is not None:
             cv2.imwrite(str(root / "images" / f"depth_{i:05d}.png"), np.round(depth[i] * 1000).astype(np.uint16))
             frame["depth_file_path"] = f"images/depth_{i:05d}.png"

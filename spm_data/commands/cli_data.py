@@ -127,12 +127,14 @@ def info_cmd(path):
 @click.option("--field", default="rgb", show_default=True,
               type=click.Choice(["rgb", "normals", "instances", "coords", "depth"]),
               help="What the tiles show: the image, or an [outputs] field in false colour.")
+@click.option("--tile", default=256, show_default=True, type=click.IntRange(min=16, max=2048),
+              help="Longer side of each tile in pixels: frames of any size are scaled to it.")
 @handle_errors
-def show_cmd(shard, out_png, frames, field):
+def show_cmd(shard, out_png, frames, field, tile):
     """Write a contact sheet of SHARD's frames with their pose axes drawn, to check the labels by eye."""
     from spm_data.commands.figures import contact_sheet
 
-    click.echo(f"wrote {contact_sheet(shard, out_png, frames=frames, field=field)}")
+    click.echo(f"wrote {contact_sheet(shard, out_png, frames=frames, field=field, tile=tile)}")
 
 
 @click.command("hist")

@@ -50,15 +50,15 @@ def save_image(path: Path, write) -> Path:
     return path
 
 
-def draw_pose(image: np.ndarray, K, R, t, length: float, scale: int = 1) -> np.ndarray:
-    """Draw the object frame's axes (``length`` metres) on an RGB image upscaled by ``scale``."""
+def draw_pose(image: np.ndarray, K, R, t, length: float, scale: float = 1) -> np.ndarray:
+    """Draw the object frame's axes (``length`` metres) on an RGB image resized by ``scale``."""
     import cv2
 
     pts = np.array([[0, 0, 0], [length, 0, 0], [0, length, 0], [0, 0, length]], dtype=np.float64)
     uv, z = project_points(pts, K, R, t)
     if np.any(z <= 0) or not np.all(np.isfinite(uv)):
         return image
-    uv = (uv + 0.5) * scale - 0.5  # OpenCV pixel centres survive the upscale
+    uv = (uv + 0.5) * scale - 0.5  # OpenCV pixel centres survive the resize
     origin = tuple(int(round(c)) for c in uv[0])
     for end, colour in zip(uv[1:], AXIS_COLOURS):
         cv2.line(image, origin, tuple(int(round(c)) for c in end), colour, 2, lineType=cv2.LINE_AA)
@@ -89,47 +89,97 @@ def false_colour(field: str, frame: np.ndarray, size: float) -> np.ndarray:
     return np.repeat(grey[..., None], 3, axis=-1)
 
 
-def contact_sheet(shard, out_png, frames: int = 24, columns: int = 6, scale: int = 2, field: str = "rgb") -> Path:
+TILE_SIDE = 256  # pixels: the longer side of a contact sheet's tile, whatever the frames' size
+
+
+def contact_sheet(shard, out_png, frames: int = 24, columns: int = 6, scale: float | None = None,
+                  field: str = "rgb", tile: int = TILE_SIDE) -> Path:
     """Write an image (PNG, JPEG, PDF or SVG, by ``out_png``'s extension) of a grid of
     ``frames`` evenly spaced frames of ``shard``; returns its path. ``field``: what the
-    tiles show (SHEET_FIELDS): the rgb image, or a field in false colour. The target's
-    outline is yellow, its visible part's (distractors, occlusion) green."""
-    import cv2
+    tiles show (SHEET_FIELDS): the rgb image, or a field in false colour. Each tile is the frame
+    scaled so its longer side is ``tile`` pixels (``scale``: by that factor instead). The target's
+    outline is yellow, its visible part's (distractors, occlusion) green; the pose axes are drawn
+    from K, R, t; captions give the camera's azimuth, elevation and distance (metres), from R and t
+    where the shard leaves them NaN (imports). A progress line on stderr counts the tiles."""
+    from spm_data.commands.cli_support import Progress
+    from spm_data.io.shards import ShardReader
 
     out_png = check_image_path(out_png, "sheet.png")
     if field not in SHEET_FIELDS:
         raise SpmError(f"field {field!r}: expected one of {', '.join(SHEET_FIELDS)}")
-    attrs = read_attrs(shard)
-    n = int(attrs["frames"])
-    if n == 0:
-        raise ShardError(f"{shard}: shard has no frames")
-    layout = shard_layout(shard)
-    if field not in layout:
-        raise ShardError(f"{shard}: has no {field} field; render it with [outputs] {field} = true")
-    pick = np.unique(np.round(np.linspace(0, n - 1, min(frames, n))).astype(int))
-    extra = [f for f in ("visible_mask", "occlusion_fraction") if f in layout and f != field]
-    data = read_shard(shard, list(dict.fromkeys(["rgb", "mask", "K", "R", "t", "azimuth", "elevation", "distance",
-                                                 "occlusion_rects", field, *extra])), frames=pick)
-    length = 0.5 * float(attrs.get("object_size", 0.2))
-    tiles = []
-    for i in range(len(pick)):
-        tile = data["rgb"][i] if field == "rgb" else false_colour(field, data[field][i], 2 * length)
-        img = np.ascontiguousarray(cv2.resize(tile, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST))
-        outlines = [("mask", (255, 220, 0))] + ([("visible_mask", (60, 255, 60))] if "visible_mask" in data else [])
-        for key, colour in outlines:
-            mask = cv2.resize(data[key][i], None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
-            contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-            cv2.drawContours(img, contours, -1, colour, 1)
-        for x0, y0, x1, y1 in data["occlusion_rects"][i]:
-            if x1 > x0 and y1 > y0:
-                cv2.rectangle(img, (int(x0) * scale, int(y0) * scale), (int(x1) * scale - 1, int(y1) * scale - 1),
-                              (255, 0, 255), 1)
-        draw_pose(img, data["K"][i], data["R"][i], data["t"][i], length, scale)
-        caption = f"#{pick[i]} az{data['azimuth'][i]:.0f} el{data['elevation'][i]:.0f} d{data['distance'][i]:.2f}"
-        if "visible_mask" in data:
-            caption += f" v{1 - data['occlusion_fraction'][i]:.2f}"
-        cv2.putText(img, caption, (3, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (255, 255, 255), 1, cv2.LINE_AA)
-        tiles.append(img)
+    with ShardReader(shard) as reader:
+        attrs, layout = reader.attrs, reader.layout()
+        n = int(attrs["frames"])
+        if n == 0:
+            raise ShardError(f"{shard}: shard has no frames")
+        if field not in layout:
+            raise ShardError(f"{shard}: has no {field} field; render it with [outputs] {field} = true")
+        pick = np.unique(np.round(np.linspace(0, n - 1, min(frames, n))).astype(int))
+        extra = [f for f in ("visible_mask", "occlusion_fraction") if f in layout and f != field]
+        fields = list(dict.fromkeys(["rgb", "mask", "K", "R", "t", "azimuth", "elevation", "distance",
+                                     "occlusion_rects", field, *extra]))
+        h, w = layout["rgb"][0][1:3]
+        factor = float(scale) if scale else tile / max(h, w)
+        size = (max(1, round(w * factor)), max(1, round(h * factor)))
+        tiles = []
+        with Progress("frame", "show", len(pick)) as progress:
+            for k in pick:
+                tiles.append(_tile(reader.read(fields, frames=int(k)), int(k), field, attrs, size))
+                progress(1)
+    return _write_sheet(tiles, columns, out_png)
+
+
+def _tile(frame: dict, index: int, field: str, attrs: dict, size: tuple) -> np.ndarray:
+    """One frame's tile of ``size`` (width, height): the picture, outlines, occluders, axes, caption."""
+    import cv2
+
+    h, w = frame["rgb"].shape[:2]
+    sx, sy = size[0] / w, size[1] / h
+    picture = frame["rgb"] if field == "rgb" else false_colour(field, frame[field], _axis_length(frame, attrs) * 2)
+    shrink = cv2.INTER_AREA if sx < 1 else cv2.INTER_NEAREST
+    img = np.ascontiguousarray(cv2.resize(picture, size, interpolation=shrink))
+    outlines = [("mask", (255, 220, 0))] + ([("visible_mask", (60, 255, 60))] if "visible_mask" in frame else [])
+    for key, colour in outlines:
+        mask = cv2.resize(frame[key].astype(np.uint8), size, interpolation=cv2.INTER_NEAREST)
+        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        cv2.drawContours(img, contours, -1, colour, 1)
+    for x0, y0, x1, y1 in frame["occlusion_rects"]:
+        if x1 > x0 and y1 > y0:
+            cv2.rectangle(img, (int(x0 * sx), int(y0 * sy)), (int(x1 * sx) - 1, int(y1 * sy) - 1), (255, 0, 255), 1)
+    draw_pose(img, frame["K"], frame["R"], frame["t"], _axis_length(frame, attrs), sx)
+    cv2.putText(img, _caption(frame, index), (3, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (255, 255, 255), 1,
+                cv2.LINE_AA)
+    return img
+
+
+def _axis_length(frame: dict, attrs: dict) -> float:
+    """Metres: half the rendered object's size; for an import (no object_size), what spans a fifth of
+    the frame's longer side at the object's depth."""
+    if "object_size" in attrs:
+        return 0.5 * float(attrs["object_size"])
+    depth = float(frame["t"][2]) if frame["t"][2] > 0 else float(np.linalg.norm(frame["t"]))
+    return 0.2 * max(frame["rgb"].shape[:2]) * depth / max(float(frame["K"][0, 0]), 1e-9)
+
+
+def _caption(frame: dict, index: int) -> str:
+    """"#INDEX az.. el.. d..m [v..]": the stored path point, or where the camera centre is seen
+    from the object origin (R, t) for what the shard leaves NaN; never NaN."""
+    centre = -np.asarray(frame["R"]).T @ np.asarray(frame["t"])
+    distance = float(np.linalg.norm(centre))
+    az, el, d = (float(frame[k]) for k in ("azimuth", "elevation", "distance"))
+    if not (np.isfinite(az) and np.isfinite(el)):
+        az = float(np.degrees(np.arctan2(centre[1], centre[0])))
+        el = float(np.degrees(np.arcsin(np.clip(centre[2] / max(distance, 1e-300), -1, 1))))
+    d = d if np.isfinite(d) else distance
+    caption = f"#{index} az{az:.0f} el{el:.0f} d{d:.2f}m"
+    if "visible_mask" in frame:
+        caption += f" v{1 - float(frame['occlusion_fraction']):.2f}"
+    return caption
+
+
+def _write_sheet(tiles: list, columns: int, out_png: Path) -> Path:
+    import cv2
+
     h, w = tiles[0].shape[:2]
     rows = -(-len(tiles) // columns)
     sheet = np.full((rows * (h + 2), min(columns, len(tiles)) * (w + 2), 3), 40, np.uint8)

@@ -17,7 +17,7 @@ from spm_data.io.folders import open_folder
 from spm_data.io.outputs import check_out_name
 from spm_data.io.shards.identity import read_twice
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
-from spm_data.io.shards import (FIELDS, OPTIONAL_FIELDS, SIZED_FIELDS, manifest_entry, read_attrs,
+from spm_data.io.shards import (FIELDS, MAY_BE_ABSENT, OPTIONAL_FIELDS, SIZED_FIELDS, manifest_entry, read_attrs,
                                 read_shard, shard_digest, shard_layout, verify_shard, write_shard)
 
 
@@ -125,8 +125,8 @@ def merge_shard(job: MergeJob, report=lambda n: None) -> dict:
     fields = list(FIELDS) + [f for f in job.optional if f != "mesh"]
     for path, frames in job.frames_from:
         layout = shard_layout(path)
-        part = read_shard(path, [f for f in fields if f in layout] + (["mesh"] if "mesh" in layout else []),
-                          frames=np.asarray(frames))
+        part = read_shard(path, [f for f in fields if f in layout or f in MAY_BE_ABSENT]   # no depth: zeros
+                          + (["mesh"] if "mesh" in layout else []), frames=np.asarray(frames))
         for f in set(fields) - set(part):   # a field this source lacks: nothing hidden, no distractors
             dtype, shape = OPTIONAL_FIELDS[f]
             part[f] = part["mask"].copy() if f == "visible_mask" else \

@@ -17,12 +17,12 @@ import numpy as np
 
 from spm_data.errors import MeshError, ShardError
 from spm_data.core.mesh_store import STORE, load_mesh
-from spm_data.core.poses import pose_to_label
+from spm_data.core.poses import STORED_ROTATION_TOLERANCE, pose_to_label, rotation_error
 from spm_data.io.files import PARTIAL_PREFIX, PARTIAL_SUFFIX, file_sha256
 from spm_data.io.locking import LOCK_NAME, lock_owner
 from spm_data.io.shards.identity import read_twice
-from spm_data.io.shards import (FIELDS, MANIFEST, MISSING, OPTIONAL_FIELDS, check_arrays, list_shards, no_shards,
-                                 read_attrs, read_manifest, read_shard, shard_layout)
+from spm_data.io.shards import (FIELDS, MANIFEST, MAY_BE_ABSENT, MISSING, OPTIONAL_FIELDS, check_arrays, list_shards,
+                                 no_shards, read_attrs, read_manifest, read_shard, shard_layout)
 
 
 def _angle_difference(a, b):
@@ -37,7 +37,7 @@ def validate_shard(path) -> list[str]:
     except ShardError as exc:
         return [str(exc).replace(f"{path}: ", "")]
     problems = []
-    missing = [f for f in FIELDS if f not in data]
+    missing = [f for f in FIELDS if f not in data and f not in MAY_BE_ABSENT]
     if missing:
         return [f"missing fields {', '.join(missing)}"]
     unknown = [f for f in data if f not in FIELDS and f not in OPTIONAL_FIELDS]
@@ -55,8 +55,7 @@ def validate_shard(path) -> list[str]:
             problems.append(f"non-finite {name} in frames {np.flatnonzero(bad)[:10].tolist()}")
     R = data["R"]
     if n and np.isfinite(R).all():
-        ortho = np.abs(R @ np.transpose(R, (0, 2, 1)) - np.eye(3)).reshape(n, -1).max(axis=1)
-        bad = (ortho > 1e-6) | (np.abs(np.linalg.det(R) - 1) > 1e-6)
+        bad = rotation_error(R) > STORED_ROTATION_TOLERANCE
         if bad.any():
             problems.append(f"R is not a rotation in frames {np.flatnonzero(bad)[:10].tolist()}")
         elif np.isfinite(data["t"]).all() and np.isfinite(data["pose"]).all():
@@ -65,12 +64,15 @@ def validate_shard(path) -> list[str]:
                   (np.abs(label[:, 3:] - data["pose"][:, 3:]).max(axis=1) > 1e-9)
             if off.any():
                 problems.append(f"pose disagrees with R, t in frames {np.flatnonzero(off)[:10].tolist()}")
+    infinite = np.isinf(data["distance"])  # NaN: not known (an import may leave it so), inf: never
+    if infinite.any():
+        problems.append(f"infinite distance in frames {np.flatnonzero(infinite)[:10].tolist()}")
     empty = ~data["mask"].reshape(n, -1).any(axis=1)
     if empty.any():
         problems.append(f"empty mask in {int(empty.sum())} frames (first: {np.flatnonzero(empty)[:10].tolist()})")
     if np.any((data["mask"] > 1)):
         problems.append("mask holds values other than 0 and 1")
-    if (data["depth"] < 0).any() or not np.isfinite(data["depth"]).all():
+    if "depth" in data and ((data["depth"] < 0).any() or not np.isfinite(data["depth"]).all()):
         problems.append("depth has negative or non-finite values")
     return problems
 

@@ -155,10 +155,40 @@ def label_to_view(label):
     return {k: float(v[0]) for k, v in view.items()} if single else view
 
 
-def is_rotation(R, atol: float = 1e-3) -> bool:
+# What a rotation is, for every importer and for validate (one place). An input matrix
+# (a capture's, a table's, a BOP file's) within ROTATION_TOLERANCE of orthonormal with
+# determinant +1 is taken as the rotation nearest to it (nearest_rotation, by SVD) and stored so;
+# one further off is refused. A stored R must be a rotation to STORED_ROTATION_TOLERANCE
+# (float64 round-off, with margin): what validate checks, and what nearest_rotation gives.
+ROTATION_TOLERANCE = 1e-4
+STORED_ROTATION_TOLERANCE = 1e-6
+# An absurd value is refused on import (no capture is a million metres or pixels across).
+MAX_DISTANCE_M = 1e6
+MAX_FOCAL_PX = 1e7
+
+
+def rotation_error(R) -> np.ndarray:
+    """How far ``R`` (..., 3, 3) is from a rotation: the largest of ``|R R^T - I|`` and
+    ``|det R - 1|``, per matrix ((...,) float64; inf for a non-finite matrix)."""
+    R = np.asarray(R, dtype=np.float64)
+    with np.errstate(invalid="ignore", over="ignore"):
+        ortho = np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max(axis=(-2, -1))
+        error = np.maximum(ortho, np.abs(np.linalg.det(R) - 1.0))
+    return np.where(np.isfinite(error), error, np.inf)
+
+
+def is_rotation(R, atol: float = ROTATION_TOLERANCE) -> bool:
     """Whether ``R`` (3, 3) is a rotation: orthonormal within ``atol``, determinant +1."""
-    R = np.asarray(R, dtype=np.float64).reshape(3, 3)
-    return bool(np.allclose(R @ R.T, np.eye(3), atol=atol) and np.linalg.det(R) > 0)
+    return bool(rotation_error(np.asarray(R, dtype=np.float64).reshape(3, 3)) <= atol)
+
+
+def nearest_rotation(R) -> np.ndarray:
+    """The rotation nearest ``R`` (3, 3) in the Frobenius norm (SVD: ``U V^T``, the sign of
+    the last singular vector flipped when the determinant would be -1); (3, 3) float64."""
+    U, _, Vt = np.linalg.svd(np.asarray(R, dtype=np.float64).reshape(3, 3))
+    if np.linalg.det(U @ Vt) < 0:
+        U[:, -1] = -U[:, -1]
+    return U @ Vt
 
 
 def intrinsics_from_fov(fov_y_deg, width, height):
@@ -185,6 +215,15 @@ def K_from_corner_origin(K) -> np.ndarray:
     out = np.array(K, dtype=np.float64).reshape(3, 3)
     out[:2, 2] -= PIXEL_CORNER_SHIFT
     return out
+
+
+def scale_K(K, sx: float, sy: float) -> np.ndarray:
+    """OpenCV ``K`` (3, 3) of an image resized by ``sx`` (new width / old width) and ``sy``: the
+    image's extent maps onto the new one, so a pixel centre ``u`` goes to ``(u + 0.5) sx - 0.5``
+    (``fx sx``, ``(cx + 0.5) sx - 0.5``; the same in y). (3, 3) float64."""
+    K = np.array(K, dtype=np.float64).reshape(3, 3)
+    S = np.array([[sx, 0.0, PIXEL_CORNER_SHIFT * (sx - 1)], [0.0, sy, PIXEL_CORNER_SHIFT * (sy - 1)], [0, 0, 1.0]])
+    return S @ K
 
 
 def project_points(points, K, R, t):
@@ -231,7 +270,7 @@ def gl_camera_to_world_to_object(M, scale: float = 1.0, center=(0.0, 0.0, 0.0), 
     M = np.array(M, dtype=np.float64).reshape(4, 4)
     if not np.allclose(M[3], [0.0, 0.0, 0.0, 1.0]):
         raise SpmError(f"{where}: transform_matrix's last row is {M[3].tolist()}; expected [0, 0, 0, 1]")
-    if not is_rotation(M[:3, :3], atol=1e-4):
+    if not is_rotation(M[:3, :3]):
         raise SpmError(f"{where}: transform_matrix's 3x3 part is not a rotation (orthonormal, determinant +1); "
                        "rescale the capture with --scale instead of inside the matrices")
     M[:3, 3] = scale * (M[:3, 3] - np.asarray(center, dtype=np.float64))

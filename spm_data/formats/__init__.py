@@ -82,7 +82,12 @@ IMPORTERS: dict[str, Importer] = {
                                                               "fx fy cx cy."),
                         Option("--class", "class_name", "str", "folder", "Class when the table has none."),
                         Option("--depth-unit", "depth_unit", UNITS, "mm", "What one step of a uint16 depth image "
-                                                                          "is."))),
+                                                                          "is."),
+                        Option("--mask", "mask", ("none", "sphere", "grabcut"), None,
+                               "Make every frame's mask (none, sphere, grabcut: as import nerf's) [default: the mask "
+                               "column, else the threshold]."),
+                        Option("--radius", "radius", "float", None, "The sphere of --mask sphere/grabcut: the "
+                                                                    "object's radius around its origin, in --unit."))),
     "cvl": Importer("spm_data.formats.posed_folder", "import_cvl",
                     "CVL at PATH in the assumed layout PATH/<object>/poses.csv (docs/datasets.md).",
                     (THRESHOLD,
@@ -99,14 +104,24 @@ IMPORTERS: dict[str, Importer] = {
                      "A posed capture at PATH: a folder with transforms.json (or transforms_train/_val/_test.json), "
                      "as instant-ngp and nerfstudio write it (COLMAP, Polycam, Record3D exports), or that file.",
                      (Option("--class", "class_name", "str", None, "Class of the object [default: the folder's name]."),
-                      Option("--scale", "scale", "float", 1.0, "Metres per unit of the capture's world frame "
-                                                               "(> 0)."),
+                      Option("--scale", "scale", "float", None, "Metres per unit of the capture's world frame "
+                                                                "(> 0) [default: 1, with a warning]."),
                       Option("--center", "center", "str", "0,0,0", "The object frame's origin, x,y,z in the "
                                                                  "capture's world units."),
                       Option("--mask-dir", "mask_dir", "path", None, "Masks named as the images (any image suffix), "
                                                                     "for frames without alpha or mask_path."),
                       Option("--depth-unit", "depth_unit", UNITS, "mm", "What one step of a uint16 depth image "
-                                                                        "(depth_file_path) is."))),
+                                                                        "(depth_file_path) is."),
+                      Option("--mask", "mask", ("none", "sphere", "grabcut"), None,
+                             "Make every frame's mask (captures without masks): none = the whole frame, sphere = "
+                             "the projection of a sphere of --radius around --center, grabcut = OpenCV GrabCut "
+                             "seeded by it [default: mask_path, --mask-dir or the alpha channel]."),
+                      Option("--radius", "radius", "float", None, "The sphere of --mask sphere/grabcut: the "
+                                                                  "object's radius around --center, world units."),
+                      Option("--max-side", "max_side", "int", None, "Downscale frames whose longer side is over "
+                             "this many pixels to it, K with them [default: keep the size].", 16),
+                      Option("--strict", "strict", "flag", False, "Refuse a capture with missing or unreadable "
+                                                                  "images [default: skip those frames, listed]."))),
 }
 
 

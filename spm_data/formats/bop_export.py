@@ -174,6 +174,8 @@ def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=F
         frame = 0
         for path in shards:
             data = read_shard(path)
+            if "depth" not in data:   # an import without depth: zeros, no surface (BOP's depth PNG of 0)
+                data["depth"] = read_shard(path, ["depth"])["depth"]
             for i in range(len(data["pose"])):
                 export.add_frame(data, i, export.object_id(found.targets[frame]))
                 frame += 1

@@ -32,6 +32,7 @@ LAYOUTS = {"coil100": {"name": "COIL-100", "number": "angle", "pattern": "objN__
            "coil20": {"name": "COIL-20", "number": "view", "pattern": "objN__VIEW.png (VIEW 0..71)"}}
 # rx (= 90 + elevation) and ry (roll) come from the assumed elevation, rz from the
 # measured turntable angle, t from the assumed distance: only rz is measured.
+MAX_DIGITS = 9  # an object number must fit the shards' int64 instance ids
 MEASURED = (False, False, True, False, False, False)
 
 
@@ -53,21 +54,29 @@ def list_members(path) -> list[str]:
 
 
 def read_class_map(path) -> dict[int, str]:
-    """``object id -> class name`` from a CSV with columns ``object,class`` (a header is optional)."""
-    mapping = {}
+    """``object id -> class name`` from a UTF-8 CSV with columns ``object,class`` (a header is
+    optional); SpmError for a file that is not such a text, or that gives one id twice."""
+    mapping, lines = {}, {}
     try:
-        with open(path, newline="") as fh:
-            for row in csv.reader(fh):
+        with open(path, newline="", encoding="utf-8") as fh:
+            for line, row in enumerate(csv.reader(fh), 1):
                 if not row or row[0].strip().lower() in ("object", "obj", "id", "object_id"):
                     continue
                 if len(row) < 2:
-                    raise SpmError(f"{path}: expected 'object,class' rows, got {row}")
+                    raise SpmError(f"{path}:{line}: expected 'object,class' rows, got {row}")
                 try:
-                    mapping[int(row[0].strip().removeprefix("obj"))] = row[1].strip()
+                    obj = int(row[0].strip().removeprefix("obj"))
                 except ValueError:
-                    raise SpmError(f"{path}: object id {row[0]!r} is not a number") from None
+                    raise SpmError(f"{path}:{line}: object id {row[0]!r} is not a number") from None
+                if obj in mapping:
+                    raise SpmError(f"{path}:{line}: object {obj} is given a class twice (lines {lines[obj]} and "
+                                   f"{line}); keep one row per object")
+                mapping[obj], lines[obj] = row[1].strip(), line
     except OSError as exc:
-        raise SpmError(f"cannot read class map {path}: {exc.strerror}") from None
+        raise SpmError(f"cannot read class map {path}: {exc.strerror or exc}") from None
+    except (UnicodeDecodeError, csv.Error):
+        raise SpmError(f"{path}: not a text CSV of 'object,class' rows (UTF-8); give the class map as text") \
+            from None
     return mapping
 
 
@@ -112,6 +121,9 @@ def coil_records(path, *, layout="coil100", elevation=0.0, distance=1.0, fov=30.
         m = NAME.search(ref.split("::")[-1])
         if not m:
             problems.append((ref, f"foreign file (not {what['pattern']})"))
+            continue
+        if max(len(m.group(1)), len(m.group(2))) > MAX_DIGITS:
+            problems.append((ref, f"object or view number has over {MAX_DIGITS} digits; not a COIL file name"))
             continue
         numbers.append(int(m.group(2)))
         obj, angle = int(m.group(1)), _angle(int(m.group(2)), layout)
@@ -162,7 +174,8 @@ def _import(layout, path, out_dir, *, elevation, distance, fov, classes_csv, thr
     attrs = {"import": layout, "assumed_elevation": elevation, "assumed_distance": distance,
              "assumed_fov": fov, "mask_source": f"threshold: brightest channel > {threshold}"}
     summary = import_records(records, out_dir, source=layout, prefix=layout, threshold=threshold,
-                             frames_per_shard=frames_per_shard, attrs=attrs, progress=progress, executor=executor)
+                             frames_per_shard=frames_per_shard, attrs=attrs, progress=progress, executor=executor,
+                             problems=problems)
     return summary, problems
 
 

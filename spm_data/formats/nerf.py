@@ -22,20 +22,26 @@ frame with none of them is refused. Depth images (uint16) are metric, one step b
 ``--depth-unit``. Frames are not taken as a walk of neighbouring views (``path_steps`` 0): SPM's
 training rule uses each frame alone, as for views drawn at random.
 
-Everything is checked before anything is written: a frame without a matrix, a file that is
-not an image, an unknown camera model, a missing mask are one error line each.
+Everything is checked before anything is written. A frame whose image (or mask_path, or depth
+image) is missing or unreadable is skipped and listed with the others in the import's report;
+``--strict`` refuses them instead, all in one error line (their count and the first three). A
+frame without a matrix, a matrix that is not a rotation (core/poses.ROTATION_TOLERANCE), an
+unknown camera model, a lens that would leave the masks empty, or no mask is one error line, for
+the first such frame. Rotations are stored as the exact rotation nearest the file's.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from spm_data.core.poses import K_from_corner_origin, gl_camera_to_world_to_object
-from spm_data.errors import SpmError
+from spm_data.errors import SpmError, SpmWarning
+from spm_data.formats.capture_images import lens_coverage, made_masks, mask_source
 from spm_data.formats.importing import FrameRecord, import_records
 from spm_data.io.images import IMAGE_SUFFIXES, ImageError, image_header
 
@@ -47,6 +53,7 @@ CAMERA_MODELS = {"OPENCV": (("k1", "k2", "p1", "p2", "k3"), False), "PINHOLE": (
 CAMERA_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y", "camera_model",
                "k1", "k2", "k3", "k4", "p1", "p2")
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+MIN_LENS_COVERAGE = 0.5  # a lens that leaves less of the undistorted image inside the photo is refused
 MAX_FILE_BYTES = 256 * 2**20  # a transforms.json larger than this is refused before it is read
 
 
@@ -75,6 +82,9 @@ def read_transforms(path: Path) -> dict:
         data = json.loads(path.read_text(encoding="utf-8"))
     except OSError as exc:
         raise SpmError(f"cannot read {path}: {exc.strerror or exc}") from None
+    except RecursionError:
+        raise SpmError(f"{path}: nested too deeply to be a transforms.json; give the capture's "
+                       "transforms.json") from None
     except (UnicodeDecodeError, ValueError) as exc:
         raise SpmError(f"{path}: not a JSON file ({str(exc).splitlines()[0]}); give the capture's "
                        "transforms.json") from None
@@ -154,25 +164,36 @@ def _image_path(base: Path, name, where: str) -> Path:
     if not isinstance(name, str) or not name.strip():
         raise SpmError(f"{where}: no file_path; every frame names its image")
     path = base / name
-    if not path.suffix and not path.is_file():
+    if not path.suffix and not _is_file(path):
         path = path.with_suffix(".png")  # the NeRF synthetic layout leaves the suffix out
     return path
 
 
-def _header(path: Path, what: str, where: str) -> tuple[int, int, bool]:
-    if not path.is_file():
-        raise SpmError(f"{where}: {what} {path} is missing")
+def _is_file(path: Path) -> bool:
+    """Whether ``path`` is a file; False for a name the system refuses (too long, a NUL byte)."""
+    try:
+        return path.is_file()
+    except (OSError, ValueError):
+        return False
+
+
+def _header(path: Path, what: str) -> tuple[int, int, bool]:
+    """(width, height, alpha) of a frame's image, mask or depth image; ImageError ("WHAT PATH is
+    missing", "... not a readable image") when it cannot be read: the frame is skipped, listed."""
+    shown = str(path) if len(str(path)) <= 200 else f"{str(path)[:100]}... ({len(str(path))} characters)"
+    if not _is_file(path):
+        raise ImageError(f"{what} {shown} is missing")
     try:
         return image_header(str(path))
     except ImageError as exc:
-        raise SpmError(f"{where}: {what} {exc}") from None
+        raise ImageError(f"{what} {exc}") from None
 
 
 def _mask_in(folder: Path | None, image: Path) -> Path | None:
     if folder is None:
         return None
     for candidate in [folder / image.name] + [folder / (image.stem + s) for s in IMAGE_SUFFIXES]:
-        if candidate.is_file():
+        if _is_file(candidate):
             return candidate
     return None
 
@@ -193,9 +214,14 @@ def parse_center(text) -> np.ndarray:
     return center
 
 
-def nerf_records(path, *, class_name=None, scale=1.0, center=(0.0, 0.0, 0.0), mask_dir=None, depth_unit="mm"):
-    """(records, problems) of every frame of a capture, each checked (matrix, image, intrinsics, lens,
-    mask): SpmError naming the file and frame for the first that cannot be imported."""
+def nerf_records(path, *, class_name=None, scale=1.0, center=(0.0, 0.0, 0.0), mask_dir=None, depth_unit="mm",
+                 strict=False, mask=None, radius=None):
+    """(records, problems) of every frame of a capture, each checked (matrix, intrinsics, lens, mask):
+    SpmError naming the file and frame for the first that cannot be imported. A frame whose image,
+    mask or depth image is missing or unreadable is skipped, listed in problems; with ``strict``
+    they are refused together, in one SpmError (their count and the first few). ``mask``: one of
+    MASK_METHODS, the mask every frame is given instead of its files' (``radius``: the sphere's,
+    world units around ``center``)."""
     if not (isinstance(scale, (int, float)) and 0 < scale < math.inf):
         raise SpmError(f"--scale {scale}: expected metres per world unit, a finite number > 0")
     if depth_unit not in UNITS:
@@ -204,60 +230,106 @@ def nerf_records(path, *, class_name=None, scale=1.0, center=(0.0, 0.0, 0.0), ma
     mask_dir = Path(mask_dir) if mask_dir else None
     if mask_dir is not None and not mask_dir.is_dir():
         raise SpmError(f"--mask-dir {mask_dir}: no such folder")
+    made = _made_masks(mask, radius, scale, mask_dir)
     files = transforms_files(path)
     root = files[0].parent
     name = class_name or root.resolve().name or "capture"
-    records = []
+    records, problems, listed = [], [], 0
     for file in files:
         data = read_transforms(file)
         shared = {k: data[k] for k in CAMERA_KEYS if k in data}
         for i, frame in enumerate(data["frames"]):
+            listed += 1
             where = f"{file}: frame {i}"
             if not isinstance(frame, dict):
                 raise SpmError(f"{where}: expected an object with file_path and transform_matrix")
             image = _image_path(file.parent, frame.get("file_path"), where)
-            where = f"{file}: frame {i} ({frame.get('file_path')})"
-            records.append(_record(frame, {**shared, **{k: frame[k] for k in CAMERA_KEYS if k in frame}}, image,
-                                   file.parent, where, name=name, scale=scale, center=center, mask_dir=mask_dir,
-                                   depth_scale=UNITS[depth_unit], index=len(records)))
-    return records, []
+            where = f"{file}: frame {i} ({_short(frame.get('file_path'))})"
+            try:
+                records.append(_record(frame, {**shared, **{k: frame[k] for k in CAMERA_KEYS if k in frame}},
+                                       image, file.parent, where, name=name, scale=scale, center=center,
+                                       mask_dir=mask_dir, depth_scale=UNITS[depth_unit], index=len(records),
+                                       made=made))
+            except ImageError as exc:
+                problems.append((f"frame {i} ({_short(frame.get('file_path'))})", str(exc)))
+    if strict and problems:
+        first = "; ".join(f"{what}: {why}" for what, why in problems[:3]) + ("; ..." if len(problems) > 3 else "")
+        raise SpmError(f"{len(problems)} of {listed} frames cannot be read ({first}); restore those files, or drop "
+                       "--strict to skip them")
+    return records, problems
 
 
-def _record(frame, camera, image, base, where, *, name, scale, center, mask_dir, depth_scale, index) -> FrameRecord:
-    """One frame's record; ``base``: the folder its JSON is in (paths are relative to it)."""
+def _short(text, limit: int = 200) -> str:
+    """``text`` as given, or its start and its length when it is longer than ``limit``."""
+    text = str(text)
+    return text if len(text) <= limit else f"{text[:limit // 2]}... ({len(text)} characters)"
+
+
+def _made_masks(method, radius, scale, mask_dir) -> tuple:
+    """(method, sphere radius in metres) of ``--mask``/``--radius``; () without --mask."""
+    if method is not None and mask_dir is not None:
+        raise SpmError(f"--mask {method} makes every frame's mask; give it or --mask-dir, not both")
+    return made_masks(method, radius, scale, "the capture's world units", "--center")
+
+
+def _record(frame, camera, image, base, where, *, name, scale, center, mask_dir, depth_scale, index,
+            made=()) -> FrameRecord:
+    """One frame's record; ``base``: the folder its JSON is in (paths are relative to it). ImageError
+    when its image, mask or depth image is missing or unreadable (the frame is skipped)."""
     R, t = gl_camera_to_world_to_object(frame_matrix(frame, where), scale, center, where)
-    width, height, alpha = _header(image, "image", where)
+    width, height, alpha = _header(image, "image")
     K = intrinsics(camera, width, height, where)
     distortion, fisheye = lens(camera, where)
-    # The masks a user names win over the image's alpha (apps write opaque RGBA PNGs too).
-    if isinstance(frame.get("mask_path"), str):
+    covered = lens_coverage(K, distortion, fisheye, width, height)
+    if covered < MIN_LENS_COVERAGE:
+        raise SpmError(f"{where}: the lens ({', '.join(f'{d:g}' for d in distortion)}) leaves {covered:.0%} of the "
+                       "undistorted image inside the photo, so its masks would be empty; check the distortion "
+                       "coefficients")
+    # --mask makes every mask; else the masks a user names win over the alpha (apps write opaque RGBA PNGs too).
+    if made:
+        mask, alpha = None, False
+    elif isinstance(frame.get("mask_path"), str):
         mask = _image_path(base, frame["mask_path"], where)
-        _header(mask, "mask", where)
+        _header(mask, "mask")
     else:
         mask = _mask_in(mask_dir, image) or (image if alpha else None)
         if mask is None:
             hint = f"no {image.name} (any image suffix) in --mask-dir {mask_dir}" if mask_dir else \
                 "give --mask-dir DIR with a mask of the same name per image"
-            raise SpmError(f"{where}: no mask: the image has no alpha channel and the frame no mask_path; {hint}")
+            raise SpmError(f"{where}: no mask: the image has no alpha channel and the frame no mask_path; {hint}, "
+                           "or make masks with --mask none|sphere|grabcut (docs/datasets.md)")
         alpha = mask == image
     depth = None
     if isinstance(frame.get("depth_file_path"), str):
         depth = _image_path(base, frame["depth_file_path"], where)
-        _header(depth, "depth image", where)
+        _header(depth, "depth image")
     return FrameRecord(image=str(image), class_name=name, instance_name=name, instance_id=0, R=tuple(R.ravel()),
-                       t=tuple(t), K=tuple(K.ravel()), mask=str(mask), mask_alpha=bool(alpha),
+                       t=tuple(t), K=tuple(K.ravel()), mask=None if mask is None else str(mask), mask_alpha=bool(alpha),
                        depth=None if depth is None else str(depth), depth_scale_m=depth_scale,
-                       path_index=index, distance=float(np.linalg.norm(t)), distortion=distortion, fisheye=fisheye)
+                       path_index=index, distance=float(np.linalg.norm(t)), distortion=distortion, fisheye=fisheye,
+                       mask_method=made[0] if made else "", mask_radius_m=made[1] if made else 0.0)
 
 
-def import_nerf(path, out_dir, *, class_name=None, scale=1.0, center="0,0,0", mask_dir=None, depth_unit="mm",
-                frames_per_shard=256, progress=None, executor=None):
-    """Import a transforms.json capture into ``out_dir``; returns (RunSummary, problems)."""
-    records, problems = nerf_records(path, class_name=class_name, scale=scale, center=center, mask_dir=mask_dir,
-                                     depth_unit=depth_unit)
+def import_nerf(path, out_dir, *, class_name=None, scale=None, center="0,0,0", mask_dir=None, depth_unit="mm",
+                strict=False, mask=None, radius=None, max_side=None, frames_per_shard=256, progress=None,
+                executor=None):
+    """Import a transforms.json capture into ``out_dir``; returns (RunSummary, problems). ``scale``
+    None: the world unit is taken as a metre (attribute length_unit "capture unit", and a warning)."""
+    records, problems = nerf_records(path, class_name=class_name, scale=1.0 if scale is None else scale,
+                                     center=center, mask_dir=mask_dir, depth_unit=depth_unit, strict=strict,
+                                     mask=mask, radius=radius)
+    if problems and records:   # said now, in one line; the summary lists each at the end
+        first = ", ".join(what for what, _ in problems[:3])
+        warnings.warn(SpmWarning(f"skipping {len(problems)} of {len(problems) + len(records)} frames whose image, mask "
+                                 f"or depth is missing or unreadable ({first}{', ...' if len(problems) > 3 else ''}); "
+                                 "--strict refuses them"))
     attrs = {"import": "nerf", "transforms": json.dumps([str(f) for f in transforms_files(path)]),
-             "scale": float(scale), "center": json.dumps(_center(center).tolist()),
-             "mask_source": "mask_path, --mask-dir, or alpha >= 128", "path_steps": 0}
+             "scale": 1.0 if scale is None else float(scale), "length_unit": "m" if scale else "capture unit",
+             "center": json.dumps(_center(center).tolist()), "mask_source": mask_source(mask, radius),
+             "mask_method": mask or "file", "path_steps": 0}
     summary = import_records(records, out_dir, source="nerf", prefix="nerf", frames_per_shard=frames_per_shard,
-                             attrs=attrs, progress=progress, executor=executor)
+                             attrs=attrs, progress=progress, executor=executor, problems=problems, max_side=max_side)
+    if scale is None:
+        warnings.warn(SpmWarning("no --scale: the capture's world unit is taken as 1 m, so the reports' mm are "
+                                 "thousandths of that unit; give --scale (metres per unit) for true mm"))
     return summary, problems

@@ -18,15 +18,17 @@ images are skipped and listed, as everywhere.
 from __future__ import annotations
 
 import csv
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from spm_data.errors import SpmError
+from spm_data.formats.capture_images import made_masks, mask_source
 from spm_data.formats.importing import FrameRecord, check_fov_option, import_records
 from spm_data.io.images import ImageError, image_size
-from spm_data.core.poses import is_rotation
+from spm_data.core.poses import ROTATION_TOLERANCE, is_rotation
 
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 MATRIX = [f"r{i}{j}" for i in (1, 2, 3) for j in (1, 2, 3)]
@@ -56,8 +58,9 @@ def rotation_from_row(row: dict, euler: str, where: str) -> np.ndarray:
     """(3, 3) rotation from a CSV row: matrix, quaternion (w first) or Euler degrees."""
     if all(k in row for k in MATRIX):
         R = np.array([_float(row, k, where) for k in MATRIX]).reshape(3, 3)
-        if not is_rotation(R, atol=1e-4):
-            raise SpmError(f"{where}: r11..r33 is not a rotation matrix (orthonormal, determinant +1); fix that row")
+        if not is_rotation(R):
+            raise SpmError(f"{where}: r11..r33 is not a rotation matrix (orthonormal within {ROTATION_TOLERANCE:g}, "
+                           "determinant +1); fix that row")
         return R
     if all(k in row for k in QUATERNION):
         q = np.array([_float(row, k, where) for k in ("qx", "qy", "qz", "qw")])
@@ -195,18 +198,24 @@ def folder_records(poses_csv, *, unit="m", euler="XYZ", fov=None, class_name="fo
 
 def import_folder(folder, out_dir, *, poses_csv=None, unit="m", euler="XYZ", fov=None, class_name="folder",
                   depth_unit="mm", threshold=10, source="folder", prefix=None, frames_per_shard=256,
-                  progress=None, executor=None):
+                  mask=None, radius=None, progress=None, executor=None):
     """Import ``folder``'s images listed in ``poses_csv`` (default FOLDER/poses.csv; image paths
-    are relative to FOLDER)."""
+    are relative to FOLDER). ``mask``: one of capture_images.MASK_METHODS, every frame's mask made
+    so (``radius``: the sphere's, in ``unit``, around the object origin)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise SpmError(f"no such folder: {folder}")
+    made = made_masks(mask, radius, UNITS.get(unit, 1.0), f"--unit ({unit})")
     poses_csv = Path(poses_csv) if poses_csv else folder / "poses.csv"
     records, problems = folder_records(poses_csv, unit=unit, euler=euler, fov=fov, class_name=class_name,
                                        depth_unit=depth_unit, base=folder)
+    if made:   # the table's mask column and the threshold give way to the masks asked for
+        records = [replace(r, mask=None, mask_alpha=False, mask_method=made[0], mask_radius_m=made[1])
+                   for r in records]
+    masks = {"mask_method": mask, "mask_source": mask_source(mask, radius)} if made else {}
     summary = import_records(records, out_dir, source=source, prefix=prefix or source, threshold=threshold,
                              frames_per_shard=frames_per_shard, progress=progress, executor=executor,
-                             attrs={"import": source, "poses": str(poses_csv), "unit": unit, "euler": euler})
+                             attrs={"import": source, "poses": str(poses_csv), "unit": unit, "euler": euler, **masks})
     return summary, problems
 
 

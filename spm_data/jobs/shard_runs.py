@@ -183,8 +183,11 @@ def _run_locked(fn, jobs, out, summary, started, executor, where, progress, mani
             # No shard at all (say, every job failed on a broken mesh): no manifest either.
             # Planned shards that failed or were never made are named in the manifest, so readers
             # know the folder is incomplete (io/folders.open_folder refuses it without --allow-partial).
-            missing = [job.name for job in jobs if not (out / job.name).exists()]
-            if (out / MANIFEST).exists() or len(missing) < len(jobs):
+            # A job that ran and had nothing to write (an import whose every frame was skipped) is
+            # not missing: running it again makes nothing either.
+            empty = {name for name, result in summary.results.items() if result.get("entry", True) is None}
+            missing = [job.name for job in jobs if not (out / job.name).exists() and job.name not in empty]
+            if (out / MANIFEST).exists() or any((out / job.name).exists() for job in jobs):
                 write_manifest(out, known=entries, extra={**(manifest_extra or {}), MISSING: missing},
                                names=[job.name for job in jobs])
             summary.complete = sum((out / job.name).exists() for job in jobs)

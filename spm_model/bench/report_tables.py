@@ -90,7 +90,15 @@ def _intro(summary: dict, context: dict) -> list:
             "**sum < 5° (3°)** (Fig. 5), the summed absolute angle errors below 5° (3°); *sym.*: the same up to "
             "the object's declared symmetries. A frame without an estimate fails. Every success rate is shown as "
             "% [its 95% Wilson interval over the frames it counts] and, over several runs, σ over runs. "
-            "Schema of results.json: docs/results-schema.md.", ""]
+            "Schema of results.json: docs/results-schema.md.", "", *_unit_line(context)]
+
+
+def _unit_line(context: dict) -> list:
+    """A line when the data's lengths are not metres (a capture imported without --scale)."""
+    if context.get("length_unit", "m") == "m":
+        return []
+    return ["**Lengths**: the shards hold the capture's world units (imported without `--scale`), so every "
+            "\"mm\" below is a thousandth of that unit, not a millimetre.", ""]
 
 
 def _fig5_tables(summary: dict, names: list) -> list:
@@ -148,8 +156,8 @@ def _paper_tables(evaluation: dict, summary: dict) -> list:
     if rows:
         lines += ["## Table 1 analogue: SPM", "",
                   "The paper's Table 1 counts successful grasps; its pose criterion is Table 2's ±5°, used here.", ""]
-        lines += table(["Class", "Frames", "±5° %", "sum<5° %", "sum<3° %", "Mean eccentricity", "σ",
-                        "Paper success %", "Paper ecc."], rows)
+        lines += table(*_paper_columns_kept(["Class", "Frames", "±5° %", "sum<5° %", "sum<3° %",
+                                             "Mean eccentricity", "σ", "Paper success %", "Paper ecc."], rows))
     rows = []
     for c, row in classes.items():
         if "knn1" in row and "knn3" in row:
@@ -159,8 +167,16 @@ def _paper_tables(evaluation: dict, summary: dict) -> list:
                          paper[2] if paper else "–"])
     if rows:
         lines += ["", "## Table 2 analogue: KNN on SPM's vectors, ±5° tolerance", ""]
-        lines += table(["Class", "Frames", "K=1 %", "K=3 %", "Paper K=1 %", "Paper K=3 %"], rows)
+        lines += table(*_paper_columns_kept(["Class", "Frames", "K=1 %", "K=3 %", "Paper K=1 %", "Paper K=3 %"], rows))
     return lines
+
+
+def _paper_columns_kept(header: list, rows: list) -> tuple[list, list]:
+    """(header, rows) without the "Paper ..." columns when no row's class is one of the paper's
+    (a capture, COIL objects): columns of "–" alone say nothing."""
+    empty = [i for i, h in enumerate(header) if h.startswith("Paper") and all(r[i] == "–" for r in rows)]
+    return ([h for i, h in enumerate(header) if i not in empty],
+            [[c for i, c in enumerate(r) if i not in empty] for r in rows])
 
 
 def _method_tables(summary: dict, names: list) -> list:

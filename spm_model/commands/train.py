@@ -11,7 +11,7 @@ from spm_data.errors import ModelError, ShardError, SpmError
 from spm_data.io.folders import find_folders
 from spm_data.io.locking import OutputLock
 from spm_data.io.outputs import removing_created
-from spm_data.io.shards import MANIFEST, read_manifest
+from spm_data.io.shards import MANIFEST, list_shards, read_attrs, read_manifest
 from spm_model.base.estimator import needs_of
 from spm_model.bench.feature_cache import FeatureTable, load_features, offgrid_table, progress_phase
 from spm_model.bench.protocols import FINAL_MODELS, evaluate
@@ -22,10 +22,25 @@ from spm_model.spm.features import FeatureConfig
 
 
 def class_counts(table: FeatureTable) -> dict:
-    """{class: frames with SPM's training features} (the report's data line; SPM's own need is
-    checked by the benchmark, for SPM alone)."""
-    usable = np.isfinite(table.train_vector).all(axis=1)
-    return {c: int(usable[table.class_name == c].sum()) for c in sorted(set(table.class_name.tolist()))}
+    """{class: frames} (the run's data line, whose counts add up to the frames)."""
+    return {c: int((table.class_name == c).sum()) for c in sorted(set(table.class_name.tolist()))}
+
+
+def data_line(table: FeatureTable, counts: dict) -> str:
+    """"N frames, K classes: a n_a, b n_b; M with SPM's training features" (SPM's own need is checked
+    by the benchmark, for SPM alone)."""
+    usable = int(np.isfinite(table.train_vector).all(axis=1).sum())
+    return (f"{len(table)} frames, {len(counts)} class{'es' if len(counts) != 1 else ''}: "
+            + ", ".join(f"{c} {n}" for c, n in counts.items())
+            + f"; {'all' if usable == len(table) else usable} with SPM's training features")
+
+
+def length_unit(*folders) -> str:
+    """"m", or "capture unit" where a shard under ``folders`` was imported without a metric scale
+    (import nerf without --scale: its lengths are the capture's world units, taken as metres)."""
+    units = {str(read_attrs(p).get("length_unit", "m")) for f in folders if f is not None
+             for folder in find_folders(f) for p in list_shards(folder)}
+    return "m" if units <= {"m"} else "capture unit"
 
 
 def listed_classes(shards) -> set | None:
@@ -53,7 +68,8 @@ def choose_protocol(protocol: str | None, test, shards, log) -> str:
     classes = listed_classes(shards) if protocol in (None, "loco") else None
     if protocol is None and classes is not None and len(classes) == 1:
         log(f"one class ({next(iter(classes))}): leave-one-class-out cannot run, so the views protocol does "
-            "(new views of seen objects); give --protocol to choose another")
+            "(new views of seen objects); frames on a camera path (a capture, a turntable) test more views "
+            "with --protocol interleaved")
         return "views"
     if protocol == "loco" and classes is not None and len(classes) < 2:
         raise ModelError(f"leave-one-class-out needs at least 2 classes, found {sorted(classes)}; add shards of "
@@ -129,8 +145,11 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
         table = offgrid_table(table, load_features(test, features, progress=progress, executor=executor,
                                                    allow_partial=allow_partial, what="test features"))
     counts = class_counts(table)
-    log(f"{len(table)} frames, {len(counts)} class{'es' if len(counts) != 1 else ''}: "
-        + ", ".join(f"{c} {n}" for c, n in counts.items()) + " (frames with SPM's training features)")
+    log(data_line(table, counts))
+    unit = length_unit(shards, test)
+    if unit != "m":
+        log("lengths are the capture's world units (imported without --scale): the report's mm are thousandths "
+            "of that unit")
     alone = int((table.train_neighbours == 0).sum())
     if alone:
         log(f"{alone} frames have no 5-degree path neighbour in their shard; their training features "
@@ -153,7 +172,7 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
                "model_params": {k: v for k, v in model_params.items() if k != "features"},
                "features": asdict(features), "estimators": {name: f"{cls.__module__}:{cls.__qualname__}"
                                                             for name, cls in plugins.items()},
-               "models": models}
+               "models": models, **({"length_unit": unit} if unit != "m" else {})}
     progress_phase(progress, "report", None, None)
     try:
         model_path = _save(model, out / "model.npz")

@@ -34,7 +34,7 @@ def shard(tmp_path):
 
 
 def test_contact_sheet_is_a_grid_of_upscaled_frames(shard, tmp_path):
-    out = contact_sheet(shard, tmp_path / "sheet.png")
+    out = contact_sheet(shard, tmp_path / "sheet.png", tile=80)          # 40 pixels wide: twice that
     assert out == tmp_path / "sheet.png" and sorted(p.name for p in tmp_path.iterdir()) == ["shards", "sheet.png"]
     sheet = cv2.cvtColor(cv2.imread(str(out)), cv2.COLOR_BGR2RGB)
     assert sheet.shape == (64 + 2, 5 * (80 + 2), 3)             # one row of 5 tiles, 2x upscaled, 2-pixel gaps
@@ -103,7 +103,7 @@ def test_a_sheet_of_an_outputs_field_in_false_colour(tmp_path):
     a["instances"] = np.zeros((2, 16, 20), np.uint8)
     a["instances"][:, 10:14, 5:9] = 2
     path = write_shard(tmp_path / "x.h5", a, {"renderer": "test", "seed": 0})
-    sheet = cv2.cvtColor(cv2.imread(str(contact_sheet(path, tmp_path / "ids.png", field="instances"))), cv2.COLOR_BGR2RGB)
+    sheet = cv2.cvtColor(cv2.imread(str(contact_sheet(path, tmp_path / "ids.png", field="instances", tile=40))), cv2.COLOR_BGR2RGB)
     assert (sheet[21:27, 11:17] == INSTANCE_COLOURS[2]).all() and (sheet[20:32, 0:8] == 0).all()
     with pytest.raises(ShardError, match="has no normals field; render it with \\[outputs\\] normals = true"):
         contact_sheet(path, tmp_path / "n.png", field="normals")
@@ -112,3 +112,31 @@ def test_a_sheet_of_an_outputs_field_in_false_colour(tmp_path):
     np.testing.assert_array_equal(false_colour("normals", n, 0.25)[0], [[128, 128, 0], [0, 0, 0]])
     depth = false_colour("depth", np.array([[0.0, 1.0], [2.0, 3.0]], np.float32), 0.25)
     assert depth[0, 0, 0] == 0 and depth[0, 1, 0] == 255 and depth[1, 1, 0] == 55
+
+
+def test_a_large_imported_frame_is_a_tile_of_the_set_size_with_axes_and_no_nan(tmp_path):
+    """A 1080 x 1920 import leaves azimuth, elevation and roll NaN and has no object_size: the tile
+    is 144 x 256, the caption says where the camera is (from R, t), the axes span a fifth of it."""
+    from spm_data.core.poses import camera_pose
+
+    a = make_arrays(n=2, h=1920, w=1080)
+    a["rgb"][:] = COLOUR
+    a["mask"][:] = 0
+    a["mask"][:, 800:1100, 400:700] = 1
+    a["occlusion_rects"][:] = 0
+    a["K"][:] = [[1400.0, 0, 539.5], [0, 1400.0, 959.5], [0, 0, 1]]
+    R, t = camera_pose(30.0, 20.0, 0.0, 2.5)
+    a["R"][:], a["t"][:] = R, t
+    for key in ("azimuth", "elevation", "roll", "distance"):
+        a[key][:] = np.nan
+    path = write_shard(tmp_path / "nerf-00000.h5", a, {"renderer": "none (imported)", "seed": 0})
+    sheet = cv2.cvtColor(cv2.imread(str(contact_sheet(path, tmp_path / "s.png"))), cv2.COLOR_BGR2RGB)
+    assert sheet.shape == (256 + 2, 2 * (144 + 2), 3)
+    tile = sheet[:256, :144]
+    for colour in AXIS_COLOURS[:2]:
+        assert (np.abs(tile.astype(int) - colour).max(axis=2) < 30).sum() > 40   # long enough to see
+    assert (np.abs(tile.astype(int) - (255, 220, 0)).max(axis=2) < 30).sum() > 60  # the mask's outline
+    from spm_data.commands import figures
+
+    frame = {"R": R, "t": t, "azimuth": np.nan, "elevation": np.nan, "distance": np.nan}
+    assert figures._caption(frame, 3) == "#3 az30 el20 d2.50m"

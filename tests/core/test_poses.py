@@ -156,3 +156,19 @@ def test_a_capture_camera_to_world_becomes_our_pose_in_the_scaled_recentred_obje
         gl_camera_to_world_to_object(np.diag([2.0, 2.0, 2.0, 1.0]))
     with pytest.raises(SpmError, match="last row"):
         gl_camera_to_world_to_object(np.vstack([M[:3], [0, 0, 1, 1]]))
+
+
+def test_one_rotation_tolerance_and_the_nearest_rotation_is_exact():
+    from spm_data.core.poses import (ROTATION_TOLERANCE, STORED_ROTATION_TOLERANCE, is_rotation, nearest_rotation,
+                                     rotation_error)
+
+    R, _ = camera_pose(30.0, 20.0, 5.0, 1.0)
+    off = R + np.array([[0.0, 4e-5, 0.0], [0.0, 0.0, 0.0], [1e-5, 0.0, 0.0]])   # a capture's 1e-5 rounding
+    assert 1e-5 < rotation_error(off) < ROTATION_TOLERANCE and is_rotation(off)
+    fixed = nearest_rotation(off)
+    assert rotation_error(fixed) < 1e-14 < STORED_ROTATION_TOLERANCE
+    assert np.abs(fixed - R).max() < 5e-5                    # the rotation it was meant to be
+    np.testing.assert_allclose(nearest_rotation(R), R, atol=1e-15)
+    assert not is_rotation(R + 2e-4) and not is_rotation(np.diag([1.0, 1.0, -1.0]))   # beyond it; a mirror
+    assert rotation_error(np.full((3, 3), np.nan)) == np.inf
+    assert np.linalg.det(nearest_rotation(np.diag([1.0, 1.0, -1.0]))) > 0

@@ -147,3 +147,44 @@ def test_image_sizes_read_each_archive_once(tmp_path, monkeypatch):
     monkeypatch.setattr(tar_module, "open", lambda *a, **k: opened.append(a[0]) or real_open(*a, **k))
     records, problems = coil_records(archive)
     assert len(records) == 72 and problems == [] and len(opened) == 2   # the listing, then the sizes
+
+
+def _cli(args):
+    from click.testing import CliRunner
+
+    from cli import data_cli
+
+    return CliRunner().invoke(data_cli, [str(a) for a in args])
+
+
+def test_coil20_hostile_names_and_class_maps_are_one_line(tmp_path):
+    """A 20-digit object number (an int64 overflow once), a binary class map, an id given twice, and a
+    set whose every file is skipped: one error line each, exit 1, nothing written."""
+    root = _turntable(tmp_path / "c", "coil20", 32, True, objects=(1,), views=(0,))
+    huge = root / "obj99999999999999999999__0.png"
+    huge.write_bytes((root / "obj1__0.png").read_bytes())
+    binary, twice = tmp_path / "binary.csv", tmp_path / "twice.csv"
+    binary.write_bytes(bytes(range(256)) * 4)
+    twice.write_text("object,class\n1,cup\n1,mug\n")
+    for path, message in ((binary, f"{binary}: not a text CSV of 'object,class' rows (UTF-8); give the class map "
+                                   "as text"),
+                          (twice, f"{twice}:3: object 1 is given a class twice (lines 2 and 3); keep one row per "
+                                  "object")):
+        r = _cli(["import", "coil20", root, "--out", tmp_path / "out", "--class-map", path])
+        assert (r.exit_code, r.output) == (1, f"error: {message}\n")
+    (root / "obj1__0.png").unlink()
+    r = _cli(["import", "coil20", root, "--out", tmp_path / "out"])
+    assert (r.exit_code, r.output) == (1, f"error: nothing to import: no frames were found (1 skipped; first: {huge}: "
+                                          "object or view number has over 9 digits; not a COIL file name)\n")
+    assert not (tmp_path / "out").exists()
+
+
+def test_coil_images_with_nothing_above_the_threshold_are_skipped_not_written_empty(tmp_path):
+    root = _turntable(tmp_path / "c", "coil20", 32, True, objects=(1,), views=(0, 1))
+    (root / "obj1__1.png").write_bytes(png_bytes(np.zeros((32, 32, 3), np.uint8)))
+    from spm_data.formats.coil100 import import_coil20
+
+    summary, _ = import_coil20(root, tmp_path / "out")
+    skipped = [s for r in summary.results.values() for s in r["skipped"]]
+    assert summary.frames == 1 and skipped == [[str(root / "obj1__1.png"), f"{root / 'obj1__1.png'}: the object's "
+                                                "mask is empty; give a mask that covers the object"]]

@@ -2,6 +2,7 @@
 exact pose, intrinsics and mask they describe; every malformed capture one line, nothing written."""
 
 import json
+import re
 
 import cv2
 import numpy as np
@@ -10,7 +11,7 @@ from click.testing import CliRunner
 
 from cli import data_cli
 from spm_data.core.poses import K_to_corner_origin
-from spm_data.errors import SpmError
+from spm_data.errors import SpmError, SpmWarning
 from spm_data.formats.nerf import import_nerf, nerf_records
 from spm_data.io.shards import list_shards, read_shard
 from tests.helpers import CENTER, SCALE, write_capture
@@ -31,9 +32,9 @@ def rendered(tmp_path_factory):
 
 
 def _imported(out):
-    parts = [read_shard(p) for p in list_shards(out)]
-    return {k: np.concatenate([p[k] for p in parts]) for k in ("rgb", "mask", "depth", "K", "R", "t", "source",
-                                                               "class_name", "label_measured")}
+    keys = ("rgb", "mask", "depth", "K", "R", "t", "source", "class_name", "label_measured")
+    parts = [read_shard(p, keys) for p in list_shards(out)]   # depth: zeros where the capture has none
+    return {k: np.concatenate([p[k] for p in parts]) for k in keys}
 
 
 def test_a_rendered_class_written_as_a_capture_comes_back_with_the_same_pose_k_and_mask(rendered, tmp_path):
@@ -93,7 +94,7 @@ def test_camera_angle_x_and_the_nerf_synthetic_split_files(tmp_path):
 def test_lens_distortion_is_removed_to_the_pinhole_k(tmp_path):
     """An image taken through OpenCV's lens model, undistorted on import: straight back to the pinhole
     image (within interpolation) and exactly the pinhole K."""
-    from spm_data.formats.importing import undistort
+    from spm_data.formats.capture_images import undistort
 
     h, w = 120, 160
     K = np.array([[140.0, 0, 79.5], [0, 140, 59.5], [0, 0, 1]])
@@ -149,6 +150,16 @@ def _broken(tmp_path, edit, name="transforms.json"):
     (lambda root, d: d.update(w=9), r"the image is 8x8, the file says w = 9"),
     (lambda root, d: d["frames"][0].update(file_path="images/missing.png"), r"image .*missing.png is missing"),
     (lambda root, d: d.update(frames=[]), r"\"frames\" is empty"),
+    (lambda root, d: d["frames"][0]["transform_matrix"][0].__setitem__(1, 2e-4),
+     r"3x3 part is not a rotation"),                                       # beyond ROTATION_TOLERANCE
+    (lambda root, d: d["frames"][0]["transform_matrix"][0].__setitem__(3, 1e308),
+     r"a.png: the camera is inf m from the object \(t = .*\); expected at most 1e\+06 m; correct its pose"),
+    (lambda root, d: d.update(fl_x=1e300), r"a.png: K = \[1e\+300, .*\] is not a camera"),
+    (lambda root, d: d.update(k1=1e10), r"frame 0 \(images/a.png\): the lens \(1e\+10, 0, 0, 0, 0\) leaves 0% of "
+                                        r"the undistorted image inside the photo, so its masks would be empty"),
+    (lambda root, d: d["frames"][0].update(file_path="x" * 5000 + ".png"),
+     r"^error: nothing to import: no frames were found \(1 skipped; first: frame 0 \(x{100}\.\.\. \(5004 "
+     r"characters\)\): image .*x{10}\.\.\. \(50\d\d characters\) is missing\)$"),   # OSError 36 before
 ])
 def test_every_malformed_capture_is_one_line_and_writes_nothing(tmp_path, edit, message):
     root = _broken(tmp_path, edit)
@@ -185,11 +196,75 @@ def test_named_masks_win_over_alpha_and_an_opaque_alpha_is_no_mask(rendered, tmp
     d = rendered
     rgb, mask = d["rgb"][:2], d["mask"][:2] > 0
     capture = write_capture(tmp_path / "c", rgb, np.ones_like(mask), d["K"][:2], d["R"][:2], d["t"][:2])
-    summary, _ = import_nerf(capture, tmp_path / "opaque", scale=SCALE, center=CENTER)
-    skipped = [s for r in summary.results.values() for s in r["skipped"]]
-    assert summary.frames == 0 and len(skipped) == 2 and "opaque everywhere, so it holds no mask" in skipped[0][1]
+    with pytest.raises(SpmError, match=r"^nothing imported: every one of 2 frames was skipped \(2 skipped; first: "
+                                       r".*frame_00000.png: its alpha channel is opaque everywhere, so it holds no "
+                                       r"mask; .*; nothing was written$"):
+        import_nerf(capture, tmp_path / "opaque", scale=SCALE, center=CENTER)
+    assert not (tmp_path / "opaque").exists()
     (tmp_path / "masks").mkdir()
     for i in range(2):
         cv2.imwrite(str(tmp_path / "masks" / f"frame_{i:05d}.png"), mask[i].astype(np.uint8) * 255)
     import_nerf(capture, tmp_path / "out", scale=SCALE, center=CENTER, mask_dir=tmp_path / "masks")
     np.testing.assert_array_equal(_imported(tmp_path / "out")["mask"] > 0, mask)
+
+
+def test_a_transforms_json_nested_100000_deep_is_one_line(tmp_path):
+    (tmp_path / "cap").mkdir()
+    (tmp_path / "cap" / "transforms.json").write_text("[" * 100_000 + "]" * 100_000)
+    r = CliRunner().invoke(data_cli, ["import", "nerf", str(tmp_path / "cap"), "--out", str(tmp_path / "out")])
+    assert r.exit_code == 1 and "Traceback" not in r.output, r.output
+    assert r.output == f"error: {tmp_path / 'cap' / 'transforms.json'}: nested too deeply to be a transforms.json; " \
+                       "give the capture's transforms.json\n"
+
+
+def test_rotations_within_the_tolerance_are_stored_as_the_nearest_rotation(rendered, tmp_path):
+    """A phone capture's matrices are orthonormal to ~1e-5: imported, stored exact (validate, run on
+    every import by tests/conftest.py, wants 1e-6), and within 1e-4 of the file's."""
+    d = rendered
+    capture = write_capture(tmp_path / "c", d["rgb"][:3], d["mask"][:3], d["K"][:3], d["R"][:3], d["t"][:3])
+    data = json.loads((capture / "transforms.json").read_text())
+    for frame, error in zip(data["frames"], (3e-5, -6e-5, 9e-5)):
+        frame["transform_matrix"][0][1] += error
+    (capture / "transforms.json").write_text(json.dumps(data))
+    import_nerf(capture, tmp_path / "out", scale=SCALE, center=CENTER)
+    R = _imported(tmp_path / "out")["R"]
+    assert np.abs(R @ R.transpose(0, 2, 1) - np.eye(3)).max() < 1e-14
+    assert 1e-5 < np.abs(R - d["R"][:3]).max() < 1e-4
+    from spm_data.commands.validate import validate_folder
+
+    assert validate_folder(tmp_path / "out") == []
+
+
+def test_missing_and_unreadable_images_are_listed_and_skipped_or_refused_with_strict(rendered, tmp_path):
+    d = rendered
+    capture = write_capture(tmp_path / "c", d["rgb"][:8], d["mask"][:8], d["K"][:8], d["R"][:8], d["t"][:8])
+    for i in (1, 3, 4, 6):
+        (capture / "images" / f"frame_{i:05d}.png").unlink()
+    (capture / "images" / "frame_00007.png").write_bytes(b"not a png")
+    with pytest.warns(SpmWarning) as said:
+        summary, problems = import_nerf(capture, tmp_path / "out", scale=SCALE, center=CENTER)
+    assert [str(w.message) for w in said] == [
+        "skipping 5 of 8 frames whose image, mask or depth is missing or unreadable (frame 1 (images/frame_00001.png), "
+        "frame 3 (images/frame_00003.png), frame 4 (images/frame_00004.png), ...); --strict refuses them"]
+    assert summary.frames == 3 and [p[0] for p in problems] == [f"frame {i} (images/frame_{i:05d}.png)"
+                                                                for i in (1, 3, 4, 6, 7)]
+    assert problems[0][1] == f"image {capture / 'images' / 'frame_00001.png'} is missing"
+    assert "not a readable image" in problems[4][1]
+    r = CliRunner().invoke(data_cli, ["import", "nerf", str(capture), "--out", str(tmp_path / "o2"), "--strict"])
+    assert r.exit_code == 1 and not (tmp_path / "o2").exists()
+    assert re.fullmatch(r"error: 5 of 8 frames cannot be read \(frame 1 \(images/frame_00001.png\): image .* is "
+                        r"missing; frame 3 .*; frame 4 .*; \.\.\.\); restore those files, or drop --strict to skip "
+                        r"them\n", r.output), r.output
+
+
+def test_without_scale_the_unit_is_said_and_recorded(rendered, tmp_path):
+    d = rendered
+    capture = write_capture(tmp_path / "c", d["rgb"][:2], d["mask"][:2], d["K"][:2], d["R"][:2], d["t"][:2])
+    r = CliRunner().invoke(data_cli, ["import", "nerf", str(capture), "--out", str(tmp_path / "out")])
+    assert r.exit_code == 0 and "warning: no --scale: the capture's world unit is taken as 1 m, so the reports' mm " \
+                               "are thousandths of that unit; give --scale (metres per unit) for true mm\n" in r.stderr
+    from spm_data.io.shards import read_attrs
+
+    assert read_attrs(list_shards(tmp_path / "out")[0])["length_unit"] == "capture unit"
+    import_nerf(capture, tmp_path / "metric", scale=SCALE, center=CENTER)
+    assert read_attrs(list_shards(tmp_path / "metric")[0])["length_unit"] == "m"

@@ -13,15 +13,15 @@ from spm_data.io.shards.manifest import (list_shards, listed_twice, manifest_ent
                                          remove_partials, write_manifest)
 from spm_data.io.shards.reader import (H5_ERRORS, ShardReader, forget_checks, h5_is_string, read_attrs, read_shard,
                                        shard_digest, shard_layout, verify_shard)
-from spm_data.io.shards.schema import (FIELDS, IMAGE_FIELDS, MANIFEST, MISSING, OPTIONAL_FIELDS, REQUIRED_ATTRS,
-                                       SCHEMA_VERSION, SHARD_SUFFIX, SIZED_FIELDS, SOURCES,
+from spm_data.io.shards.schema import (FIELDS, IMAGE_FIELDS, MANIFEST, MAY_BE_ABSENT, MISSING, OPTIONAL_FIELDS,
+                                       REQUIRED_ATTRS, SCHEMA_VERSION, SHARD_SUFFIX, SIZED_FIELDS, SOURCES,
                                        check_arrays)
 from spm_data.io.shards.seal import hash_ahead, reuse_verification, verification
 from spm_data.io.shards.chunks import encode_chunk
 from spm_data.io.shards.writer import ShardWriter, write_shard
 
-__all__ = ["FIELDS", "H5_ERRORS", "IMAGE_FIELDS", "MANIFEST", "MISSING", "OPTIONAL_FIELDS", "REQUIRED_ATTRS",
-           "SCHEMA_VERSION", "SHARD_SUFFIX", "SIZED_FIELDS", "SOURCES", "ShardReader", "ShardWriter", "check_arrays",
+__all__ = ["FIELDS", "H5_ERRORS", "IMAGE_FIELDS", "MANIFEST", "MAY_BE_ABSENT", "MISSING", "OPTIONAL_FIELDS",
+           "REQUIRED_ATTRS", "SCHEMA_VERSION", "SHARD_SUFFIX", "SIZED_FIELDS", "SOURCES", "ShardReader", "ShardWriter", "check_arrays",
            "encode_chunk", "forget_checks", "h5_is_string", "hash_ahead", "list_shards", "listed_twice",
            "manifest_entry", "no_shards", "read_attrs", "read_manifest", "read_shard", "remove_partials",
            "reuse_verification", "shard_digest", "shard_layout", "verification", "verify_shard", "write_manifest",

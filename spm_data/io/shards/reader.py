@@ -211,6 +211,8 @@ class ShardReader:
 
     def _read_field(self, name: str, frames):
         try:
+            if name == "depth" and name not in self._file:   # optional; absent reads as 0 (schema.py)
+                return self._zero_depth(frames)
             if name not in self._file:
                 raise ShardError(f"{self.path}: shard has no field {name!r}")
             ds = self._file[name]
@@ -227,6 +229,11 @@ class ShardReader:
         except H5_ERRORS as exc:  # the bytes were verified: a request h5py cannot serve, not corruption
             raise ShardError(f"{self.path}: cannot read field {name!r} for frames {_describe(frames)} "
                              f"({type(exc).__name__}: {exc})") from None
+
+    def _zero_depth(self, frames) -> np.ndarray:
+        """The depth of a shard that has none (an import without depth): 0, no surface measured."""
+        shape = np.shape(np.arange(int(self.attrs["frames"]))[frames]) + (self.attrs["height"], self.attrs["width"])
+        return np.zeros(tuple(int(d) for d in shape), np.float32)
 
     def read_runs(self, name: str) -> list:
         """An image field's frames run by run (chunks.RUN frames): [(frame range, get)], where

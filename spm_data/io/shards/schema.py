@@ -42,6 +42,11 @@ FIELDS: dict[str, tuple[str, tuple]] = {
 }
 
 
+# Fields of FIELDS a shard may lack: depth, where an import has none (every render has it); a read
+# of it then gives zeros, no surface measured (reader.py), what imported shards stored before.
+MAY_BE_ABSENT = ("depth",)
+
+
 OPTIONAL_FIELDS: dict[str, tuple[str, tuple]] = {
     "visible_mask": ("uint8", ("H", "W")),   # object minus occluders (spm-data occlude)
     "source_shard": ("str", ()),             # the shard a derived frame came from
@@ -85,7 +90,7 @@ def expected_shape(field: str, n: int, h: int, w: int, dims=None) -> tuple:
 
 def check_arrays(arrays: dict) -> tuple[int, int, int]:
     """Validate a shard's arrays against the schema; returns (N, H, W)."""
-    missing = [f for f in FIELDS if f not in arrays]
+    missing = [f for f in FIELDS if f not in arrays and f not in MAY_BE_ABSENT]
     if missing:
         raise ShardError(f"shard arrays are missing {', '.join(missing)}")
     unknown = [f for f in arrays if f not in FIELDS and f not in OPTIONAL_FIELDS]

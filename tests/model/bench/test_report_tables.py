@@ -39,3 +39,21 @@ def test_the_schema_doc_lists_every_metric_as_made_from_the_list(tmp_path):
     copy.write_text(doc.read_text())
     assert update_schema_doc(copy) is False, "run: python -m spm_model.bench.report_tables"
     assert all(f"| `{m.key}` |" in doc.read_text() for m in METRICS) and len(schema_rows()) == len(METRICS) + 7   # 2 header, frames, estimated, surface, ci95, std
+
+
+def test_paper_columns_of_dashes_alone_are_not_printed():
+    from spm_model.bench.report_tables import _paper_columns_kept
+
+    header = ["Class", "Frames", "K=1 %", "Paper K=1 %", "Paper K=3 %"]
+    assert _paper_columns_kept(header, [["scan", 9, "40.0", "–", "–"]]) == (["Class", "Frames", "K=1 %"],
+                                                                             [["scan", 9, "40.0"]])
+    kept = [["cup", 9, "40.0", "88.2", "–"], ["scan", 9, "40.0", "–", "–"]]
+    assert _paper_columns_kept(header, kept) == (header[:4], [r[:4] for r in kept])
+
+
+def test_lengths_not_in_metres_are_said_under_the_intro():
+    from spm_model.bench.report_tables import _unit_line
+
+    assert _unit_line({}) == [] and _unit_line({"length_unit": "m"}) == []
+    assert _unit_line({"length_unit": "capture unit"})[0].startswith("**Lengths**: the shards hold the capture's "
+                                                                       "world units (imported without `--scale`)")

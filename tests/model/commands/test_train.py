@@ -156,7 +156,9 @@ def test_a_transforms_json_capture_trains_under_views_with_every_method(tmp_path
     import_nerf(tmp_path / "scan", tmp_path / "imported", scale=SCALE, center=CENTER)
     r = CliRunner().invoke(model_cli, ["train", str(tmp_path / "imported"), "--runs", "1", "--ellipse", "direct"])
     assert r.exit_code == 0, r.output
-    assert "one class (scan): leave-one-class-out cannot run, so the views protocol does" in r.output
+    assert "one class (scan): leave-one-class-out cannot run, so the views protocol does (new views of seen " \
+           "objects); frames on a camera path (a capture, a turntable) test more views with --protocol interleaved" \
+           in r.output
     rows = _rows(tmp_path / "imported" / "report")
     assert json.loads((tmp_path / "imported" / "report" / "results.json").read_text())["summary"]["protocol"] == "views"
     assert set(rows) == {"spm", "knn1", "knn3", "pca", "ls", "n3m", "sift-pnp", "smm", "template", "chance"}
@@ -262,3 +264,21 @@ def test_train_reports_each_step_features_first(tmp_path):
     train(tmp_path / "out", runs=1, features=FeatureConfig(ellipse="direct"), builtins=["knn1"], progress=progress)
     assert progress.steps[:3] == [["checking cached features", 2, "shard", 2], ["features", 0, "frame", 0],
                                   ["reading features", 2, "shard", 2]]
+
+
+def test_the_length_unit_of_a_capture_imported_without_scale(tmp_path):
+    from spm_data.core.poses import camera_pose, intrinsics_from_fov
+    from spm_data.formats.nerf import import_nerf
+    from spm_model.commands.train import length_unit
+    from tests.helpers import write_capture
+
+    rgb = np.zeros((2, 20, 30, 3), np.uint8)
+    rgb[:, 5:15, 10:20] = 200
+    poses = [camera_pose(10.0 * i, 10.0, 0.0, 0.6) for i in range(2)]
+    capture = write_capture(tmp_path / "c", rgb, rgb.max(axis=3) > 0, np.stack([intrinsics_from_fov(40, 30, 20)] * 2),
+                            np.stack([p[0] for p in poses]), np.stack([p[1] for p in poses]))
+    import_nerf(capture, tmp_path / "metric", scale=0.5)
+    assert length_unit(tmp_path / "metric") == "m"
+    with pytest.warns(Warning, match="no --scale"):
+        import_nerf(capture, tmp_path / "units")
+    assert length_unit(tmp_path / "units") == length_unit(tmp_path / "metric", tmp_path / "units") == "capture unit"
