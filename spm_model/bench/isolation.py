@@ -1,0 +1,109 @@
+"""Estimator code in a process of its own. Each split's methods are constructed, fitted and asked
+in a fresh child process, started for the split and ended after it (``python -c``, a new session:
+the terminal's Ctrl-C never reaches it; it exits when its parent is gone). The child receives the
+training frames (spm_model/base/frames.py ``Frames``) with their poses, then the test frames as a
+camera gives them (``CameraFrames``: image, visible mask, K) in the split's seeded random order,
+and nothing else: no test pose, no other split's frames, no feature table. The process that
+holds the labels (a benchmark worker) only starts it, sends those frames and reads back, without
+unpickling anything, arrays of numbers (``np.load(allow_pickle=False)``) and one-line reasons;
+scoring happens there, where estimator code never runs.
+
+A method whose call raises anything (``SystemExit`` and ``KeyboardInterrupt`` included), whose
+process exits or is killed, or whose plug-in call runs past ``timeout`` seconds (the child is then
+killed), is *declined* with that reason; the caller starts another child for the methods left.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import subprocess
+import sys
+import time
+from multiprocessing.connection import Connection
+
+import numpy as np
+
+DEFAULT_TIMEOUT = 3600.0   # seconds a plug-in's call (construct + fit, or one predict) may take
+
+
+class Lost(Exception):
+    """The child ended (or was ended) while running the method ``name``: ``why`` it is declined."""
+
+    def __init__(self, name: str, why: str):
+        super().__init__(why)
+        self.name, self.why = name, why
+
+
+def encode(header: dict, arrays=()) -> list:
+    """A reply as bytes messages: a JSON header, then each array as a .npy (no pickle)."""
+    out = [json.dumps({**header, "arrays": len(arrays)}).encode()]
+    for a in arrays:
+        buf = io.BytesIO()
+        np.save(buf, np.asarray(a), allow_pickle=False)
+        out.append(buf.getvalue())
+    return out
+
+
+class EstimatorProcess:
+    """The parent's end of one child: send it Python objects (the parent's own, trusted by the
+    child), read its replies as headers and plain arrays."""
+
+    def __init__(self):
+        down_r, down_w = os.pipe()   # parent -> child
+        up_r, up_w = os.pipe()       # child -> parent
+        code = (f"import sys; sys.path[:] = {sys.path!r}; from spm_model.bench.isolated_child import child_main; "
+                f"child_main({down_r}, {up_w}, {os.getpid()})")   # our sys.path before any import
+        self.proc = subprocess.Popen([sys.executable, "-c", code], pass_fds=(down_r, up_w),
+                                     start_new_session=True, stdin=subprocess.DEVNULL)
+        os.close(down_r)
+        os.close(up_w)
+        self.down = Connection(down_w, readable=False)
+        self.up = Connection(up_r, writable=False)
+
+    def send(self, message) -> None:
+        try:
+            self.down.send(message)
+        except OSError:
+            pass   # it died: the next reply says how
+
+    def reply(self, name: str, stage: str, limit: float | None, tick=None) -> tuple:
+        """(header, arrays) of the child's next reply, about ``name``; Lost when it does not come:
+        the child exited, or took longer than ``limit`` seconds (it is killed). ``tick()`` is
+        called about once a second while waiting (the caller's chance to stop on Ctrl-C)."""
+        start = time.monotonic()
+        while not self.up.poll(1.0):
+            if tick is not None:
+                tick()
+            if self.proc.poll() is not None and not self.up.poll(0):
+                raise Lost(name, f"{stage}the method's process ended ({self._exit_text()}) without a result")
+            if limit is not None and time.monotonic() - start > limit:
+                self.close()
+                raise Lost(name, f"{stage}took longer than the time limit ({limit:g} s; spm train --timeout)")
+        try:
+            header = json.loads(self.up.recv_bytes())
+            arrays = [np.load(io.BytesIO(self.up.recv_bytes()), allow_pickle=False)
+                      for _ in range(int(header["arrays"]))]
+        except (EOFError, OSError, ValueError, KeyError, TypeError):
+            self.proc.wait()
+            raise Lost(name, f"{stage}the method's process ended ({self._exit_text()}) without a result") from None
+        if not isinstance(header, dict) or header.get("name") != name:
+            self.close()
+            raise Lost(name, f"{stage}the method's process sent something that is not its reply")
+        return header, arrays
+
+    def _exit_text(self) -> str:
+        code = self.proc.wait()
+        return f"killed by signal {-code}" if code < 0 else f"exit code {code}"
+
+    def close(self) -> None:
+        """End the child: asked to, then killed if it has not ended within a second."""
+        self.send(None)
+        for end in (self.down, self.up):
+            end.close()
+        try:
+            self.proc.wait(timeout=1.0)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
