@@ -5,6 +5,7 @@ reasons (isolation.encode), whatever a method raised or did."""
 
 from __future__ import annotations
 
+import importlib
 import os
 import signal
 import threading
@@ -24,26 +25,29 @@ def _watch_parent(parent: int) -> None:
     os._exit(1)
 
 
-def child_main(read_fd: int, write_fd: int, parent: int) -> None:
-    """The child, started with its parent's sys.path: serve until told to end."""
+def child_main(read_fd: int, write_fd: int, parent: int, work: str = "spm_model.bench.isolated_child:serve") -> None:
+    """The child, started with its parent's sys.path: ``work`` ('MODULE:FUNCTION', called with the
+    two ends of the pipe: the benchmark's :func:`serve` or check-estimator's) until it returns."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)   # only the user's command owns Ctrl-C
     down = Connection(read_fd, writable=False)
     up = Connection(write_fd, readable=False)
     threading.Thread(target=_watch_parent, args=(parent,), daemon=True).start()
     from threadpoolctl import threadpool_limits
 
+    module, function = work.split(":")
+    serve_work = getattr(importlib.import_module(module), function)
     with threadpool_limits(limits=1, user_api="blas"):   # as bench_job: results independent of the cores
-        _serve(down, up)
+        serve_work(down, up)
     up.close()
     os._exit(0)   # a plug-in's threads or atexit handlers never keep it alive
 
 
-def _send(up, header: dict, arrays=()) -> None:
+def send(up, header: dict, arrays=()) -> None:
     for message in encode(header, arrays):
         up.send_bytes(message)
 
 
-def _serve(down, up) -> None:
+def serve(down, up) -> None:
     """("start", (seed, model params, {plug-in name: class}), names, frames, poses, memo folder), then
     test chunks until None: construct and fit each method of ``names``, then predict every chunk with each fitted one."""
     from spm_model.base.feature_memo import use_folder
@@ -62,7 +66,7 @@ def _serve(down, up) -> None:
             model, why = None, call_failure(exc)
         if why is None:
             fitted[name] = model
-        _send(up, {"name": name, "why": why})
+        send(up, {"name": name, "why": why})
     while True:
         chunk = down.recv()
         if chunk is None:
@@ -72,7 +76,7 @@ def _serve(down, up) -> None:
                 pred = check_predictions(name, model.predict(chunk), len(chunk))
             except BaseException as exc:  # noqa: BLE001 - as in fit
                 del fitted[name]
-                _send(up, {"name": name, "why": call_failure(exc, "predict: ")})
+                send(up, {"name": name, "why": call_failure(exc, "predict: ")})
                 continue
             flags = found_flags(model, chunk)
-            _send(up, {"name": name, "why": None}, [pred] + ([] if flags is None else [flags]))
+            send(up, {"name": name, "why": None}, [pred] + ([] if flags is None else [flags]))

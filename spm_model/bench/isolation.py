@@ -50,11 +50,12 @@ class EstimatorProcess:
     """The parent's end of one child: send it Python objects (the parent's own, trusted by the
     child), read its replies as headers and plain arrays."""
 
-    def __init__(self):
+    def __init__(self, work: str = "spm_model.bench.isolated_child:serve"):
+        """``work``: what the child runs ('MODULE:FUNCTION' taking the pipe's two ends)."""
         down_r, down_w = os.pipe()   # parent -> child
         up_r, up_w = os.pipe()       # child -> parent
         code = (f"import sys; sys.path[:] = {sys.path!r}; from spm_model.bench.isolated_child import child_main; "
-                f"child_main({down_r}, {up_w}, {os.getpid()})")   # our sys.path before any import
+                f"child_main({down_r}, {up_w}, {os.getpid()}, {work!r})")   # our sys.path before any import
         self.proc = subprocess.Popen([sys.executable, "-c", code], pass_fds=(down_r, up_w),
                                      start_new_session=True, stdin=subprocess.DEVNULL)
         os.close(down_r)
@@ -80,7 +81,7 @@ class EstimatorProcess:
                 raise Lost(name, f"{stage}the method's process ended ({self._exit_text()}) without a result")
             if limit is not None and time.monotonic() - start > limit:
                 self.close()
-                raise Lost(name, f"{stage}took longer than the time limit ({limit:g} s; spm train --timeout)")
+                raise Lost(name, f"{stage}took longer than the time limit (--timeout {limit:g} s)")
         try:
             header = json.loads(self.up.recv_bytes())
             arrays = [np.load(io.BytesIO(self.up.recv_bytes()), allow_pickle=False)

@@ -149,14 +149,15 @@ def _models_line(result) -> str:
 
 @click.command("check-estimator")
 @click.argument("spec", metavar="MODULE:CLASS")
+@timeout_option
 @handle_errors
-def check_estimator_cmd(spec):
+def check_estimator_cmd(spec, timeout):
     """Run your estimator MODULE:CLASS through the contract `spm train --estimator` relies on, on a small
     built-in set (rendered with pyrender): one line a check; exit status 1 if any check fails."""
     from spm_model.commands.check_estimator import check_estimator, failed
 
     with Progress() as bar:
-        checks = check_estimator(spec, progress=bar, log=bar.write)
+        checks = check_estimator(spec, progress=bar, log=bar.write, timeout=timeout)
     bad = failed(checks)
     click.echo(f"{len(checks)} checks, {len(bad)} failed" + ("" if bad else f"; {spec} can run in spm train"))
     if bad:

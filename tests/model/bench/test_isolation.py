@@ -205,7 +205,7 @@ def test_a_method_that_exits_or_runs_too_long_is_declined_and_the_others_are_sco
     assert why == {"exits": "predict: the method's process ended (exit code 0) without a result",
                    "ends": "it raised SystemExit (exit code 0); a method cannot end the run",
                    "interrupts": "it raised KeyboardInterrupt itself (not the user's Ctrl-C)",
-                   "sleeps": "fit: took longer than the time limit (3 s; spm train --timeout)"}
+                   "sleeps": "fit: took longer than the time limit (--timeout 3 s)"}
     overall = run["overall"]
     assert overall["order"]["estimated"] == overall["chance"]["estimated"] == overall["chance"]["frames"] > 0
     assert overall["exits"]["estimated"] == overall["sleeps"]["estimated"] == 0
