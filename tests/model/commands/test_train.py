@@ -262,3 +262,72 @@ def test_train_reports_each_step_features_first(tmp_path):
     train(tmp_path / "out", runs=1, features=FeatureConfig(ellipse="direct"), builtins=["knn1"], progress=progress)
     assert progress.steps[:3] == [["checking cached features", 2, "shard", 2], ["features", 0, "frame", 0],
                                   ["reading features", 2, "shard", 2]]
+
+
+BAD_PLUGINS = '''
+import os
+import time
+
+import numpy as np
+
+
+class Fine:
+    def fit(self, frames, poses):
+        self.mean_ = np.asarray(poses).mean(axis=0)
+        return self
+
+    def predict(self, frames):
+        return np.tile(self.mean_, (len(frames), 1))
+
+
+class EndsRun(Fine):
+    def fit(self, frames, poses):
+        raise SystemExit(0)
+
+
+class ExitsInPredict(Fine):
+    def predict(self, frames):
+        os._exit(0)
+
+
+class Interrupts(Fine):
+    def fit(self, frames, poses):
+        raise KeyboardInterrupt
+
+
+class Sleeps(Fine):
+    def fit(self, frames, poses):
+        time.sleep(600)
+'''
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_plug_in_code_cannot_end_the_run_each_way_is_a_declined_method(model_shards, tmp_path, monkeypatch, workers):
+    """SystemExit(0) in fit ended spm train with exit 0 and no report; os._exit(0) in predict with
+    --workers 1 did too, leaving .spm.lock; a plug-in's own KeyboardInterrupt read as the user's
+    Ctrl-C; a sleeping fit ran for ever. Each is now a declined method with why."""
+    (tmp_path / "bad_pose.py").write_text(BAD_PLUGINS)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    report = tmp_path / "report"
+    args = ["train", str(model_shards), "--out", str(report), "--runs", "1", "--protocol", "views", "--methods",
+            "chance", "--timeout", "2", "--workers", workers]
+    for name in ("Fine", "EndsRun", "ExitsInPredict", "Interrupts", "Sleeps"):
+        args += ["--estimator", f"bad_pose:{name}"]
+    r = CliRunner().invoke(model_cli, args)
+    assert r.exit_code == 0, r.output
+    summary = json.loads((report / "results.json").read_text())["summary"]
+    assert {name: d["reason"] for name, d in summary["declined"].items()} == {
+        "EndsRun": "it raised SystemExit (exit code 0); a method cannot end the run",
+        "ExitsInPredict": "predict: the method's process ended (exit code 0) without a result",
+        "Interrupts": "it raised KeyboardInterrupt itself (not the user's Ctrl-C)",
+        "Sleeps": "fit: took longer than the time limit (--timeout 2 s)"}
+    assert summary["methods"]["Fine"]["estimated"] == summary["methods"]["Fine"]["frames"] > 0
+    assert not list(report.glob(".spm.lock*")) and "interrupted" not in r.output
+
+
+def test_a_plug_in_module_that_exits_as_it_is_imported_is_refused_in_one_line(tmp_path, monkeypatch):
+    (tmp_path / "quits_pose.py").write_text("raise SystemExit(0)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    r = CliRunner().invoke(model_cli, ["train", str(tmp_path), "--estimator", "quits_pose:Any"])
+    assert (r.exit_code, r.output) == (1, "error: --estimator quits_pose:Any: cannot import quits_pose (SystemExit: "
+                                          "0); is its folder on PYTHONPATH?\n")
