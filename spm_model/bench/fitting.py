@@ -164,7 +164,10 @@ def _ask(child, recipe, names, frames, poses, chunks, timeout, tick, memo, decli
                 declined[name] = header["why"]
                 del parts[name]
                 continue
+            if not arrays or arrays[0].shape != (len(chunk), 6) or arrays[0].dtype != np.float64:
+                raise Lost(name, "predict: the method's process sent something that is not its predictions")
             parts[name][0].append(arrays[0])
             found = parts[name][1]
-            parts[name] = (parts[name][0], None if found is None or len(arrays) < 2 else found + [arrays[1]])
+            ok = len(arrays) == 2 and arrays[1].shape == (len(chunk),) and arrays[1].dtype == bool
+            parts[name] = (parts[name][0], found + [arrays[1]] if found is not None and ok else None)
     return parts

@@ -71,9 +71,28 @@ class EstimatorProcess:
 
     def reply(self, name: str, stage: str, limit: float | None, tick=None) -> tuple:
         """(header, arrays) of the child's next reply, about ``name``; Lost when it does not come:
-        the child exited, or took longer than ``limit`` seconds (it is killed). ``tick()`` is
-        called about once a second while waiting (the caller's chance to stop on Ctrl-C)."""
+        the child exited, sent something else, or took longer than ``limit`` seconds (it is then
+        killed). ``tick()`` is called about once a second while waiting (the caller's chance to
+        stop on Ctrl-C)."""
         start = time.monotonic()
+        try:
+            header = json.loads(self._next(name, stage, start, limit, tick))
+        except ValueError:
+            header = None
+        if not isinstance(header, dict) or header.get("name") != name or not isinstance(header.get("arrays"), int):
+            self.close()
+            raise Lost(name, f"{stage}the method's process sent something that is not its reply")
+        arrays = []
+        for _ in range(header["arrays"]):
+            try:
+                arrays.append(np.load(io.BytesIO(self._next(name, stage, start, limit, tick)), allow_pickle=False))
+            except ValueError:
+                self.close()
+                raise Lost(name, f"{stage}the method's process sent something that is not an array") from None
+        return header, arrays
+
+    def _next(self, name: str, stage: str, start: float, limit: float | None, tick) -> bytes:
+        """The child's next message (bytes), waited for as ``reply`` says."""
         while not self.up.poll(1.0):
             if tick is not None:
                 tick()
@@ -83,16 +102,10 @@ class EstimatorProcess:
                 self.close()
                 raise Lost(name, f"{stage}took longer than the time limit (--timeout {limit:g} s)")
         try:
-            header = json.loads(self.up.recv_bytes())
-            arrays = [np.load(io.BytesIO(self.up.recv_bytes()), allow_pickle=False)
-                      for _ in range(int(header["arrays"]))]
-        except (EOFError, OSError, ValueError, KeyError, TypeError):
-            self.proc.wait()
-            raise Lost(name, f"{stage}the method's process ended ({self._exit_text()}) without a result") from None
-        if not isinstance(header, dict) or header.get("name") != name:
+            return self.up.recv_bytes()
+        except (EOFError, OSError):
             self.close()
-            raise Lost(name, f"{stage}the method's process sent something that is not its reply")
-        return header, arrays
+            raise Lost(name, f"{stage}the method's process ended ({self._exit_text()}) without a result") from None
 
     def _exit_text(self) -> str:
         code = self.proc.wait()
