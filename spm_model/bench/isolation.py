@@ -15,6 +15,7 @@ killed), is *declined* with that reason; the caller starts another child for the
 
 from __future__ import annotations
 
+import functools
 import io
 import json
 import os
@@ -26,6 +27,39 @@ from multiprocessing.connection import Connection
 import numpy as np
 
 DEFAULT_TIMEOUT = 3600.0   # seconds a plug-in's call (construct + fit, or one predict) may take
+
+
+# OpenCV's AVX-512 code families: {name in OPENCV_CPU_DISABLE: its cv::CpuFeatures id}.
+OPENCV_AVX512 = {"AVX512F": 13, "AVX512-SKX": 256, "AVX512-COMMON": 257, "AVX512-KNL": 258, "AVX512-KNM": 259,
+                 "AVX512-CNL": 260, "AVX512-CLX": 261, "AVX512-ICL": 262}
+
+
+@functools.lru_cache(maxsize=1)
+def method_environment() -> dict:
+    """The environment a method's process runs in, so that its results are the same on every x86-64
+    machine with AVX2, whatever else the CPU has: OpenBLAS's Haswell kernels (it picks its kernels
+    by CPU: SMM's estimate of one frame in 48 and SIFT + PnP's in the 9th decimal changed between
+    its Haswell and SkylakeX kernels), and numpy's and OpenCV's AVX2 code where the CPU has AVX-512
+    (numpy's AVX-512 loops changed the template matcher's estimates of 7 frames in 48 by 1e-16).
+    Elsewhere (no AVX2, another architecture), nothing is pinned."""
+    try:
+        with open("/proc/cpuinfo") as fh:
+            flags = next((line.split(":", 1)[1].split() for line in fh if line.startswith("flags")), [])
+    except OSError:
+        flags = []
+    if "avx2" not in flags:
+        return {}
+    try:
+        from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
+    except ImportError:   # numpy < 2
+        from numpy.core._multiarray_umath import __cpu_dispatch__, __cpu_features__
+    import cv2
+
+    numpy_avx512 = [f for f in __cpu_dispatch__ if f.startswith("AVX512") and __cpu_features__.get(f)]
+    opencv_avx512 = [name for name, i in OPENCV_AVX512.items() if cv2.checkHardwareSupport(i)]  # others warn
+    return {"OPENBLAS_CORETYPE": "Haswell", **({"NPY_DISABLE_CPU_FEATURES": " ".join(numpy_avx512)} if numpy_avx512
+                                               else {}),
+            **({"OPENCV_CPU_DISABLE": ",".join(opencv_avx512)} if opencv_avx512 else {})}
 
 
 class Lost(Exception):
@@ -56,8 +90,8 @@ class EstimatorProcess:
         up_r, up_w = os.pipe()       # child -> parent
         code = (f"import sys; sys.path[:] = {sys.path!r}; from spm_model.bench.isolated_child import child_main; "
                 f"child_main({down_r}, {up_w}, {os.getpid()}, {work!r})")   # our sys.path before any import
-        self.proc = subprocess.Popen([sys.executable, "-c", code], pass_fds=(down_r, up_w),
-                                     start_new_session=True, stdin=subprocess.DEVNULL)
+        self.proc = subprocess.Popen([sys.executable, "-c", code], pass_fds=(down_r, up_w), start_new_session=True,
+                                     stdin=subprocess.DEVNULL, env={**os.environ, **method_environment()})
         os.close(down_r)
         os.close(up_w)
         self.down = Connection(down_w, readable=False)
