@@ -9,7 +9,7 @@
 - ``instances``: category-level pose; fold f tests the f-th instance of every
   class (in a seeded order per run) and trains on the others, so every frame
   is tested once per run and no instance is on both sides of a split.
-- ``offgrid`` (the paper's Fig. 5 as it ran it): train on every frame of one
+- ``offgrid`` (our reading of the paper's Fig. 5): train on every frame of one
   folder (a camera grid), test on every frame of another (views at random
   poses, occluded by rectangles or 3-D distractors); test frames whose
   instance is in the training folder are "seen", the others "unseen".
