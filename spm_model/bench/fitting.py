@@ -20,7 +20,7 @@ from spm_model.methods.registry import builtin_methods
 def unmet_needs(method, table: FeatureTable, train: np.ndarray) -> str | None:
     """Why ``method`` (an instance or class) cannot fit on the rows ``train`` of ``table``, by
     what it declares it needs (``NEEDS``, spm_model/base/estimator.py); None when it can."""
-    needs = needs_of(method if isinstance(method, type) else type(method))
+    needs = needs_of(method)   # a class, an instance or a PluginRef (plugin_refs.py)
     if len(train) < needs.frames:
         return f"needs {needs.frames} training frames or more, got {len(train)}"
     if needs.depth and "has_depth" in table.arrays and not table.has_depth[train].any():
@@ -105,7 +105,7 @@ def builtin_classes(model_params, builtins=None) -> dict:
 def fit_predict(recipe: tuple, table: FeatureTable, train: np.ndarray, test: np.ndarray, seed: int = 0, *,
                 timeout: float | None = DEFAULT_TIMEOUT, tick=None, memo=None):
     """The methods of ``recipe`` = (seed, model_params, built-in names or None for all, {plug-in name:
-    class}) fitted on ``train`` and asked for ``test``, in a fresh process of their own
+    class or plugin_refs.PluginRef}) fitted on ``train`` and asked for ``test``, in a fresh process of their own
     (spm_model/bench/isolation.py): ({name: (len(test), 6) predictions, in ``test``'s order}, {name:
     why it declined}, {name: (len(test),) bool, the test frames it found features on, or None}). A
     method declined (unmet needs; fit or predict raising, exiting, or a plug-in's call past

@@ -7,13 +7,17 @@ from __future__ import annotations
 
 import importlib
 import os
+import pickle
 import signal
 import threading
 import time
+from dataclasses import asdict
 from multiprocessing.connection import Connection
 
+from spm_data.errors import ModelError
 from spm_model.bench.fitting import call_failure, construct, found_flags, make_methods
 from spm_model.bench.isolation import encode
+from spm_model.bench.plugin_refs import resolve
 
 WATCH_EVERY = 0.5   # seconds between the child's looks at whether its parent is alive
 
@@ -49,7 +53,8 @@ def send(up, header: dict, arrays=()) -> None:
 
 def serve(down, up) -> None:
     """("start", (seed, model params, {plug-in name: class}), names, frames, poses, memo folder), then
-    test chunks until None: construct and fit each method of ``names``, then predict every chunk with each fitted one."""
+    test chunks until None: construct and fit each method of ``names``, then predict every chunk with
+    each fitted one."""
     from spm_model.base.feature_memo import use_folder
     from spm_model.methods.registry import check_predictions
 
@@ -59,7 +64,7 @@ def serve(down, up) -> None:
     fitted = {}
     for name in names:
         try:
-            method = built[name] if name in built else construct(plugins[name])
+            method = built[name] if name in built else construct(resolve(plugins[name]))
             model = method.fit(frames, poses.copy())
             why = None if model is not None else "fit(frames, poses) returned None; it must return self"
         except BaseException as exc:  # noqa: BLE001 - SystemExit and KeyboardInterrupt too: declined
@@ -80,3 +85,34 @@ def serve(down, up) -> None:
                 continue
             flags = found_flags(model, chunk)
             send(up, {"name": name, "why": None}, [pred] + ([] if flags is None else [flags]))
+
+
+def describe_one(spec: str) -> dict:
+    """What plugin_refs.describe reads of one class, as the child sends it (needs, or why NEEDS is
+    wrong; whether it is deterministic; why pickle refuses it, if it does)."""
+    from spm_model.base.estimator import needs_of
+    from spm_model.methods.registry import load_estimator_class
+
+    cls = load_estimator_class(spec)
+    try:
+        needs, needs_error = asdict(needs_of(cls)), None
+    except ModelError as exc:
+        needs, needs_error = None, f"--estimator {spec}: {exc}"
+    try:
+        pickle.dumps(cls)
+        unpicklable = None
+    except Exception as exc:  # noqa: BLE001 - reported as a failed check by check-estimator
+        unpicklable = f"{type(exc).__name__}: {exc}"
+    return {"needs": needs, "needs_error": needs_error, "unpicklable": unpicklable,
+            "deterministic": getattr(cls, "DETERMINISTIC", False) is True}
+
+
+def serve_describe(down, up) -> None:
+    """The child's work: a list of specs; for each, its description or the error (one line)."""
+    for spec in down.recv():
+        try:
+            send(up, {"name": spec, **describe_one(spec)})
+        except ModelError as exc:
+            send(up, {"name": spec, "error": str(exc)})
+        except BaseException as exc:  # noqa: BLE001 - its module's code: one line, whatever it raised
+            send(up, {"name": spec, "error": f"--estimator {spec}: {call_failure(exc)}"})

@@ -12,6 +12,7 @@ import numpy as np
 
 from spm_model.bench.fitting import call_failure
 from spm_model.bench.isolated_child import send
+from spm_model.bench.plugin_refs import resolve
 from spm_model.methods.registry import check_predictions
 
 
@@ -133,8 +134,16 @@ class ContractChecks:
 
 def serve_checks(down, up) -> None:
     """The child's work: ("checks", cls, frames, poses, camera frames, permuted poses)."""
-    _, cls, frames, poses, camera, permuted = down.recv()
+    _, plugin, frames, poses, camera, permuted = down.recv()
+    try:
+        cls = resolve(plugin)
+    except BaseException as exc:  # noqa: BLE001 - its module's code, whatever it raised: one failed check
+        send(up, {"name": plugin.__name__, "kind": "check", "status": "FAIL",
+                  "text": f"imports: {call_failure(exc)}"})
+        send(up, {"name": plugin.__name__, "kind": "end"})
+        return
     checks = ContractChecks(up, cls, frames, poses, camera)
+    checks.name = plugin.__name__   # what the parent expects each message to be about
     model = checks.construct()
     if model is not None:
         checks.params(model)

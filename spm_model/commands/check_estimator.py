@@ -16,7 +16,6 @@ a plug-in that still scores above chance finds labels some other way: FAIL.
 
 from __future__ import annotations
 
-import pickle
 import shutil
 import tempfile
 from dataclasses import dataclass
@@ -73,33 +72,13 @@ def built_in_set(folder: Path, progress=None):
     return load_features(folder, FeatureConfig(), progress=progress)
 
 
-def _call(fn, *args):
-    """(value, None) or (None, why): our errors' message, anything else's type and message."""
-    from spm_model.bench.fitting import failure
-
-    try:
-        return fn(*args), None
-    except Exception as exc:  # noqa: BLE001 - each check reports it
-        return None, failure(exc)[:300]
-
-
-def _static_checks(cls) -> list[Check]:
-    """What is checked without calling the plug-in: importable and picklable by its module path (its
-    process imports it), and a valid NEEDS."""
-    import importlib
-
-    from spm_model.base.estimator import needs_of
-
-    module, error = _call(importlib.import_module, cls.__module__)
-    same = error is None and getattr(module, cls.__qualname__, None) is cls
-    _, pickled = _call(pickle.dumps, cls)
-    out = [Check("ok" if same and pickled is None else "FAIL",
-                 "importable by its module path, for its own process" if same and pickled is None else
-                 f"importable by its module path, for its own process: {error or pickled or ''}"
-                 f"{'' if error or pickled else f'{cls.__module__}.{cls.__qualname__} is not that class'}")]
-    needs, error = _call(needs_of, cls)
-    out.append(Check("ok" if error is None else "FAIL", f"declares what it needs ({needs})" if error is None else
-                     f"declares what it needs: {error}"))
+def _static_checks(ref) -> list[Check]:
+    """What its description says (read in a process of its own, plugin_refs.describe): importable by
+    its module path and picklable (its process imports it by that path), and a valid NEEDS."""
+    out = [Check("ok" if ref.unpicklable is None else "FAIL", "importable by its module path, for its own process"
+                 + ("" if ref.unpicklable is None else f": {ref.unpicklable}"))]
+    out.append(Check("ok", f"declares what it needs ({ref.NEEDS})") if ref.needs_error is None else
+               Check("FAIL", f"declares what it needs: {ref.needs_error.split(': ', 1)[1]}"))
     return out
 
 
@@ -118,22 +97,27 @@ def _rate(score) -> str:
     return f"{rate:.1f}% [{ci[0]:.1f}–{ci[1]:.1f}]" if ci else f"{rate:.1f}%"
 
 
-def run_checks(cls, table, log=lambda line: None, timeout: float | None = None) -> list[Check]:
-    """Every check of ``cls`` on the check set ``table``, each passed to ``log`` as it is made.
+def run_checks(plugin, table, log=lambda line: None, timeout: float | None = None) -> list[Check]:
+    """Every check of ``plugin`` (a PluginRef, or a class: then described by its module path, in a
+    process of its own) on the check set ``table``, each passed to ``log`` as it is made.
     The plug-in runs in a process of its own (check_contract.py), as ``spm train`` runs it: training
     frames (even views) and poses, test frames (odd views) as a camera gives them in the order
     ``spm train``'s first run serves them; each call of it bounded by ``timeout`` seconds."""
     from spm_model.base.frames import Frames, read_camera_frames
     from spm_model.bench.isolation import EstimatorProcess, Lost
+    from spm_model.bench.plugin_refs import PluginRef, describe
     from spm_model.methods.baselines import ChancePose
 
+    if not isinstance(plugin, PluginRef):
+        spec = f"{plugin.__module__}:{plugin.__qualname__}"
+        plugin = describe([spec], timeout, strict=False)[spec]
     done: list[Check] = []
 
     def add(check: Check) -> None:
         done.append(check)
         log(check.line())
 
-    for check in _static_checks(cls):
+    for check in _static_checks(plugin):
         add(check)
     even = np.asarray(table.path_index) % 2 == 0
     train, test = np.flatnonzero(even), np.flatnonzero(~even)
@@ -144,9 +128,9 @@ def run_checks(cls, table, log=lambda line: None, timeout: float | None = None) 
     predictions, call = {}, "construct"
     child = EstimatorProcess("spm_model.commands.check_contract:serve_checks")
     try:
-        child.send(("checks", cls, frames, poses, camera, permuted))
+        child.send(("checks", plugin, frames, poses, camera, permuted))
         while True:
-            header, arrays = child.reply(cls.__name__, "", timeout)
+            header, arrays = child.reply(plugin.__name__, "", timeout)
             if header.get("kind") == "call":
                 call = str(header.get("what"))
             elif header.get("kind") == "check":
@@ -181,14 +165,15 @@ def check_estimator(spec: str, *, progress=None, log=lambda line: None, timeout:
     timeout: seconds each call of the plug-in may take (None: the benchmark's default)."""
     from spm_model.bench.feature_cache import progress_phase
     from spm_model.bench.isolation import DEFAULT_TIMEOUT
-    from spm_model.methods.registry import load_estimator_class
+    from spm_model.bench.plugin_refs import describe
 
-    cls = load_estimator_class(spec)
+    timeout = DEFAULT_TIMEOUT if timeout is None else timeout
+    ref = describe([spec], timeout, strict=False)[spec]   # imported in a process of its own, not here
     folder = Path(tempfile.mkdtemp(prefix="spm-check-estimator-"))
     try:
         table = built_in_set(folder / "set", progress)
         progress_phase(progress, "checks", None, None)
-        return run_checks(cls, table, log, DEFAULT_TIMEOUT if timeout is None else timeout)
+        return run_checks(ref, table, log, timeout)
     finally:
         shutil.rmtree(folder, ignore_errors=True)
 

@@ -12,13 +12,12 @@ from spm_data.io.folders import find_folders
 from spm_data.io.locking import OutputLock
 from spm_data.io.outputs import removing_created
 from spm_data.io.shards import MANIFEST, read_manifest
-from spm_model.base.estimator import needs_of
 from spm_model.bench.feature_cache import FeatureTable, load_features, offgrid_table, progress_phase
 from spm_model.bench.isolation import DEFAULT_TIMEOUT
+from spm_model.bench.plugin_refs import describe
 from spm_model.bench.protocols import FINAL_MODELS, evaluate
 from spm_model.bench.report import (check_report_folder, declined_everywhere, summary_text, write_error,
                                     write_report)
-from spm_model.methods.registry import load_estimator_class
 from spm_model.spm.features import FeatureConfig
 
 
@@ -62,18 +61,14 @@ def choose_protocol(protocol: str | None, test, shards, log) -> str:
     return protocol or "loco"
 
 
-def load_estimators(specs) -> dict:
-    """{name: class} of ``--estimator MODULE:CLASS`` values (name: CLASS, or MODULE:CLASS if two share it);
-    a class whose NEEDS is not a Needs is refused here, before any work."""
-    classes = {spec: load_estimator_class(spec) for spec in dict.fromkeys(specs or ())}
-    for spec, cls in classes.items():
-        try:
-            needs_of(cls)
-        except ModelError as exc:
-            raise ModelError(f"--estimator {spec}: {exc}") from None
-    short = [spec.split(":")[1] for spec in classes]
-    return {(spec.split(":")[1] if short.count(spec.split(":")[1]) == 1 else spec): cls
-            for spec, cls in classes.items()}
+def load_estimators(specs, timeout: float | None = DEFAULT_TIMEOUT) -> dict:
+    """{name: PluginRef} of ``--estimator MODULE:CLASS`` values (name: CLASS, or MODULE:CLASS if two
+    share it), each imported in a process of its own, never this one (spm_model/bench/plugin_refs.py);
+    one that cannot be imported, or whose NEEDS is not a Needs, is refused here, before any work."""
+    refs = describe(specs, timeout)
+    short = [spec.split(":")[1] for spec in refs]
+    return {(spec.split(":")[1] if short.count(spec.split(":")[1]) == 1 else spec): ref
+            for spec, ref in refs.items()}
 
 
 def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3,
@@ -101,7 +96,7 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
         if folder is not None and not Path(folder).exists():   # before a report folder is made inside it
             raise ShardError(f"no such folder: {folder}")
     out = check_report_folder(report_dir if report_dir else Path(shards) / "report")  # before any work
-    plugins = load_estimators(estimators)
+    plugins = load_estimators(estimators, timeout)
     if bop is not None:
         bop.check(shards, test, allow_partial=allow_partial)
     # The report folder is locked for the whole run as a shard folder is: a second train (or
@@ -153,7 +148,8 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
                "without_path_neighbour": int((table.train_neighbours == 0).sum()),
                "frames_per_class": {c: int((table.class_name == c).sum()) for c in counts},
                "model_params": {k: v for k, v in model_params.items() if k != "features"},
-               "features": asdict(features), "estimators": {name: f"{cls.__module__}:{cls.__qualname__}"
+               "features": asdict(features), "estimators": {name: getattr(cls, "spec", None) or
+                                                            f"{cls.__module__}:{cls.__qualname__}"
                                                             for name, cls in plugins.items()},
                "models": models}
     progress_phase(progress, "report", None, None)

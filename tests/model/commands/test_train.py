@@ -3,6 +3,7 @@ evaluate shards; every method gets its row on any data (a class with few frames,
 turntable images, a transforms.json capture): figures, or declined with its reason."""
 
 import json
+import os
 import shutil
 
 import numpy as np
@@ -331,3 +332,19 @@ def test_a_plug_in_module_that_exits_as_it_is_imported_is_refused_in_one_line(tm
     r = CliRunner().invoke(model_cli, ["train", str(tmp_path), "--estimator", "quits_pose:Any"])
     assert (r.exit_code, r.output) == (1, "error: --estimator quits_pose:Any: cannot import quits_pose (SystemExit: "
                                           "0); is its folder on PYTHONPATH?\n")
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_a_plug_in_module_is_imported_only_in_its_own_processes(model_shards, tmp_path, monkeypatch, notes, workers):
+    """Its module-level code (an import-time hook) never runs where labels are: not in the command's
+    process, nor in a worker; only in a process of its own (started as `python -c`)."""
+    (tmp_path / "where_pose.py").write_text("import os, sys\nfrom tests.helpers import note\n"
+                                            "note([os.getpid(), sys.argv[0]])\n" + BAD_PLUGINS)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    r = CliRunner().invoke(model_cli, ["train", str(model_shards), "--out", str(tmp_path / "r"), "--runs", "1",
+                                       "--protocol", "views", "--methods", "chance", "--workers", workers,
+                                       "--estimator", "where_pose:Fine"])
+    assert r.exit_code == 0, r.output
+    imports = notes()
+    assert len(imports) >= 2 and all(argv == "-c" for _, argv in imports), imports   # described, then a split
+    assert os.getpid() not in {pid for pid, _ in imports}
