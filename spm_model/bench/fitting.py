@@ -13,7 +13,7 @@ from spm_data.errors import ModelError, SpmError, one_line
 from spm_model.base.estimator import needs_of
 from spm_model.base.frames import Frames, camera_chunks, camera_paths, read_camera_frames
 from spm_model.bench.feature_cache import FeatureTable
-from spm_model.bench.isolation import DEFAULT_TIMEOUT, EstimatorProcess, Lost
+from spm_model.bench.isolation import DEFAULT_TIMEOUT, Lost, fresh_process
 from spm_model.methods.registry import builtin_methods
 
 
@@ -123,7 +123,7 @@ def fit_predict(recipe: tuple, table: FeatureTable, train: np.ndarray, test: np.
     held = [read_camera_frames(table, chunks[0])] if len(chunks) == 1 else None   # read once, sent per child
     parts: dict = {}
     while names:
-        child = EstimatorProcess()
+        child = fresh_process()
         try:
             parts = _ask(child, (run, params, plugins), names, Frames(table, train), table.pose[train].copy(),
                          held or (read_camera_frames(table, c) for c in chunks), timeout, tick, memo, declined)

@@ -40,9 +40,12 @@ def child_main(read_fd: int, write_fd: int, parent: int, work: str = "spm_model.
 
     module, function = work.split(":")
     serve_work = getattr(importlib.import_module(module), function)
-    with threadpool_limits(limits=1, user_api="blas"):   # as bench_job: results independent of the cores
-        serve_work(down, up)
-    up.close()
+    try:
+        with threadpool_limits(limits=1, user_api="blas"):   # as bench_job: results independent of the cores
+            serve_work(down, up)
+        up.close()
+    except (EOFError, OSError):
+        pass   # the parent closed the pipe or is gone (a spare never used, an interrupted run): nothing to say
     os._exit(0)   # a plug-in's threads or atexit handlers never keep it alive
 
 

@@ -90,6 +90,7 @@ class EstimatorProcess:
         up_r, up_w = os.pipe()       # child -> parent
         code = (f"import sys; sys.path[:] = {sys.path!r}; from spm_model.bench.isolated_child import child_main; "
                 f"child_main({down_r}, {up_w}, {os.getpid()}, {work!r})")   # our sys.path before any import
+        self.started_as = (work, list(sys.path), dict(os.environ))   # what fresh() compares
         self.proc = subprocess.Popen([sys.executable, "-c", code], pass_fds=(down_r, up_w), start_new_session=True,
                                      stdin=subprocess.DEVNULL, env={**os.environ, **method_environment()})
         os.close(down_r)
@@ -155,3 +156,21 @@ class EstimatorProcess:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait()
+
+
+_SPARE: list = [None]   # a child started for the next split: it has imported the methods and holds nothing
+
+
+def fresh_process() -> EstimatorProcess:
+    """A fresh child for a split's methods: the spare one started when the last split began (its
+    start-up, Python and the methods' imports, overlapped that split's work), when it was started as
+    this one would be (same sys.path and environment) and is alive; else a new one. Each call starts
+    the spare for the next. A spare has received nothing: it is as fresh as a new process."""
+    spare, _SPARE[0] = _SPARE[0], None
+    wanted = ("spm_model.bench.isolated_child:serve", list(sys.path), dict(os.environ))
+    if spare is not None and (spare.started_as != wanted or spare.proc.poll() is not None):
+        spare.close()
+        spare = None
+    child = spare or EstimatorProcess()
+    _SPARE[0] = EstimatorProcess()
+    return child
