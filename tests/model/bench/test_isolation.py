@@ -125,6 +125,18 @@ def test_the_cheats_score_at_chance_across_instances(instance_shards):
     _at_chance(run["overall"], run["declined"])
 
 
+def test_the_cheats_score_at_chance_off_the_grid(model_shards, tmp_path):
+    """offgrid: trained on a folder, tested on occluded copies of its views (the same poses)."""
+    from spm_data.commands.occlude_jobs import occlude_dataset
+    from spm_model.bench.feature_cache import offgrid_table
+
+    shutil.copytree(model_shards, tmp_path / "clean")
+    occlude_dataset(tmp_path / "clean", tmp_path / "occluded", low=0.1, high=0.3, copies=1, seed=5)
+    table = offgrid_table(load_features(tmp_path / "clean", FAST), load_features(tmp_path / "occluded", FAST))
+    run = evaluate(table, "offgrid", runs=1, model_params=PARAMS, builtins=["chance"], estimators=CHEATS)["runs"][0]
+    _at_chance(run["overall"], run["declined"])
+
+
 def test_the_cheats_score_at_chance_on_two_workers(model_shards, tmp_path):
     """Two workers, each running several splits: a later split's process never saw an earlier one."""
     from spm_data.jobs import make_executor
