@@ -21,12 +21,14 @@ import json
 import os
 import subprocess
 import sys
+import threading
 import time
 from multiprocessing.connection import Connection
 
 import numpy as np
 
 DEFAULT_TIMEOUT = 3600.0   # seconds a plug-in's call (construct + fit, or one predict) may take
+MAX_MESSAGE = 1 << 30      # bytes of one message from the child, at most (predictions are far smaller)
 
 
 # OpenCV's AVX-512 code families: {name in OPENCV_CPU_DISABLE: its cv::CpuFeatures id}.
@@ -136,11 +138,19 @@ class EstimatorProcess:
             if limit is not None and time.monotonic() - start > limit:
                 self.close()
                 raise Lost(name, f"{stage}took longer than the time limit (--timeout {limit:g} s)")
+        # A message begun but not finished would block the read: the time limit kills the child then.
+        timer = None if limit is None else threading.Timer(max(0.0, start + limit - time.monotonic()) + 1.0,
+                                                           self.proc.kill)
         try:
-            return self.up.recv_bytes()
+            if timer is not None:
+                timer.start()
+            return self.up.recv_bytes(MAX_MESSAGE)
         except (EOFError, OSError):
             self.close()
             raise Lost(name, f"{stage}the method's process ended ({self._exit_text()}) without a result") from None
+        finally:
+            if timer is not None:
+                timer.cancel()
 
     def _exit_text(self) -> str:
         code = self.proc.wait()

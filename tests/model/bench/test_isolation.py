@@ -273,3 +273,38 @@ def test_methods_run_on_the_same_cpu_code_on_every_avx2_machine():
             assert "AVX512F" in env["NPY_DISABLE_CPU_FEATURES"].split() and "AVX512F" in env["OPENCV_CPU_DISABLE"]
     else:
         assert env == {}
+
+
+class ForgesItsReply:
+    """Writes to the worker's end of its pipe itself: a message that claims more bytes than it sends."""
+
+    def fit(self, frames, poses):
+        return self
+
+    def predict(self, frames):
+        import re
+
+        command = open("/proc/self/cmdline", "rb").read().decode()
+        up = int(re.search(r"child_main\((\d+), (\d+)", command).group(2))
+        os.write(up, (1000).to_bytes(4, "big") + b"{}")
+        time.sleep(600)
+
+
+class ClaimsAGigabyte(ForgesItsReply):
+    def predict(self, frames):
+        import re
+
+        command = open("/proc/self/cmdline", "rb").read().decode()
+        up = int(re.search(r"child_main\((\d+), (\d+)", command).group(2))
+        os.write(up, (2 ** 31 - 1).to_bytes(4, "big"))
+        time.sleep(600)
+
+
+def test_a_plug_in_writing_to_the_workers_pipe_cannot_hang_it(model_shards):
+    table = load_features(model_shards, FAST)
+    run = evaluate(table, "views", runs=1, model_params=PARAMS, builtins=["chance"], timeout=3.0,
+                   estimators={"forges": ForgesItsReply, "gigabyte": ClaimsAGigabyte})["runs"][0]
+    why = {name: split["all"] for name, split in run["declined"].items()}
+    assert why == {"forges": "predict: the method's process ended (killed by signal 9) without a result",
+                   "gigabyte": "predict: the method's process ended (killed by signal 9) without a result"}
+    assert run["overall"]["chance"]["estimated"] > 0
