@@ -29,6 +29,7 @@ import numpy as np
 
 DEFAULT_TIMEOUT = 3600.0   # seconds a plug-in's call (construct + fit, or one predict) may take
 MAX_MESSAGE = 1 << 30      # bytes of one message from the child, at most (predictions are far smaller)
+MESSAGE_SECONDS = 600.0    # seconds a message begun may take to arrive whole, where no time limit is set
 
 
 # OpenCV's AVX-512 code families: {name in OPENCV_CPU_DISABLE: its cv::CpuFeatures id}.
@@ -138,19 +139,18 @@ class EstimatorProcess:
             if limit is not None and time.monotonic() - start > limit:
                 self.close()
                 raise Lost(name, f"{stage}took longer than the time limit (--timeout {limit:g} s)")
-        # A message begun but not finished would block the read: the time limit kills the child then.
-        timer = None if limit is None else threading.Timer(max(0.0, start + limit - time.monotonic()) + 1.0,
-                                                           self.proc.kill)
+        # A message begun but not finished would block the read: the time limit (or, without one,
+        # MESSAGE_SECONDS: the child writes each message whole) kills the child then.
+        left = MESSAGE_SECONDS if limit is None else max(0.0, start + limit - time.monotonic()) + 1.0
+        timer = threading.Timer(left, self.proc.kill)
         try:
-            if timer is not None:
-                timer.start()
+            timer.start()
             return self.up.recv_bytes(MAX_MESSAGE)
         except (EOFError, OSError):
             self.close()
             raise Lost(name, f"{stage}the method's process ended ({self._exit_text()}) without a result") from None
         finally:
-            if timer is not None:
-                timer.cancel()
+            timer.cancel()
 
     def _exit_text(self) -> str:
         code = self.proc.wait()
