@@ -1,4 +1,4 @@
-"""The paper's Fig. 5 as it ran it: every method trained on a camera grid, tested on views
+"""Our reading of the paper's Fig. 5 (it does not describe its test views): every method trained on a camera grid, tested on views
 at random poses within the grid's range (off the grid), occluded 5-95% by rectangles
 (spm-data occlude) and by 3-D distractors ([distractors]); seen instances and, as a second
 table, unseen instances of the same classes. Runs every method 3 times (--runs) and prints

@@ -119,9 +119,25 @@ def loco_report(model_shards, plugin_module, tmp_path_factory):
     from spm_model.spm.features import FeatureConfig
 
     report = tmp_path_factory.mktemp("loco") / "report"
-    result = train(model_shards, report, protocol="loco", runs=2, features=FeatureConfig(ellipse="direct"),
-                   estimators=["my_pose:MeanPose"])
+    before = os.environ.get("SPM_TEST_NOTES")
+    os.environ["SPM_TEST_NOTES"] = str(report.parent / "notes.jsonl")   # what MeanPose saw
+    try:
+        result = train(model_shards, report, protocol="loco", runs=2, features=FeatureConfig(ellipse="direct"),
+                       estimators=["my_pose:MeanPose"])
+    finally:
+        os.environ.pop("SPM_TEST_NOTES") if before is None else os.environ.update(SPM_TEST_NOTES=before)
     return result, report
+
+
+@pytest.fixture
+def notes(tmp_path, monkeypatch):
+    """What a test's plug-ins note (tests/helpers.py ``note``; they run in processes of their own):
+    a callable returning the JSON values noted so far, in order."""
+    import json
+
+    path = tmp_path / "notes.jsonl"
+    monkeypatch.setenv("SPM_TEST_NOTES", str(path))
+    return lambda: [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
 
 
 @pytest.fixture(scope="module")

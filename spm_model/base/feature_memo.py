@@ -72,10 +72,16 @@ def use_folder(folder) -> None:
             path.unlink(missing_ok=True)
 
 
+# What picks the CPU code of the libraries features are computed with (spm_model/bench/isolation.py).
+CODE_PATH_VARIABLES = ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "OPENCV_CPU_DISABLE")
+
+
 def content_key(kind: tuple, *arrays) -> bytes:
-    """A 20-byte key of ``kind`` (the feature's name and parameters, reprs compared) and
-    the arrays' dtypes, shapes and bytes."""
-    h = hashlib.blake2b(repr(kind).encode(), digest_size=20)
+    """A 20-byte key of ``kind`` (the feature's name and parameters, reprs compared), the CPU code
+    the process was pinned to (CODE_PATH_VARIABLES: features computed by other code paths differ
+    in their last bits, so they are never served for these) and the arrays' dtypes, shapes and bytes."""
+    pinned = tuple(os.environ.get(name, "") for name in CODE_PATH_VARIABLES)
+    h = hashlib.blake2b(repr((kind, pinned) if any(pinned) else kind).encode(), digest_size=20)
     for a in arrays:
         a = np.ascontiguousarray(a)
         h.update(f"{a.dtype.str}{a.shape}".encode())

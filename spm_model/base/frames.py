@@ -138,8 +138,13 @@ class Frames(Sequence):
         values = self._features.get(name) if name in FEATURE_COLUMNS else None
         return None if values is None else values[self._rows]
 
-    def __getstate__(self):  # picklable for process pools: without the image cache
-        return {k: v for k, v in self.__dict__.items() if k != "_blocks"}
+    def __getstate__(self):
+        """Picklable for the methods' processes: these frames' rows of the feature columns only
+        (nothing of the table's other frames), without the image cache."""
+        state = {k: v for k, v in self.__dict__.items() if k not in ("_blocks", "_features", "_rows")}
+        state["_features"] = {k: v[self._rows] for k, v in self._features.items()}
+        state["_rows"] = np.arange(len(self._rows))
+        return state
 
     def __setstate__(self, state):
         self.__dict__.update(state)

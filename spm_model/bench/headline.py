@@ -106,8 +106,8 @@ def _dof_lines(summary: dict, best: str) -> list[str]:
 def declined_lines(summary: dict) -> list[str]:
     """One line per method that declined (in every split: no figures; in some: its coverage says
     how many frames that cost), with its reason; one per method that ran but estimated nothing."""
-    lines = [f"- {name(m)} ran but gave no estimate for any of the {s['frames']} test frames (coverage 0%: none "
-             "passed its own checks, e.g. N3M's marker and pose validation on objects it never saw)"
+    lines = [f"- {name(m)} ran but gave no estimate for any of the {s['frames']} test frames (coverage 0%"
+             + (": none passed N3M's marker and pose validation)" if m == "n3m" else ")")
              for m, s in summary["methods"].items() if s.get("frames") and s.get("estimated") == 0]
     for m, d in (summary.get("declined") or {}).items():
         where = "declined" if d["splits"] == d["of"] else f"declined in {d['splits']} of {d['of']} splits"

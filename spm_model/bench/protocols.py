@@ -9,7 +9,7 @@
 - ``instances``: category-level pose; fold f tests the f-th instance of every
   class (in a seeded order per run) and trains on the others, so every frame
   is tested once per run and no instance is on both sides of a split.
-- ``offgrid`` (the paper's Fig. 5 as it ran it): train on every frame of one
+- ``offgrid`` (our reading of the paper's Fig. 5): train on every frame of one
   folder (a camera grid), test on every frame of another (views at random
   poses, occluded by rectangles or 3-D distractors); test frames whose
   instance is in the training folder are "seen", the others "unseen".
@@ -43,7 +43,8 @@ import numpy as np
 from spm_data.errors import ModelError
 from spm_model.base.feature_memo import use_folder
 from spm_model.base.frames import Frames
-from spm_model.bench.fitting import construct, failure, fit_predict, unmet_needs
+from spm_model.bench.fitting import builtin_classes, failure, fit_predict, unmet_needs
+from spm_model.bench.isolation import DEFAULT_TIMEOUT
 from spm_model.bench.feature_cache import FeatureTable, load_features, memo_folder, offgrid_table, progress_phase
 from spm_model.bench.scoring import eccentricity, frame_errors, run_summary
 from spm_model.bench.surface_metrics import mesh_keys
@@ -121,6 +122,7 @@ def training_rows(table: FeatureTable, train: np.ndarray, train_occluded: bool) 
 
 
 _TABLES: dict = {}  # per process: the feature tables split jobs read, by source
+_MEMO: list = [None]  # per process: the feature memo folder of the table in _TABLES (for the methods' processes)
 _MESHES: dict = {}  # per process: (mesh keys, symmetries) of the table in _TABLES, by source
 
 
@@ -135,8 +137,9 @@ def _table(source) -> FeatureTable:
         _TABLES.clear()  # one table per process at a time
         _MESHES.clear()
         _TABLES[source] = table
+        _MEMO[0] = memo_folder(table.shard[0], config) if len(table) else None
         if len(table):  # N3M's and SMM's local features, shared by workers, runs and protocols
-            use_folder(memo_folder(table.shard[0], config))
+            use_folder(_MEMO[0])
     return _TABLES[source]
 
 
@@ -150,23 +153,16 @@ def _meshes(source) -> tuple:
     return _MESHES[source]
 
 
-def make_methods(seed: int, model_params: dict, builtins=None, estimators=None) -> dict:
-    """Fresh built-in methods (``builtins``: their names, default all) and plug-ins ({name: class})."""
-    params = dict(model_params)
-    features = params.pop("features")
-    methods = {k: v for k, v in builtin_methods(seed, features, params).items() if builtins is None or k in builtins}
-    methods.update({name: construct(cls) for name, cls in (estimators or {}).items()})
-    return methods
-
-
 def split_job(job, report=lambda n: None):
-    """One (run, split) on any worker: fit every method, predict the test frames. job = (source,
-    protocol, run, split index, model_params, builtins, estimators, train_occluded). Returns (what
+    """One (run, split) on any worker: every method fitted and asked in a fresh process of its own
+    (fitting.fit_predict), which gets the training frames and poses and the test frames only; the
+    labels stay here. job = (source, protocol, run, split index, model_params, builtins, estimators,
+    train_occluded, timeout: seconds per plug-in call, or None). Returns (what
     was tested, training frames, test index, {method: per-frame errors}, notes): the errors
     (scoring.frame_errors) are scored here, so the splits' scoring runs on the workers too, and only
     the errors travel back; a declined method's errors are those of no estimate. notes =
     {"declined": {method: why}, "featured": {method: test frames with its features, or None}}."""
-    source, protocol, run, index, model_params, builtins, estimators, train_occluded = job
+    source, protocol, run, index, model_params, builtins, estimators, train_occluded, timeout = job
     table = _table(source)
     tested, train, test = splits(table, protocol, seed=run)[index]
     train = training_rows(table, train, train_occluded)
@@ -174,11 +170,12 @@ def split_job(job, report=lambda n: None):
         raise ModelError(f"{protocol} protocol, run {run + 1}: nothing left to train on when testing {tested}")
     if len(test) == 0:
         return tested, 0, test, {}, {"declined": {}, "featured": {}}
-    methods = make_methods(run, model_params, builtins, estimators)
+    methods = list(builtin_classes(model_params, builtins)) + list(estimators or {})
     if not methods:   # a later run whose methods are all reused from the first (evaluate)
         report(len(test))
         return tested, len(train), test, {}, {"declined": {}, "featured": {}}
-    predictions, declined, featured = fit_predict(methods, table, train, test, seed=run)
+    predictions, declined, featured = fit_predict((run, model_params, builtins, estimators), table, train, test,
+                                                  seed=run, timeout=timeout, tick=lambda: report(0), memo=_MEMO[0])
     keys, symmetries = _meshes(source)
     none = np.full((len(test), 6), np.nan)
     errors = {name: frame_errors(table, test, predictions.get(name, none), keys, symmetries) for name in methods}
@@ -192,7 +189,7 @@ def split_job(job, report=lambda n: None):
 def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_params: dict | None = None,
              estimators: dict | None = None, report=lambda message: None, builtins=None,
              train_occluded: bool | None = None, executor=None, source=None, final: bool = False,
-             progress=None) -> dict:
+             progress=None, timeout: float | None = DEFAULT_TIMEOUT) -> dict:
     """Every run x split for the built-in methods (``builtins``: their names, default all) and
     ``estimators`` ({name: class}, instantiated fresh per split): per-class and overall summaries
     per method, the geodesic accuracy curve and the occlusion bins (offgrid: also per seen/unseen
@@ -201,7 +198,8 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
     reading the table from the feature cache of ``source`` = (shards, test folder or None,
     FeatureConfig, allow_partial); the results are those of one worker. Without them, in this process.
     final: also fit the final models (:func:`final_models`), as the first job, so they are fitted
-    while the splits run instead of after them. progress: a callable taking count deltas
+    while the splits run instead of after them. timeout: seconds a plug-in's call may take
+    before it is declined (None: no limit). progress: a callable taking count deltas
     (feature_cache.progress_phase): "fitting" counts the splits (the final models one more), "scoring" runs.
     Returns {"protocol", "runs": [...], "eccentricity", "classes", "methods", "train_occluded"} (and
     with ``final`` "final_models": final_models' result)."""
@@ -212,10 +210,11 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
     _TABLES.clear()
     _MESHES.clear()
     _TABLES[key] = table
+    _MEMO[0] = memo_folder(table.shard[0], source[2]) if source is not None and len(table) else None
     reused = _reused_methods(protocol, runs, model_params, builtins, estimators)
     later = _without(builtins, estimators, model_params, reused)   # the methods of runs after the first
     jobs = [(key, protocol, run, i, dict(model_params or {}), *(later if run else (builtins, estimators)),
-             train_occluded) for run in range(runs) for i in range(len(splits(table, protocol, seed=run)))]
+             train_occluded, timeout) for run in range(runs) for i in range(len(splits(table, protocol, seed=run)))]
     wanted = tuple(m for m in FINAL_MODELS if builtins is None or m in builtins)   # only what was asked for
     finals = [("final", key, dict(model_params or {}), train_occluded, wanted)] if final else []
     progress = progress or (lambda n: None)
@@ -248,22 +247,15 @@ def _reused_methods(protocol: str, runs: int, model_params, builtins, estimators
     the DETERMINISTIC ones (spm_model/base/estimator.py) under a protocol whose splits are the same."""
     if protocol not in SAME_SPLITS_EVERY_RUN or runs < 2:
         return set()
-    classes = {**_builtin_classes(model_params, builtins), **(estimators or {})}  # plug-ins: never built here
+    classes = {**builtin_classes(model_params, builtins), **(estimators or {})}  # plug-ins: never built here
     return {name for name, cls in classes.items() if getattr(cls, "DETERMINISTIC", False) is True}
-
-
-def _builtin_classes(model_params, builtins) -> dict:
-    """{name: class} of the built-in methods ``builtins`` names (None: all), in report order."""
-    params = dict(model_params or {})
-    return {name: type(method) for name, method in builtin_methods(0, params.pop("features"), params).items()
-            if builtins is None or name in builtins}
 
 
 def _without(builtins, estimators, model_params, reused: set) -> tuple:
     """(builtins, estimators) but the reused methods (builtins None: every built-in one)."""
     if not reused:
         return builtins, estimators
-    return ([name for name in _builtin_classes(model_params, builtins) if name not in reused],
+    return ([name for name in builtin_classes(model_params, builtins) if name not in reused],
             {name: cls for name, cls in (estimators or {}).items() if name not in reused})
 
 

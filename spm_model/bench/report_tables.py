@@ -106,7 +106,7 @@ def _fig5_tables(summary: dict, names: list) -> list:
     fig5 = summary.get("fig5")
     if not fig5:
         return []
-    lines = ["## Fig. 5 as the paper ran it: success against occlusion, views off the training grid", "",
+    lines = ["## Fig. 5, our reading of it: success against occlusion, views off the training grid", "",
              f"Each cell: {FIG5_CELL}. *seen*: test views of training instances at random poses; *unseen*: "
              "instances of seen classes that never trained. Bins: the fraction of the object hidden.", ""]
     titles = {"seen": "seen instances", "unseen": "unseen instances", "all": "every test frame"}

@@ -108,28 +108,27 @@ def frame_positions(shards, table, allow_partial: bool = False) -> np.ndarray:
 
 
 def first_run_predictions(table, protocol: str, model_params: dict, builtins=None, estimators=None,
-                          train_occluded: bool | None = None) -> dict:
+                          train_occluded: bool | None = None, timeout: float | None = None) -> dict:
     """{method: (test rows of ``table``, (n, 6) labels)} of the first run of ``protocol``: every split
     of run 1, its methods fitted and asked as the benchmark does (protocols.split_job). A method
     declined in a split has no rows there (NaN labels)."""
     from threadpoolctl import threadpool_limits
 
-    from spm_model.base.feature_memo import use_folder
     from spm_model.bench.feature_cache import memo_folder
-    from spm_model.bench.fitting import fit_predict
-    from spm_model.bench.protocols import make_methods, splits, training_rows
+    from spm_model.bench.fitting import builtin_classes, fit_predict
+    from spm_model.bench.protocols import splits, training_rows
 
     occluded = (protocol != "offgrid") if train_occluded is None else bool(train_occluded)
-    if len(table):
-        use_folder(memo_folder(table.shard[0], model_params["features"]))
+    memo = memo_folder(table.shard[0], model_params["features"]) if len(table) else None
+    methods = list(builtin_classes(model_params, builtins)) + list(estimators or {})
     out: dict = {}
     with threadpool_limits(limits=1, user_api="blas"):
         for _, train, test in splits(table, protocol, seed=0):
             train = training_rows(table, train, occluded)
             if len(test) == 0 or len(train) == 0:
                 continue
-            methods = make_methods(0, model_params, builtins, estimators)
-            predictions, _, _ = fit_predict(methods, table, train, test, seed=0)
+            predictions, _, _ = fit_predict((0, model_params, builtins, estimators), table, train, test, seed=0,
+                                            timeout=timeout, memo=memo)
             for name in methods:
                 pred = predictions.get(name, np.full((len(test), 6), np.nan))
                 rows, labels = out.get(name, (np.zeros(0, np.int64), np.zeros((0, 6))))

@@ -6,13 +6,16 @@ The set: two procedural classes (box, cup), two instances each, 24 views of each
 64 x 64 px, rendered with pyrender into a temporary folder and read back as the benchmark reads
 any folder (features cached, frames served as spm_model/base/frames.py serves them). The
 training frames are the even views of each camera path, the test frames the odd ones (the
-``interleaved`` protocol), handed over as a camera gives them. Checks marked FAIL break what
-the benchmark relies on; notes describe the estimator without failing it.
+``interleaved`` protocol), handed over as a camera gives them, shuffled as ``spm train``'s
+first run shuffles them. The plug-in runs in a process of its own that never holds a test
+label (check_contract.py), each call bounded by --timeout. Checks marked FAIL break what
+the benchmark relies on; notes describe the estimator without failing it. Its score is
+printed beside chance's, with 95% intervals; trained on poses permuted against the images,
+a plug-in that still scores above chance finds labels some other way: FAIL.
 """
 
 from __future__ import annotations
 
-import pickle
 import shutil
 import tempfile
 from dataclasses import dataclass
@@ -69,183 +72,114 @@ def built_in_set(folder: Path, progress=None):
     return load_features(folder, FeatureConfig(), progress=progress)
 
 
-def _call(fn, *args):
-    """(value, None) or (None, why): our errors' message, anything else's type and message."""
-    from spm_model.bench.fitting import failure
+def _static_checks(ref) -> list[Check]:
+    """What its description says (read in a process of its own, plugin_refs.describe): importable by
+    its module path and picklable (its process imports it by that path), and a valid NEEDS."""
+    out = [Check("ok" if ref.unpicklable is None else "FAIL", "importable by its module path, for its own process"
+                 + ("" if ref.unpicklable is None else f": {ref.unpicklable}"))]
+    out.append(Check("ok", f"declares what it needs ({ref.NEEDS})") if ref.needs_error is None else
+               Check("FAIL", f"declares what it needs: {ref.needs_error.split(': ', 1)[1]}"))
+    return out
 
+
+def _score(table, rows, out) -> tuple:
+    """(rate % within ±5°, 95% interval (low, high) or None, frames estimated) of ``out`` for ``rows``."""
+    from spm_model.bench.metrics import pose_errors, tolerance_rate, wilson_interval
+
+    errors = pose_errors(out, table.pose[rows], table.label_measured[rows])
+    rate = tolerance_rate(errors["rotation_max"])
+    return rate, wilson_interval(rate, int((~np.isnan(errors["rotation_max"])).sum())), \
+        int(np.isfinite(errors["rotation_max"]).sum())
+
+
+def _rate(score) -> str:
+    rate, ci, _ = score
+    return f"{rate:.1f}% [{ci[0]:.1f}–{ci[1]:.1f}]" if ci else f"{rate:.1f}%"
+
+
+def run_checks(plugin, table, log=lambda line: None, timeout: float | None = None) -> list[Check]:
+    """Every check of ``plugin`` (a PluginRef, or a class: then described by its module path, in a
+    process of its own) on the check set ``table``, each passed to ``log`` as it is made.
+    The plug-in runs in a process of its own (check_contract.py), as ``spm train`` runs it: training
+    frames (even views) and poses, test frames (odd views) as a camera gives them in the order
+    ``spm train``'s first run serves them; each call of it bounded by ``timeout`` seconds."""
+    from spm_model.base.frames import Frames, read_camera_frames
+    from spm_model.bench.isolation import EstimatorProcess, Lost
+    from spm_model.bench.plugin_refs import PluginRef, describe
+    from spm_model.methods.baselines import ChancePose
+
+    if not isinstance(plugin, PluginRef):
+        spec = f"{plugin.__module__}:{plugin.__qualname__}"
+        plugin = describe([spec], timeout, strict=False)[spec]
+    done: list[Check] = []
+
+    def add(check: Check) -> None:
+        done.append(check)
+        log(check.line())
+
+    for check in _static_checks(plugin):
+        add(check)
+    even = np.asarray(table.path_index) % 2 == 0
+    train, test = np.flatnonzero(even), np.flatnonzero(~even)
+    test = test[np.random.default_rng(0).permutation(len(test))]   # as fitting.fit_predict, run 1 (seed 0)
+    frames, poses = Frames(table, train), table.pose[train].copy()
+    camera = read_camera_frames(table, test)
+    permuted = poses[np.random.default_rng(1).permutation(len(poses))]
+    predictions, call = {}, "construct"
+    child = EstimatorProcess("spm_model.commands.check_contract:serve_checks")
     try:
-        return fn(*args), None
-    except Exception as exc:  # noqa: BLE001 - a plug-in can fail in any way; each check reports it
-        return None, failure(exc)[:300]
+        child.send(("checks", plugin, frames, poses, camera, permuted))
+        while True:
+            header, arrays = child.reply(plugin.__name__, "", timeout)
+            if header.get("kind") == "call":
+                call = str(header.get("what"))
+            elif header.get("kind") == "check":
+                add(Check(str(header["status"]), str(header["text"])))
+            elif header.get("kind") == "predictions" and arrays and arrays[0].shape == (len(test), 6):
+                predictions[str(header.get("set"))] = arrays[0].astype(np.float64)
+            elif header.get("kind") == "end":
+                break
+    except Lost as lost:
+        add(Check("FAIL", f"{call}: {lost.why}"))
+    finally:
+        child.close()
+    chance = _score(table, test, ChancePose(seed=0).fit(frames, poses).predict(camera))
+    if "test" in predictions:
+        mine = _score(table, test, predictions["test"])
+        add(Check("note", f"on this set: {mine[2]} of {len(test)} test frames estimated, {_rate(mine)} within ±5° "
+                          f"(chance {_rate(chance)}; 95% intervals; the views between the training views, 5° "
+                          "from one)"))
+    if "permuted" in predictions:
+        noise = _score(table, test, predictions["permuted"])
+        above = noise[1] is not None and chance[1] is not None and noise[1][0] > chance[1][1]
+        add(Check("FAIL" if above else "ok",
+                  f"trained on poses permuted against the images, it scores as chance does ({_rate(noise)}; chance "
+                  f"{_rate(chance)})" + (": it finds labels some other way than the images (files, order, "
+                                          "memory); estimate from the frames alone" if above else "")))
+    return done
 
 
-class _Checks:
-    """The checks in order; each appends to ``self.done`` and says whether later ones can run."""
-
-    def __init__(self, cls, table):
-        from spm_model.base.frames import Frames, read_camera_frames
-
-        self.cls, self.table, self.done = cls, table, []
-        even = np.asarray(table.path_index) % 2 == 0
-        self.train, self.test = np.flatnonzero(even), np.flatnonzero(~even)
-        self.frames = Frames(table, self.train)
-        self.poses = table.pose[self.train].copy()
-        self.camera = read_camera_frames(table, self.test)
-        self.deterministic = getattr(cls, "DETERMINISTIC", False) is True
-
-    def add(self, ok, text: str, fix: str = "", note: bool = False) -> bool:
-        status = "ok" if ok else ("note" if note else "FAIL")
-        self.done.append(Check(status, text if ok or not fix else f"{text}: {fix}"))
-        return bool(ok)
-
-    def construct(self):
-        model, error = _call(self.cls)
-        self.add(error is None, "constructs with no arguments", f"{error}; give every parameter a default")
-        return model
-
-    def needs(self) -> None:
-        from spm_model.base.estimator import needs_of
-
-        needs, error = _call(needs_of, self.cls)
-        self.add(error is None, f"declares what it needs ({needs})" if error is None else "declares what it needs",
-                 error or "")
-
-    def params(self, model) -> None:
-        if not callable(getattr(model, "get_params", None)):
-            self.add(False, "get_params(): not defined (optional; the report records no parameters)", note=True)
-            return
-        params, error = _call(model.get_params)
-        if error is None and isinstance(params, dict):
-            again, error = _call(lambda: self.cls(**params).get_params())
-            same = error is None and repr(again) == repr(params)
-            self.add(same, "__init__ stores its parameters as given (get_params round trip)",
-                     error or f"cls(**get_params()) gave {again!r}, not {params!r}; store each keyword as it is")
-        else:
-            self.add(False, "get_params() returns a dict", error or f"got {type(params).__name__}")
-
-    def unfitted(self) -> None:
-        model, error = _call(self.cls)
-        out, error = _call(model.predict, self.camera) if model is not None else (None, error)
-        self.add(error is not None, "predict before fit raises",
-                 "it returned a result; raise an error until fit has run (spm_model.base.estimator.check_fitted)")
-
-    def fit(self, model):
-        poses = self.poses.copy()
-        fitted, error = _call(model.fit, self.frames, poses)
-        if error is not None:
-            self.add(False, f"fit(frames, poses) on {len(self.train)} frames", error)
-            return None
-        self.add(np.array_equal(poses, self.poses), "fit leaves the poses it was given unchanged",
-                 "it modified its poses argument; copy before changing")
-        ok = self.add(fitted is model, "fit returns self",
-                      f"it returned {type(fitted).__name__}; end fit with `return self`")
-        return model if ok else None
-
-    def predict(self, model):
-        from spm_model.methods.registry import check_predictions
-
-        raw, error = _call(model.predict, self.camera)
-        if error is None:
-            out, error = _call(check_predictions, self.cls.__name__, raw, len(self.test))
-        if not self.add(error is None, f"predict(frames) returns ({len(self.test)}, 6) labels", error or ""):
-            return None
-        partial = int((np.isnan(out).any(axis=1) & ~np.isnan(out).all(axis=1)).sum())
-        self.add(partial == 0, "rows are whole estimates or all NaN",
-                 f"{partial} rows are part NaN; they count as no estimate where the data measures that part",
-                 note=True)
-        return out
-
-    def repeat(self, model, out) -> None:
-        again, error = _call(model.predict, self.camera)
-        same = error is None and np.array_equal(np.asarray(again, dtype=np.float64), out, equal_nan=True)
-        self.add(same, "predict repeats (the same frames, the same labels)",
-                 error or "a second call gave other labels" + ("; DETERMINISTIC promises it" if self.deterministic
-                                                                else ""), note=not self.deterministic)
-        one, error = _call(model.predict, self.camera[[0]])
-        same = error is None and np.array_equal(np.asarray(one, dtype=np.float64).reshape(-1), out[0],
-                                                equal_nan=True)
-        self.add(same, "a frame's label does not depend on the frames predicted with it",
-                 error or "predicting frame 0 alone gave another label" + (
-                     "; DETERMINISTIC promises it" if self.deterministic else ""), note=not self.deterministic)
-        empty, error = _call(model.predict, self.camera[[]])
-        ok = error is None and np.shape(np.asarray(empty, dtype=np.float64)) == (0, 6)
-        self.add(ok, "predict of no frames returns (0, 6)", error or f"got shape {np.shape(empty)}", note=True)
-
-    def found(self, model) -> None:
-        fn = getattr(model, "features_found", None)
-        if not callable(fn):
-            self.add(False, "features_found(frames): not defined (optional; reports show – for its feature "
-                            "count)", note=True)
-            return
-        flags, error = _call(fn, self.camera)
-        ok = error is None and np.shape(flags) == (len(self.test),)
-        self.add(ok, "features_found(frames) returns one flag per frame",
-                 error or f"got shape {np.shape(flags)}, expected ({len(self.test)},)")
-
-    def workers(self) -> None:
-        import importlib
-
-        module, error = _call(importlib.import_module, self.cls.__module__)
-        same = error is None and getattr(module, self.cls.__qualname__, None) is self.cls
-        _, pickled = _call(pickle.dumps, self.cls)
-        self.add(same and pickled is None, "importable by its module path, for worker processes (--workers)",
-                 error or pickled or f"{self.cls.__module__}.{self.cls.__qualname__} is not that class")
-
-    def score(self, out) -> None:
-        from spm_model.bench.metrics import pose_errors, tolerance_rate
-
-        errors = pose_errors(out, self.table.pose[self.test], self.table.label_measured[self.test])
-        rate = tolerance_rate(errors["rotation_max"])
-        estimated = int(np.isfinite(errors["rotation_max"]).sum())
-        self.add(False, f"on this set: {estimated} of {len(self.test)} test frames estimated, "
-                        f"{rate:.1f}% within ±5° (the views between the training views, 5° from one)", note=True)
-
-
-def check_estimator(spec: str, *, progress=None, log=lambda line: None) -> list[Check]:
-    """Run the plug-in ``spec`` ('MODULE:CLASS') through the contract; every Check, each also
-    passed to ``log`` (one line) as it is made. ModelError (one line) when it cannot be loaded."""
+def check_estimator(spec: str, *, progress=None, log=lambda line: None, timeout: float | None = None) -> list[Check]:
+    """Run the plug-in ``spec`` ('MODULE:CLASS') through the contract (run_checks); every Check, each
+    also passed to ``log`` (one line) as it is made. ModelError (one line) when it cannot be loaded.
+    timeout: seconds each call of the plug-in may take (None: the benchmark's default)."""
     from spm_model.bench.feature_cache import progress_phase
-    from spm_model.methods.registry import load_estimator_class
+    from spm_model.bench.isolation import DEFAULT_TIMEOUT
+    from spm_model.bench.plugin_refs import describe
 
-    cls = load_estimator_class(spec)
+    timeout = DEFAULT_TIMEOUT if timeout is None else timeout
+    ref = describe([spec], timeout, strict=False)[spec]   # imported in a process of its own, not here
     folder = Path(tempfile.mkdtemp(prefix="spm-check-estimator-"))
     try:
-        checks = _Checks(cls, built_in_set(folder / "set", progress))
+        table = built_in_set(folder / "set", progress)
         progress_phase(progress, "checks", None, None)
-        _run(checks, log)
+        return run_checks(ref, table, log, timeout)
     finally:
         shutil.rmtree(folder, ignore_errors=True)
-    return checks.done
-
-
-def _run(checks: _Checks, log) -> None:
-    def step(fn, *args):
-        before = len(checks.done)
-        value = fn(*args)
-        for check in checks.done[before:]:
-            log(check.line())
-        return value
-
-    step(checks.workers)
-    step(checks.needs)
-    model = step(checks.construct)
-    if model is None:
-        return
-    step(checks.params, model)
-    step(checks.unfitted)
-    model = step(checks.fit, model)
-    if model is None:
-        return
-    out = step(checks.predict, model)
-    if out is None:
-        return
-    step(checks.repeat, model, out)
-    step(checks.found, model)
-    step(checks.score, out)
 
 
 def failed(checks: list[Check]) -> list[Check]:
     return [c for c in checks if c.status == "FAIL"]
 
 
-__all__ = ["Check", "check_estimator", "failed"]
+__all__ = ["Check", "check_estimator", "failed", "run_checks"]

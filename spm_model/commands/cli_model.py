@@ -11,6 +11,17 @@ from spm_data.commands.cli_support import ALLOW_PARTIAL, Progress, executor_opti
 from spm_data.errors import SpmError
 
 
+# Seconds a plug-in's call may take (spm_model/bench/isolation.py DEFAULT_TIMEOUT; a test keeps them equal).
+PLUGIN_TIMEOUT_S = 3600.0
+
+
+def timeout_option(command):
+    return click.option("--timeout", "timeout", default=PLUGIN_TIMEOUT_S, show_default=True, metavar="SECONDS",
+                        type=click.FloatRange(min=0, min_open=True),
+                        help="Seconds a plug-in's call (construct and fit, or one predict) may take; one that "
+                             "takes longer is stopped and declined.")(command)
+
+
 def _parse_roi(text):
     try:
         x, y, w, h = (int(v) for v in text.split(","))
@@ -90,13 +101,14 @@ def _bop_line(result) -> None:
               help="EM clusters per frame (at most 256).")
 @click.option("--estimator", "estimators", multiple=True, metavar="MODULE:CLASS",
               help="Also evaluate your estimator (fit(frames, poses), predict(frames)); repeatable. docs/estimators.md")
+@timeout_option
 @bop_options
 @ALLOW_PARTIAL
 @executor_options("Feature-extraction processes")
 @old_spelling("--shards", "shards", "give the folder as the first argument", required="SHARDS", type=click.Path())
 @old_spelling("--report", "report_dir", "use --out", type=click.Path())
 @handle_errors
-def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs, ellipse, gamma, estimators,
+def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs, ellipse, gamma, estimators, timeout,
               bop_results, bop_dataset, bop_split, bop_ids_from, allow_partial, executor):
     """Extract features of the shards in SHARDS (searched recursively, cached), evaluate SPM and the
     other methods under --protocol (offgrid: test on --test), and write the report and the models to --out."""
@@ -110,7 +122,7 @@ def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs,
                        log=bar.write, command="spm " + " ".join(sys.argv[1:]),
                        estimators=estimators, allow_partial=allow_partial, test=test,
                        train_occluded=train_occluded, builtins=_method_names(methods),
-                       bop=_bop(bop_results, bop_dataset, bop_split, bop_ids_from))
+                       bop=_bop(bop_results, bop_dataset, bop_split, bop_ids_from), timeout=timeout)
     except KeyboardInterrupt:
         from spm_data.jobs.outcome import exit_status
 
@@ -137,14 +149,15 @@ def _models_line(result) -> str:
 
 @click.command("check-estimator")
 @click.argument("spec", metavar="MODULE:CLASS")
+@timeout_option
 @handle_errors
-def check_estimator_cmd(spec):
+def check_estimator_cmd(spec, timeout):
     """Run your estimator MODULE:CLASS through the contract `spm train --estimator` relies on, on a small
     built-in set (rendered with pyrender): one line a check; exit status 1 if any check fails."""
     from spm_model.commands.check_estimator import check_estimator, failed
 
     with Progress() as bar:
-        checks = check_estimator(spec, progress=bar, log=bar.write)
+        checks = check_estimator(spec, progress=bar, log=bar.write, timeout=timeout)
     bad = failed(checks)
     click.echo(f"{len(checks)} checks, {len(bad)} failed" + ("" if bad else f"; {spec} can run in spm train"))
     if bad:

@@ -12,12 +12,12 @@ from spm_data.io.folders import find_folders
 from spm_data.io.locking import OutputLock
 from spm_data.io.outputs import removing_created
 from spm_data.io.shards import MANIFEST, list_shards, read_attrs, read_manifest
-from spm_model.base.estimator import needs_of
 from spm_model.bench.feature_cache import FeatureTable, load_features, offgrid_table, progress_phase
+from spm_model.bench.isolation import DEFAULT_TIMEOUT
+from spm_model.bench.plugin_refs import describe
 from spm_model.bench.protocols import FINAL_MODELS, evaluate
 from spm_model.bench.report import (check_report_folder, declined_everywhere, summary_text, write_error,
                                     write_report)
-from spm_model.methods.registry import load_estimator_class
 from spm_model.spm.features import FeatureConfig
 
 
@@ -77,25 +77,21 @@ def choose_protocol(protocol: str | None, test, shards, log) -> str:
     return protocol or "loco"
 
 
-def load_estimators(specs) -> dict:
-    """{name: class} of ``--estimator MODULE:CLASS`` values (name: CLASS, or MODULE:CLASS if two share it);
-    a class whose NEEDS is not a Needs is refused here, before any work."""
-    classes = {spec: load_estimator_class(spec) for spec in dict.fromkeys(specs or ())}
-    for spec, cls in classes.items():
-        try:
-            needs_of(cls)
-        except ModelError as exc:
-            raise ModelError(f"--estimator {spec}: {exc}") from None
-    short = [spec.split(":")[1] for spec in classes]
-    return {(spec.split(":")[1] if short.count(spec.split(":")[1]) == 1 else spec): cls
-            for spec, cls in classes.items()}
+def load_estimators(specs, timeout: float | None = DEFAULT_TIMEOUT) -> dict:
+    """{name: PluginRef} of ``--estimator MODULE:CLASS`` values (name: CLASS, or MODULE:CLASS if two
+    share it), each imported in a process of its own, never this one (spm_model/bench/plugin_refs.py);
+    one that cannot be imported, or whose NEEDS is not a Needs, is refused here, before any work."""
+    refs = describe(specs, timeout)
+    short = [spec.split(":")[1] for spec in refs]
+    return {(spec.split(":")[1] if short.count(spec.split(":")[1]) == 1 else spec): ref
+            for spec, ref in refs.items()}
 
 
 def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3,
           features: FeatureConfig = FeatureConfig(), model_params: dict | None = None, progress=None,
           log=lambda message: None, command: str = "spm train", executor=None, estimators=(),
           allow_partial: bool = False, test=None, train_occluded: bool | None = None,
-          builtins=None, bop=None) -> dict:
+          builtins=None, bop=None, timeout: float | None = DEFAULT_TIMEOUT) -> dict:
     """Features of every shard under ``shards`` (cached), the evaluation protocol
     over ``runs`` seeds for every built-in method (``builtins``: their names, default
     all) and each ``estimators`` entry ('MODULE:CLASS'), final models on every
@@ -104,7 +100,8 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
     spm_model/bench/protocols.py. progress: a callable taking count deltas, told each step
     (feature_cache.progress_phase): the features (load_features), "fitting" and "scoring"
     (protocols.evaluate), "report". bop: a BopOutput (bop_output.py): also write the first run's
-    estimates as BOP results files (its ``bop_results``).
+    estimates as BOP results files (its ``bop_results``). timeout: seconds a plug-in's call (construct
+    and fit, or one predict) may take before the plug-in is declined (None: no limit).
     Returns {"report": folder, "model", "reference_model": paths, "summary", "evaluation", "text"}."""
     if runs < 1:
         raise ModelError(f"--runs must be at least 1, got {runs}")
@@ -115,7 +112,7 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
         if folder is not None and not Path(folder).exists():   # before a report folder is made inside it
             raise ShardError(f"no such folder: {folder}")
     out = check_report_folder(report_dir if report_dir else Path(shards) / "report")  # before any work
-    plugins = load_estimators(estimators)
+    plugins = load_estimators(estimators, timeout)
     if bop is not None:
         bop.check(shards, test, allow_partial=allow_partial)
     # The report folder is locked for the whole run as a shard folder is: a second train (or
@@ -130,13 +127,13 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
             raise write_error(out, exc) from None
         try:
             return _train(shards, out, protocol, runs, features, model_params, progress, log, command,
-                          executor, plugins, allow_partial, test, train_occluded, builtins, bop)
+                          executor, plugins, allow_partial, test, train_occluded, builtins, bop, timeout)
         finally:
             lock.release()
 
 
 def _train(shards, out, protocol, runs, features, model_params, progress, log, command, executor, plugins,
-           allow_partial, test, train_occluded, builtins, bop=None) -> dict:
+           allow_partial, test, train_occluded, builtins, bop=None, timeout=DEFAULT_TIMEOUT) -> dict:
     """train()'s work, in its locked report folder ``out``."""
     protocol = choose_protocol(protocol, test, shards, log)
     table = load_features(shards, features, progress=progress, executor=executor,
@@ -158,7 +155,7 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
     source = (str(shards), None if test is None else str(test), features, allow_partial)
     evaluation = evaluate(table, protocol, runs, model_params, estimators=plugins, report=log, builtins=builtins,
                           train_occluded=train_occluded, executor=executor, source=source, final=True,
-                          progress=progress)
+                          progress=progress, timeout=timeout)
     model, reference, train_features, final_declined = evaluation.pop("final_models")
     check_some_method_ran(evaluation)
     asked = [m for m in FINAL_MODELS if builtins is None or m in builtins]   # a model only of a method asked for
@@ -170,7 +167,8 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
                "without_path_neighbour": int((table.train_neighbours == 0).sum()),
                "frames_per_class": {c: int((table.class_name == c).sum()) for c in counts},
                "model_params": {k: v for k, v in model_params.items() if k != "features"},
-               "features": asdict(features), "estimators": {name: f"{cls.__module__}:{cls.__qualname__}"
+               "features": asdict(features), "estimators": {name: getattr(cls, "spec", None) or
+                                                            f"{cls.__module__}:{cls.__qualname__}"
                                                             for name, cls in plugins.items()},
                "models": models, **({"length_unit": unit} if unit != "m" else {})}
     progress_phase(progress, "report", None, None)
@@ -181,16 +179,17 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
         raise write_error(out, exc) from None
     summary = write_report(evaluation, context, out)
     written = [] if bop is None else _bop_results(bop, table, evaluation["protocol"], model_params, builtins,
-                                                   plugins, train_occluded, test or shards, allow_partial)
+                                                   plugins, train_occluded, test or shards, allow_partial, timeout)
     return {"report": out, "model": model_path, "reference_model": reference_path, "summary": summary,
             "evaluation": evaluation, "text": summary_text(summary), "models": models, "bop_results": written}
 
 
-def _bop_results(bop, table, protocol, model_params, builtins, plugins, train_occluded, folder, allow_partial):
+def _bop_results(bop, table, protocol, model_params, builtins, plugins, train_occluded, folder, allow_partial,
+                 timeout):
     """The first run's estimates of every method as BOP results files (bop_output.py)."""
     from spm_model.commands.bop_output import first_run_predictions
 
-    predictions = first_run_predictions(table, protocol, model_params, builtins, plugins, train_occluded)
+    predictions = first_run_predictions(table, protocol, model_params, builtins, plugins, train_occluded, timeout)
     return bop.write(folder, table, predictions, allow_partial)
 
 

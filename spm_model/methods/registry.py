@@ -54,7 +54,9 @@ def load_estimator_class(spec: str):
         raise ModelError(f"--estimator expects MODULE:CLASS (for example my_pose:MyEstimator), got {spec!r}")
     try:
         module = importlib.import_module(match.group(1))
-    except Exception as exc:  # noqa: BLE001 - a user's module can fail in any way; report it in one line
+    except BaseException as exc:  # noqa: BLE001 - a user's module can fail in any way (SystemExit too): one line
+        if isinstance(exc, KeyboardInterrupt) and _user_interrupted():
+            raise
         raise ModelError(f"--estimator {spec}: cannot import {match.group(1)} ({type(exc).__name__}: {exc}); "
                          "is its folder on PYTHONPATH?") from None
     cls = getattr(module, match.group(2), None)
@@ -62,6 +64,13 @@ def load_estimator_class(spec: str):
         raise ModelError(f"--estimator {spec}: {match.group(2)} is not a class in {match.group(1)} with "
                          "fit(frames, poses) and predict(frames)")
     return cls
+
+
+def _user_interrupted() -> bool:
+    """Whether the user's Ctrl-C (or SIGTERM) reached this command, as opposed to a plug-in raising it."""
+    from spm_data.jobs.outcome import received
+
+    return received() is not None
 
 
 def check_predictions(name: str, pred, n: int) -> np.ndarray:

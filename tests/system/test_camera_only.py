@@ -3,6 +3,7 @@ finds nothing, gets the visible mask (never the full silhouette) on occluded cop
 gets the test frames in a seeded random order."""
 
 import hashlib
+import pickle
 import shutil
 import textwrap
 
@@ -17,6 +18,9 @@ from spm_model.spm.features import FeatureConfig
 FAST = FeatureConfig(ellipse="direct")
 
 SPY = '''
+import pathlib
+import pickle
+
 import numpy as np
 
 
@@ -48,7 +52,8 @@ def reachable(obj, seen=None, depth=0):
 
 
 class Spy:
-    found = []
+    """Notes what each predict could reach, one pickle per call in found/ beside this module (it
+    runs in a process of its own)."""
 
     def fit(self, frames, poses):
         self.mean_ = np.asarray(poses).mean(axis=0)
@@ -56,23 +61,45 @@ class Spy:
 
     def predict(self, frames):
         items = list(reachable(frames)) + [x for i in range(min(len(frames), 8)) for x in reachable(frames[i])]
-        Spy.found.append({
+        found = {
             "strings": [x for x in items if isinstance(x, str)],
             "arrays": [x for x in items if isinstance(x, np.ndarray) and x.dtype.kind == "f"],
             "keys": sorted({k for i in range(len(frames)) for k in frames[i]}),
             "order": [frames[i]["rgb"].tobytes() for i in range(len(frames))],
             "masks": [frames[i]["mask"] for i in range(len(frames))],
-        })
+        }
+        folder = pathlib.Path(__file__).with_name("found")
+        folder.mkdir(exist_ok=True)
+        (folder / f"{len(list(folder.iterdir())):04d}.pkl").write_bytes(pickle.dumps(found))
         return np.tile(self.mean_, (len(frames), 1))
 '''
+
+
+class _Found(list):
+    """What the Spy noted, in order (read from its found/ folder by ``load``)."""
+
+    def __init__(self, folder):
+        super().__init__()
+        self.folder = folder
+
+    def load(self):
+        self[:] = [pickle.loads(p.read_bytes()) for p in sorted(self.folder.glob("*.pkl"))]
+        return self
+
+    def clear(self):
+        shutil.rmtree(self.folder, ignore_errors=True)
+        super().clear()
 
 
 def _spy(tmp_path, monkeypatch):
     (tmp_path / "spy_pose.py").write_text(textwrap.dedent(SPY))
     monkeypatch.syspath_prepend(str(tmp_path))
-    import spy_pose
+    import importlib
+    import sys
 
-    spy_pose.Spy.found.clear()
+    sys.modules.pop("spy_pose", None)   # this test's module, not an earlier test's
+    spy_pose = importlib.import_module("spy_pose")
+    spy_pose.Spy.found = _Found(tmp_path / "found")
     return spy_pose.Spy
 
 
@@ -82,7 +109,7 @@ def test_a_plugin_looking_for_labels_finds_nothing_and_gets_a_seeded_random_orde
     table = load_features(model_shards, FAST)
     params = {"features": FAST}
     evaluate(table, "loco", runs=1, model_params=params, estimators={"Spy": spy}, builtins=["chance"])
-    assert len(spy.found) == 3                                            # one predict per tested class
+    assert len(spy.found.load()) == 3                                            # one predict per tested class
     for (tested, found), cls in zip(enumerate(spy.found), ("box", "car", "cup")):
         test = np.flatnonzero(table.class_name == cls)
         assert found["keys"] == ["K", "mask", "rgb"]
@@ -103,7 +130,7 @@ def test_a_plugin_looking_for_labels_finds_nothing_and_gets_a_seeded_random_orde
     first = [hashlib.sha256(b"".join(f["order"])).hexdigest() for f in spy.found]
     spy.found.clear()
     evaluate(table, "loco", runs=1, model_params=params, estimators={"Spy": spy}, builtins=["chance"])
-    assert [hashlib.sha256(b"".join(f["order"])).hexdigest() for f in spy.found] == first
+    assert [hashlib.sha256(b"".join(f["order"])).hexdigest() for f in spy.found.load()] == first
 
 
 def test_occluded_copies_hand_the_visible_mask_and_train_clean_under_offgrid(model_shards, tmp_path, monkeypatch):
@@ -116,7 +143,7 @@ def test_occluded_copies_hand_the_visible_mask_and_train_clean_under_offgrid(mod
     evaluation = evaluate(table, "offgrid", runs=1, model_params={"features": FAST}, estimators={"Spy": spy},
                           builtins=["chance"])
     assert evaluation["train_occluded"] is False
-    masks = [m for f in spy.found for m in f["masks"]]
+    masks = [m for f in spy.found.load() for m in f["masks"]]
     test = np.flatnonzero(table.test)
     full = sum(int(read_shard(s, ("mask",))["mask"].astype(bool).sum()) for s in sorted(set(table.shard[test])))
     visible = sum(int(read_shard(s, ("visible_mask",))["visible_mask"].astype(bool).sum())

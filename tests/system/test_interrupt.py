@@ -111,3 +111,47 @@ def test_sigterm_at_any_moment_of_train_is_143_and_leaves_no_partial_report(mode
         if results.exists():   # the signal landed after the report was written (then train has little left)
             assert "summary" in json.loads(results.read_text()), output
         assert not list((tmp_path / "r").glob(".*partial*"))
+
+
+SLOW_PLUGIN = '''
+import os
+import time
+
+class Slow:
+    def fit(self, frames, poses):
+        with open(os.environ["SLOW_FIT_MARK"], "w") as fh:
+            fh.write(str(os.getpid()))
+        time.sleep(600)
+        return self
+
+    def predict(self, frames):
+        raise AssertionError("never reached")
+'''
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_the_users_ctrl_c_while_a_plug_in_fits_is_130_and_ends_its_process(model_shards, tmp_path, workers):
+    """The plug-in runs in a process of its own (a session of its own, so the terminal's Ctrl-C
+    never reaches it): the user's Ctrl-C to the command's process group is still the interruption
+    (130, the resume line, no lock) and the plug-in's process ends with it."""
+    import os
+
+    shards = tmp_path / "s"
+    shutil.copytree(model_shards, shards)
+    (tmp_path / "slow_pose.py").write_text(SLOW_PLUGIN)
+    mark = tmp_path / "fitting.pid"
+    env = {**os.environ, "PYTHONPATH": f"{tmp_path}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
+           "SLOW_FIT_MARK": str(mark)}
+    cmd = [str(SPM), "train", str(shards), "--runs", "1", "--methods", "chance", "--protocol", "views",
+           "--estimator", "slow_pose:Slow", "--workers", workers, "--out", str(tmp_path / "r")]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
+                            start_new_session=True)
+    with reaped(proc):
+        wait_for(lambda: mark.exists() and mark.read_text(), "the plug-in fitting", proc=proc, timeout=300)
+        os.killpg(proc.pid, signal.SIGINT)   # what the terminal does on Ctrl-C
+        output, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 130 and output.strip().splitlines()[-1].startswith("interrupted"), output
+    assert "Traceback" not in output and not list((tmp_path / "r").glob(".spm.lock*"))
+    child = int(mark.read_text())
+    wait_for(lambda: not os.path.exists(f"/proc/{child}") or "Z" in open(f"/proc/{child}/stat").read().split()[2],
+             "the plug-in's process gone", timeout=30)

@@ -7,7 +7,7 @@ import pytest
 
 from spm_model.base.estimator import Needs
 from spm_model.bench.feature_cache import FeatureTable, load_features
-from spm_model.bench.fitting import construct, failure, fit_predict, unmet_needs
+from spm_model.bench.fitting import failure, fit_predict, unmet_needs
 from spm_model.spm.features import FeatureConfig
 
 FAST = FeatureConfig(ellipse="direct")
@@ -113,15 +113,15 @@ def test_one_method_failing_never_takes_the_others_down(model_shards, monkeypatc
     t = load_features(model_shards, FAST)
     train, test = np.flatnonzero(t.class_name != "box"), np.flatnonzero(t.class_name == "box")
     monkeypatch.setattr(fitting, "camera_chunks", lambda tab, rows: [rows[:20], rows[20:]])   # two chunks
-    predictions, declined, found = fit_predict({"raises": Raises(), "later": BreaksLater(), "counts": Counts(),
-                                                "deep": Deep(), "fussy": construct(Fussy)}, t, train, test)
+    plugins = {"raises": Raises, "later": BreaksLater, "counts": Counts, "deep": Deep, "fussy": Fussy}
+    predictions, declined, found = fit_predict((0, {"features": FAST}, [], plugins), t, train, test)
     assert list(predictions) == ["counts", "deep"] and predictions["counts"].shape == (48, 6)
     assert declined == {"raises": "RuntimeError: my bug", "later": "predict: ValueError: second chunk",
                         "fussy": "Fussy(): ValueError: needs a licence file"}   # its constructor raised
     assert found["deep"] is None and found["counts"].shape == (48,)
     assert found["counts"].sum() == 10 + 14             # every other frame of each chunk of 20 and 28
     t.arrays["has_depth"] = np.zeros(len(t), bool)
-    _, declined, _ = fit_predict({"deep": Deep()}, t, train, test)
+    _, declined, _ = fit_predict((0, {"features": FAST}, [], {"deep": Deep}), t, train, test)
     assert declined["deep"].startswith("needs depth")
 
 

@@ -12,6 +12,7 @@ from spm_model.bench.feature_cache import FeatureTable, load_features
 from spm_model.spm.estimator import ModelError
 from spm_model.bench.protocols import evaluate, splits
 from spm_model.spm.features import FeatureConfig
+from tests.helpers import note
 
 FAST = FeatureConfig(ellipse="direct")
 
@@ -80,24 +81,23 @@ def test_identical_poses_of_an_instance_are_one_view():
 def test_a_plugged_in_estimator_is_scored_beside_every_built_in_method(loco_report, plugin_module):
     # loco_report (tests/conftest.py): every built-in method and MeanPose, scored together by train().
     evaluation = loco_report[0]["evaluation"]
-    assert plugin_module.MeanPose.seen == {"rgb": ((128, 128, 3), "uint8"), "mask": "bool", "K": (3, 3), "n": 96,
-                                           "poses": (96, 6)}
+    seen = [json.loads(line) for line in (loco_report[1].parent / "notes.jsonl").read_text().splitlines()]
+    assert seen == [{"rgb": [[128, 128, 3], "uint8"], "mask": "bool", "K": [3, 3], "n": 96, "poses": [96, 6]}] * 6
     overall = evaluation["runs"][0]["overall"]
     assert set(overall) == {"spm", "knn1", "knn3", "pca", "ls", "n3m", "sift-pnp", "smm", "template", "chance",
                             "MeanPose"}
     assert overall["MeanPose"]["frames"] == 144 and overall["MeanPose"]["estimated"] == 144
 
 
-def test_a_plugged_in_estimator_gets_frames_and_is_scored_through_the_cli(model_shards, plugin_module, tmp_path):
+def test_a_plugged_in_estimator_gets_frames_and_is_scored_through_the_cli(model_shards, plugin_module, tmp_path,
+                                                                          notes):
     runner = CliRunner()
     report = tmp_path / "report"
-    plugin_module.MeanPose.seen.clear()
     # Beside one cheap built-in (beside every one: the test above).
     r = runner.invoke(model_cli, ["train", str(model_shards), "--out", str(report), "--runs", "1",
                                   "--ellipse", "direct", "--methods", "knn1", "--estimator", "my_pose:MeanPose"])
     assert r.exit_code == 0, r.output
-    assert plugin_module.MeanPose.seen == {"rgb": ((128, 128, 3), "uint8"), "mask": "bool", "K": (3, 3), "n": 96,
-                                           "poses": (96, 6)}
+    assert notes() == [{"rgb": [[128, 128, 3], "uint8"], "mask": "bool", "K": [3, 3], "n": 96, "poses": [96, 6]}] * 3
     payload = json.loads((report / "results.json").read_text())
     assert payload["schema_version"] == 5 and "MeanPose" in payload["summary"]["methods"]
     summary = payload["summary"]["methods"]["MeanPose"]
@@ -173,12 +173,11 @@ def test_split_workers_share_the_feature_memo_beside_the_feature_cache(model_sha
 
 
 class CountedMeanPose:
-    """A DETERMINISTIC plug-in that counts its fits (in-process evaluate only)."""
+    """A DETERMINISTIC plug-in that notes its fits (the ``notes`` fixture)."""
     DETERMINISTIC = True
-    fits = 0
 
     def fit(self, frames, poses):
-        CountedMeanPose.fits += 1
+        note("fit")
         self.mean_ = np.asarray(poses).mean(axis=0)
         return self
 
@@ -186,22 +185,20 @@ class CountedMeanPose:
         return np.tile(self.mean_, (len(frames), 1))
 
 
-def test_deterministic_methods_are_fitted_in_the_first_run_only_when_splits_repeat(model_shards, monkeypatch):
+def test_deterministic_methods_are_fitted_in_the_first_run_only_when_splits_repeat(model_shards, monkeypatch, notes):
     from spm_model.bench import protocols
 
     table = load_features(model_shards, FAST)
     kwargs = dict(runs=3, model_params={"features": FAST}, builtins=["pca", "template", "chance"],
                   estimators={"counted": CountedMeanPose})
-    CountedMeanPose.fits = 0
     reused = evaluate(table, "loco", **kwargs)
-    assert CountedMeanPose.fits == 3                       # 3 classes, once each
+    assert len(notes()) == 3                               # 3 classes, once each
     # Every method reused: the later runs fit and read nothing, and still report every method.
     only = evaluate(table, "loco", runs=2, model_params={"features": FAST}, builtins=["pca"])
     assert only["runs"][1]["overall"] == only["runs"][0]["overall"] and list(only["runs"][1]["overall"]) == ["pca"]
     monkeypatch.setattr(protocols, "SAME_SPLITS_EVERY_RUN", ())
-    CountedMeanPose.fits = 0
     refitted = evaluate(table, "loco", **kwargs)
-    assert CountedMeanPose.fits == 9                       # 3 classes x 3 runs
+    assert len(notes()) == 3 + 9                           # 3 classes x 3 runs
     assert json.dumps(reused["runs"], sort_keys=True) == json.dumps(refitted["runs"], sort_keys=True)
     assert list(reused["runs"][2]["overall"]) == ["pca", "template", "chance", "counted"]
     # chance is seeded: it is fitted in every run and differs between runs.
@@ -211,27 +208,25 @@ def test_deterministic_methods_are_fitted_in_the_first_run_only_when_splits_repe
 
 
 class BlasThreadsPose(CountedMeanPose):
-    """A plug-in that notes the BLAS threads its fit runs with (in-process evaluate only)."""
+    """A plug-in that notes the BLAS threads its fit runs with."""
     DETERMINISTIC = False
-    seen: list = []
 
     def fit(self, frames, poses):
         from threadpoolctl import threadpool_info
 
-        BlasThreadsPose.seen.append(max(i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"))
+        note(max(i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"))
         return super().fit(frames, poses)
 
 
-def test_benchmark_jobs_run_on_one_blas_thread_whatever_the_process_has(model_shards):
+def test_benchmark_jobs_run_on_one_blas_thread_whatever_the_process_has(model_shards, notes):
     from threadpoolctl import threadpool_info, threadpool_limits
 
     table = load_features(model_shards, FAST)
-    BlasThreadsPose.seen = []
     with threadpool_limits(limits=2, user_api="blas"):
         outside = max(i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas")
         evaluate(table, "views", runs=1, model_params={"features": FAST}, builtins=[],
                  estimators={"probe": BlasThreadsPose})
-    assert outside == 2 and BlasThreadsPose.seen == [1]
+    assert outside == 2 and notes() == [1, "fit"]
 
 
 def test_interleaved_trains_on_every_other_view_and_tests_the_views_between():

@@ -6,7 +6,8 @@ import pytest
 from click.testing import CliRunner
 
 from cli import model_cli
-from spm_model.commands.check_estimator import _Checks, _run, built_in_set, failed
+from spm_model.commands.check_estimator import built_in_set, failed, run_checks
+from tests.model.bench.test_isolation import MemoCheat, OrderCheat, StackCheat
 
 
 @pytest.fixture(scope="module")
@@ -51,17 +52,78 @@ class Needy(Good):
         self.size = size
 
 
-def _checks(cls, table):
-    checks = _Checks(cls, table)
+def _checks(cls, table, timeout=60.0):
     lines = []
-    _run(checks, lines.append)
-    return checks.done, lines
+    done = run_checks(cls, table, lines.append, timeout)
+    return done, lines
+
+
+class ReadsTheFiles(Good):
+    """Gets the test labels some other way than the images: it opens the shard files its training
+    frames are read from, and looks each test image up there."""
+    DETERMINISTIC = False
+
+    def fit(self, frames, poses):
+        from spm_data.io.shards import read_shard
+
+        self.files_ = sorted({str(s) for s in frames._shard})
+        self.read_ = read_shard
+        return super().fit(frames, poses)
+
+    def predict(self, frames):
+        """The label of the stored frame whose image equals each test image (a lookup in the files)."""
+        out = np.full((len(frames), 6), np.nan)
+        stored = {}
+        for path in self.files_:
+            d = self.read_(path, ("rgb", "pose"))
+            stored.update({d["rgb"][i].tobytes(): d["pose"][i] for i in range(len(d["rgb"]))})
+        for i in range(len(frames)):
+            out[i] = stored.get(frames[i]["rgb"].tobytes(), out[i])
+        return out
+
+
+class Exits(Good):
+    def fit(self, frames, poses):
+        raise SystemExit(0)
+
+
+class Sleeps(Good):
+    def fit(self, frames, poses):
+        import time
+
+        time.sleep(600)   # the time limit ends it
 
 
 def test_a_plug_in_that_keeps_the_contract_passes_every_check(check_set):
     done, lines = _checks(Good, check_set)
-    assert failed(done) == [] and [c.status for c in done].count("ok") == 13
-    assert lines[-1].startswith("note  on this set: 48 of 48 test frames estimated")
+    assert failed(done) == [] and [c.status for c in done].count("ok") == 14
+    assert lines[-2].startswith("note  on this set: 48 of 48 test frames estimated, ") and "(chance " in lines[-2]
+    assert lines[-1].startswith("ok    trained on poses permuted against the images, it scores as chance does")
+
+
+@pytest.mark.parametrize("cheat", [StackCheat, MemoCheat, OrderCheat])
+def test_cheats_score_as_chance_does_in_the_checks_own_run(check_set, cheat):
+    done, lines = _checks(cheat, check_set)
+    score = next(c.text for c in done if c.text.startswith("on this set"))
+    low = float(score.split("[")[1].split("–")[0])
+    chance_high = float(score.split("chance ")[1].split("–")[1].split("]")[0])
+    assert low <= chance_high, score
+    assert not [c for c in failed(done) if c.text.startswith("trained on poses permuted")], lines
+
+
+def test_a_plug_in_that_finds_labels_in_the_files_fails_the_permuted_images_check(check_set):
+    done, lines = _checks(ReadsTheFiles, check_set)
+    bad = [c.text for c in failed(done)]
+    assert len(bad) == 1 and bad[0].startswith("trained on poses permuted against the images, it scores as chance "
+                                               "does (100.0% "), lines
+
+
+def test_a_plug_in_that_ends_its_process_or_runs_too_long_fails_and_the_list_ends(check_set):
+    done, _ = _checks(Exits, check_set)
+    assert [c.line() for c in failed(done)] == [
+        "FAIL  fit(frames, poses) on 48 frames: it raised SystemExit (exit code 0); a method cannot end the run"]
+    done, _ = _checks(Sleeps, check_set, timeout=2.0)
+    assert [c.line() for c in failed(done)] == ["FAIL  fit: took longer than the time limit (--timeout 2 s)"]
 
 
 def test_each_broken_promise_is_a_failed_check_naming_the_fix(check_set):
@@ -78,7 +140,7 @@ def test_each_broken_promise_is_a_failed_check_naming_the_fix(check_set):
 def test_the_command_prints_one_line_a_check_and_exits_1_on_a_failure(plugin_module):
     r = CliRunner().invoke(model_cli, ["check-estimator", "my_pose:MeanPose"])
     assert r.exit_code == 0, r.output
-    assert r.output.splitlines()[-1] == "14 checks, 0 failed; my_pose:MeanPose can run in spm train"
+    assert r.output.splitlines()[-1] == "15 checks, 0 failed; my_pose:MeanPose can run in spm train"
     r = CliRunner().invoke(model_cli, ["check-estimator", "my_pose:WrongShape"])
     assert r.exit_code == 1
     assert "FAIL  predict(frames) returns (48, 6) labels: estimator WrongShape: predict(frames) must return (48, 6)" \
@@ -86,3 +148,18 @@ def test_the_command_prints_one_line_a_check_and_exits_1_on_a_failure(plugin_mod
     r = CliRunner().invoke(model_cli, ["check-estimator", "my_pose"])
     assert (r.exit_code, r.output) == (1, "error: --estimator expects MODULE:CLASS (for example my_pose:MyEstimator), "
                                           "got 'my_pose'\n")
+
+
+def _builtin_classes():
+    from spm_model.bench.fitting import builtin_classes
+    from spm_model.spm.features import FeatureConfig
+
+    return builtin_classes({"features": FeatureConfig()})
+
+
+@pytest.mark.parametrize("name", list(_builtin_classes()))
+def test_every_built_in_method_passes_the_checks_a_plug_in_must(check_set, name):
+    """scikit-learn's parametrize_with_checks habit: the built-in methods meet the contract they set."""
+    done, lines = _checks(_builtin_classes()[name], check_set)
+    assert failed(done) == [], lines
+    assert any(c.text.startswith("on this set: ") for c in done) and lines[-1].startswith("ok    trained on poses")

@@ -62,7 +62,7 @@ def test_cli_offgrid_writes_the_fig5_tables_and_refuses_bad_method_names(model_s
     # The template matcher trained on these very views finds them while little is hidden.
     assert rows[0]["success_tol5"] == 100.0 and rows[0]["frames"] > 0
     text = (report / "results.md").read_text()
-    assert "## Fig. 5 as the paper ran it" in text and "### seen instances, rectangles (spm-data occlude)" in text
+    assert "## Fig. 5, our reading of it" in text and "### seen instances, rectangles (spm-data occlude)" in text
     r = runner.invoke(model_cli, ["train", str(shards), "--methods", "template,nope"])
     assert r.exit_code == 1 and "--methods: unknown nope" in r.output and "Traceback" not in r.output
     r = runner.invoke(model_cli, ["train", str(shards), "--protocol", "views", "--test", str(shards)])

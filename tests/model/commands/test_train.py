@@ -3,6 +3,7 @@ evaluate shards; every method gets its row on any data (a class with few frames,
 turntable images, a transforms.json capture): figures, or declined with its reason."""
 
 import json
+import os
 import shutil
 
 import numpy as np
@@ -282,3 +283,88 @@ def test_the_length_unit_of_a_capture_imported_without_scale(tmp_path):
     with pytest.warns(Warning, match="no --scale"):
         import_nerf(capture, tmp_path / "units")
     assert length_unit(tmp_path / "units") == length_unit(tmp_path / "metric", tmp_path / "units") == "capture unit"
+
+
+BAD_PLUGINS = '''
+import os
+import time
+
+import numpy as np
+
+
+class Fine:
+    def fit(self, frames, poses):
+        self.mean_ = np.asarray(poses).mean(axis=0)
+        return self
+
+    def predict(self, frames):
+        return np.tile(self.mean_, (len(frames), 1))
+
+
+class EndsRun(Fine):
+    def fit(self, frames, poses):
+        raise SystemExit(0)
+
+
+class ExitsInPredict(Fine):
+    def predict(self, frames):
+        os._exit(0)
+
+
+class Interrupts(Fine):
+    def fit(self, frames, poses):
+        raise KeyboardInterrupt
+
+
+class Sleeps(Fine):
+    def fit(self, frames, poses):
+        time.sleep(600)
+'''
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_plug_in_code_cannot_end_the_run_each_way_is_a_declined_method(model_shards, tmp_path, monkeypatch, workers):
+    """SystemExit(0) in fit ended spm train with exit 0 and no report; os._exit(0) in predict with
+    --workers 1 did too, leaving .spm.lock; a plug-in's own KeyboardInterrupt read as the user's
+    Ctrl-C; a sleeping fit ran for ever. Each is now a declined method with why."""
+    (tmp_path / "bad_pose.py").write_text(BAD_PLUGINS)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    report = tmp_path / "report"
+    args = ["train", str(model_shards), "--out", str(report), "--runs", "1", "--protocol", "views", "--methods",
+            "chance", "--timeout", "2", "--workers", workers]
+    for name in ("Fine", "EndsRun", "ExitsInPredict", "Interrupts", "Sleeps"):
+        args += ["--estimator", f"bad_pose:{name}"]
+    r = CliRunner().invoke(model_cli, args)
+    assert r.exit_code == 0, r.output
+    summary = json.loads((report / "results.json").read_text())["summary"]
+    assert {name: d["reason"] for name, d in summary["declined"].items()} == {
+        "EndsRun": "it raised SystemExit (exit code 0); a method cannot end the run",
+        "ExitsInPredict": "predict: the method's process ended (exit code 0) without a result",
+        "Interrupts": "it raised KeyboardInterrupt itself (not the user's Ctrl-C)",
+        "Sleeps": "fit: took longer than the time limit (--timeout 2 s)"}
+    assert summary["methods"]["Fine"]["estimated"] == summary["methods"]["Fine"]["frames"] > 0
+    assert not list(report.glob(".spm.lock*")) and "interrupted" not in r.output
+
+
+def test_a_plug_in_module_that_exits_as_it_is_imported_is_refused_in_one_line(tmp_path, monkeypatch):
+    (tmp_path / "quits_pose.py").write_text("raise SystemExit(0)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    r = CliRunner().invoke(model_cli, ["train", str(tmp_path), "--estimator", "quits_pose:Any"])
+    assert (r.exit_code, r.output) == (1, "error: --estimator quits_pose:Any: cannot import quits_pose (SystemExit: "
+                                          "0); is its folder on PYTHONPATH?\n")
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_a_plug_in_module_is_imported_only_in_its_own_processes(model_shards, tmp_path, monkeypatch, notes, workers):
+    """Its module-level code (an import-time hook) never runs where labels are: not in the command's
+    process, nor in a worker; only in a process of its own (started as `python -c`)."""
+    (tmp_path / "where_pose.py").write_text("import os, sys\nfrom tests.helpers import note\n"
+                                            "note([os.getpid(), sys.argv[0]])\n" + BAD_PLUGINS)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    r = CliRunner().invoke(model_cli, ["train", str(model_shards), "--out", str(tmp_path / "r"), "--runs", "1",
+                                       "--protocol", "views", "--methods", "chance", "--workers", workers,
+                                       "--estimator", "where_pose:Fine"])
+    assert r.exit_code == 0, r.output
+    imports = notes()
+    assert len(imports) >= 2 and all(argv == "-c" for _, argv in imports), imports   # described, then a split
+    assert os.getpid() not in {pid for pid, _ in imports}
