@@ -60,7 +60,8 @@ def markdown(evaluation: dict, summary: dict, context: dict) -> str:
         f"occlusion). {models_sentence(context)}", ""])
 
 
-MODEL_FILES = {"spm": ("model.npz", "SPM"), "template": ("reference-model.npz", "HOG templates")}
+MODEL_FILES = {"spm": ("model.npz", "SPM"), "template": ("reference-model.npz", "HOG templates"),
+               "cnn": ("cnn-model.npz", "CNN")}
 
 
 def models_sentence(context: dict) -> str:

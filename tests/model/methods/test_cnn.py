@@ -1,0 +1,100 @@
+import json
+import sys
+
+import numpy as np
+import pytest
+
+from spm_data.errors import ModelError
+from spm_model.base.safetensors_file import read_safetensors
+from spm_model.bench.metrics import wilson_interval
+from spm_model.methods.baselines import ChancePose
+from spm_model.methods.cnn import CNNPose, soft_targets, view_bins, rotation_quaternions
+from tests.helpers import grid_split, within_5_degrees
+
+# A budget for tests: seconds on one thread (the default trains 800 steps of 64 frames).
+SMALL = {"steps": 150, "epochs": 100, "batch": 32, "width": 8, "embed": 32, "threads": 1, "device": "cpu"}
+
+
+@pytest.fixture(scope="module")
+def split(model_shards):
+    """Training frames on a 10-degree grid (3 classes, 72 frames) and test frames 5 degrees off them (24)."""
+    return grid_split(model_shards)
+
+
+@pytest.fixture(scope="module")
+def fitted(split):
+    train, poses, test, truth = split
+    return CNNPose(**SMALL).fit(train, poses)
+
+
+def test_it_learns_poses_far_above_chance(split, fitted):
+    train, poses, test, truth = split
+    hit = within_5_degrees(fitted.predict(test), truth)
+    chance = within_5_degrees(ChancePose(seed=0).fit(train, poses).predict(test), truth)
+    low, _ = wilson_interval(100 * hit.mean(), len(hit))
+    _, high = wilson_interval(100 * chance.mean(), len(chance))
+    assert low > high, (hit.mean(), chance.mean())               # the 95% intervals do not overlap
+    assert fitted.training_["steps"] == 150 and fitted.training_["device"] == "cpu"
+    assert fitted.training_["frames"] == 72 and fitted.training_["seconds"] > 0
+
+
+def test_two_fits_with_one_seed_give_the_same_predictions(split, fitted):
+    train, poses, test, truth = split
+    again = CNNPose(**SMALL).fit(train, poses)
+    assert all(np.array_equal(again.net_[k], fitted.net_[k]) for k in fitted.net_)
+    assert np.array_equal(again.predict(test), fitted.predict(test))
+
+
+def test_the_model_file_round_trips_and_its_safetensors_hold_the_same_weights(split, fitted, tmp_path):
+    from spm_model.commands.evaluate import load_model
+
+    train, poses, test, truth = split
+    path = fitted.save(tmp_path / "cnn-model.npz")
+    loaded = load_model(path)                                     # as spm evaluate and spm predict load it
+    assert isinstance(loaded, CNNPose) and loaded.get_params() == fitted.get_params()
+    assert np.array_equal(loaded.predict(test), fitted.predict(test))
+    assert loaded.training_ == json.loads(json.dumps(fitted.training_))
+    arrays, metadata = read_safetensors(path.with_suffix(".safetensors"))
+    assert json.loads(metadata["params"])["steps"] == 150
+    for name, value in fitted.net_.items():
+        assert np.array_equal(arrays[f"net.{name}"], value) and arrays[f"net.{name}"].dtype == value.dtype
+    assert np.array_equal(arrays["embeddings"], fitted.embeddings_)
+    one = loaded.predict_image(test[0]["rgb"], test[0]["mask"], test[0]["K"])["pose"]
+    assert np.allclose(one, fitted.predict(test[:1])[0])
+
+
+def test_an_empty_mask_gives_no_estimate_and_an_unfitted_model_one_error(split, fitted):
+    train, poses, test, truth = split
+    blank = {**test[0], "mask": np.zeros_like(test[0]["mask"])}
+    out = fitted.predict([blank, test[1]])
+    assert np.isnan(out[0]).all() and np.isfinite(out[1]).all()
+    with pytest.raises(ModelError, match=r"^this CNNPose is not fitted yet; call fit\(frames, poses\) first, "
+                                         r"or load a model file with CNNPose\.load\(path\)$"):
+        CNNPose().predict(test)
+
+
+def test_without_torch_fit_and_load_fail_with_one_line_naming_the_extra(split, fitted, monkeypatch, tmp_path):
+    from spm_model.commands.evaluate import load_model
+
+    train, poses, test, truth = split
+    path = fitted.save(tmp_path / "cnn-model.npz")
+    monkeypatch.setitem(sys.modules, "torch", None)                # import torch raises ImportError
+    for call in (lambda: CNNPose(**SMALL).fit(train, poses), lambda: load_model(path)):
+        with pytest.raises(ModelError) as caught:
+            call()
+        assert str(caught.value) == ("the cnn method needs PyTorch, which is not installed here; "
+                                     "pip install 'spm[learn]' (make install includes it)")
+
+
+def test_view_bins_spread_over_the_rotations_and_targets_favour_the_nearest():
+    labels = np.zeros((36, 6))
+    labels[:, 2] = np.arange(0, 360, 10)                          # one turn, 10 degrees apart
+    labels[:, 5] = 1.0
+    q = rotation_quaternions(labels)
+    assert sorted(view_bins(q, 100)) == list(range(36))           # fewer poses than bins: one bin each
+    four = view_bins(q, 4)
+    angles = np.sort(labels[four, 2])
+    assert len(four) == 4 and np.allclose(np.diff(angles), 90, atol=10)   # spread round the turn
+    t = soft_targets(q, q)
+    assert np.allclose(t.sum(axis=1), 1) and (np.argmax(t, axis=1) == np.arange(36)).all()
+    assert np.isclose(t[0, 1], t[0, 35]) and t[0, 1] < t[0, 0] / 5  # neighbours alike, well below the pose
