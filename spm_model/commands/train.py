@@ -157,7 +157,7 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
                "model_params": {k: v for k, v in model_params.items() if k != "features"},
                "features": asdict(features), "estimators": {name: f"{cls.__module__}:{cls.__qualname__}"
                                                             for name, cls in plugins.items()},
-               "models": models}
+               "models": models, **({"training": {"cnn": learned.training_}} if learned is not None else {})}
     progress_phase(progress, "report", None, None)
     try:
         model_path = _save(model, out / "model.npz")

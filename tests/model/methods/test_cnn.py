@@ -98,3 +98,28 @@ def test_view_bins_spread_over_the_rotations_and_targets_favour_the_nearest():
     t = soft_targets(q, q)
     assert np.allclose(t.sum(axis=1), 1) and (np.argmax(t, axis=1) == np.arange(36)).all()
     assert np.isclose(t[0, 1], t[0, 35]) and t[0, 1] < t[0, 0] / 5  # neighbours alike, well below the pose
+
+
+def test_spm_train_writes_the_cnn_model_with_its_cost_and_spm_predict_runs_it(model_shards, tmp_path):
+    from PIL import Image
+
+    from spm_data.io.shards import list_shards, read_shard
+    from spm_model.commands.predict import predict_images
+    from spm_model.commands.train import train
+    from spm_model.spm.features import FeatureConfig
+
+    result = train(model_shards, tmp_path / "report", protocol="views", runs=1,
+                   features=FeatureConfig(ellipse="direct"), builtins=["cnn", "chance"])
+    assert result["models"] == {"cnn": "written"} and result["cnn_model"] == tmp_path / "report" / "cnn-model.npz"
+    assert (tmp_path / "report" / "cnn-model.safetensors").is_file() and result["model"] is None
+    payload = json.loads((tmp_path / "report" / "results.json").read_text())
+    cost = payload["context"]["training"]["cnn"]
+    assert cost["frames"] == 144 and cost["steps"] == 90 and cost["device"] in ("cpu", "cuda")  # 40 epochs of 144
+    assert f"The CNN trained in {cost['seconds']:.1f} s (90 steps, 40 epochs of 144 frames" in \
+        (tmp_path / "report" / "results.md").read_text()
+    assert "cnn" in payload["summary"]["methods"]
+    frame = read_shard(list_shards(model_shards)[0], ("rgb", "mask"), frames=slice(0, 1))
+    Image.fromarray(frame["rgb"][0]).save(tmp_path / "view.png")
+    Image.fromarray((frame["mask"][0] > 0).astype(np.uint8) * 255).save(tmp_path / "mask.png")
+    out = predict_images(result["cnn_model"], [tmp_path / "view.png"], mask_path=tmp_path / "mask.png")
+    assert "error" not in out[0] and np.isfinite(list(out[0]["pose"].values())).all()
