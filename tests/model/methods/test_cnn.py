@@ -123,3 +123,32 @@ def test_spm_train_writes_the_cnn_model_with_its_cost_and_spm_predict_runs_it(mo
     Image.fromarray((frame["mask"][0] > 0).astype(np.uint8) * 255).save(tmp_path / "mask.png")
     out = predict_images(result["cnn_model"], [tmp_path / "view.png"], mask_path=tmp_path / "mask.png")
     assert "error" not in out[0] and np.isfinite(list(out[0]["pose"].values())).all()
+
+
+def test_augmentation_hides_part_of_the_object_and_recuts_the_crop_to_what_is_seen():
+    from spm_model.methods.cnn import augmented, frame_crop, net_input
+
+    rgb = np.zeros((96, 128, 3), np.uint8)
+    rgb[20:70, 30:90] = 180                                          # a bright 60 x 50 object
+    mask = rgb[..., 0] > 0
+    crop, geometry = frame_crop(rgb, mask, np.array([[100.0, 0, 63.5], [0, 100.0, 47.5], [0, 0, 1]]))
+    assert np.allclose(geometry[:3], (59.5, 44.5, 60.0))              # box centre and longer side, pixels
+    plain = net_input(crop, 32)
+    rng = np.random.default_rng(0)
+    draws = [augmented(crop, 32, 0.6, rng) for _ in range(40)]
+    assert all(d.shape == (2, 32, 32) and d.dtype == np.float32 and 0 <= d.min() <= d.max() <= 1 for d in draws)
+    seen = np.array([(d[1] > 0.5).mean() for d in draws])
+    hidden = np.array([((d[1] > 0.5) & (d[0] == 0)).sum() for d in draws])
+    assert (hidden == 0).all()                                        # hidden pixels leave the mask too
+    # A crop whose left half is hidden is re-cut to the box of its right half (as a test frame's visible
+    # mask cuts it): what is seen spans the input's long side (32 px less the 5% margins)...
+    half = crop.copy()
+    half[:, :, :32] = 0
+    recut = net_input(half, 32)[1] > 0.5
+    assert max(np.ptp(np.flatnonzero(recut.any(axis=k))) for k in (0, 1)) >= 27          # 50 px of the half: 29
+    assert np.ptp(np.flatnonzero(recut.any(axis=0))) < np.ptp(np.flatnonzero(recut.any(axis=1)))  # 30 x 50 px
+    # ...and some draws lose part of it (about half are occluded), others keep it whole.
+    whole = (plain[1] > 0.5).mean()
+    assert (seen < whole - 0.02).sum() >= 5 and np.isclose(seen, whole, atol=0.02).sum() >= 5
+    clean = [augmented(crop, 32, 0.0, rng) for _ in range(5)]         # no occlusion: only the jitter
+    assert all(np.array_equal(d[1], plain[1]) for d in clean)
