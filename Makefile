@@ -14,7 +14,7 @@ $(VENV)/.installed: pyproject.toml constraints.txt scripts/install-system-deps.s
 	bash scripts/install-system-deps.sh
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -c constraints.txt -e ".[dev,blender,ray]"
+	$(BIN)/python -m pip install -q -c constraints.txt -e ".[dev,blender,ray,learn]"
 	touch $@
 
 install: $(VENV)/.installed

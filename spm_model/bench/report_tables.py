@@ -60,7 +60,8 @@ def markdown(evaluation: dict, summary: dict, context: dict) -> str:
         f"occlusion). {models_sentence(context)}", ""])
 
 
-MODEL_FILES = {"spm": ("model.npz", "SPM"), "template": ("reference-model.npz", "HOG templates")}
+MODEL_FILES = {"spm": ("model.npz", "SPM"), "template": ("reference-model.npz", "HOG templates"),
+               "cnn": ("cnn-model.npz", "CNN")}
 
 
 def models_sentence(context: dict) -> str:
@@ -72,6 +73,10 @@ def models_sentence(context: dict) -> str:
     missing = [f"{MODEL_FILES[k][1]} declined ({v['declined']})" for k, v in models.items() if v != "written"]
     text = ("Models trained on every training frame: " + " and ".join(written) + "." if written
             else "No model was written.")
+    cost = context.get("training", {}).get("cnn")
+    if cost:   # what the learned model cost (each split's fit has the same budget)
+        text += (f" The CNN trained in {cost['seconds']:.1f} s ({cost['steps']} steps, {cost['epochs']:g} epochs "
+                 f"of {cost['frames']} frames, on {cost['device']}).")
     return text + (" " + "; ".join(missing) + "." if missing else "")
 
 

@@ -91,7 +91,7 @@ def _bop_line(result) -> None:
               help="Whether occluded frames train too (the paper's training with noise) [default: yes, but no "
                    "under offgrid].")
 @click.option("--methods", "methods", default=None, metavar="NAME,...",
-              help="Built-in methods to run (default all): spm, knn1, knn3, pca, ls, n3m, sift-pnp, smm, template, "
+              help="Built-in methods to run (default all): spm, knn1, knn3, pca, ls, n3m, sift-pnp, smm, template, cnn, "
                    "chance.")
 @click.option("--runs", default=3, show_default=True, type=click.IntRange(min=1, max=100),
               help="Repeated runs (seeds) for sigma (at most 100).")
@@ -139,11 +139,11 @@ def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs,
 def _models_line(result) -> str:
     """"models: PATH (SPM), PATH (reference)" for what train fitted and wrote (only the models of
     methods asked for), and what it could not fit."""
-    written = [f"{result[key]} ({what})" for key, what in (("model", "SPM"), ("reference_model", "reference"))
-               if result[key] is not None]
-    missing = [f"{what} declined" for key, what in (("spm", "SPM"), ("template", "reference"))
+    written = [f"{result[key]} ({what})" for key, what in (("model", "SPM"), ("reference_model", "reference"),
+                                                           ("cnn_model", "CNN")) if result.get(key) is not None]
+    missing = [f"{what} declined" for key, what in (("spm", "SPM"), ("template", "reference"), ("cnn", "CNN"))
                if result["models"].get(key, "written") != "written"]   # absent: not asked for, so not fitted
-    none = "none (neither spm nor template was asked for)" if not result["models"] else "none"
+    none = "none (neither spm, template nor cnn was asked for)" if not result["models"] else "none"
     return "models: " + (", ".join(written) or none) + (f" ({'; '.join(missing)})" if missing else "")
 
 

@@ -11,19 +11,23 @@ from spm_model.bench.feature_cache import load_features, progress_phase
 from spm_model.bench.metrics import summarise
 from spm_model.bench.scoring import frame_errors
 from spm_model.bench.surface_metrics import mesh_keys
+from spm_model.methods.cnn import CNNPose
 from spm_model.methods.template import TemplatePose
 from spm_model.spm.estimator import SPMEstimator
 from spm_model.spm.features import FeatureConfig
 
 
 def load_model(path):
-    """A model file from ``spm train``: an SPMEstimator (model.npz) or a TemplatePose (reference-model.npz).
+    """A model file from ``spm train``: an SPMEstimator (model.npz), a TemplatePose (reference-model.npz)
+    or a CNNPose (cnn-model.npz).
     ModelError naming the file for a missing, truncated, corrupt or foreign one."""
     header, arrays = load_model_file(path)  # read once
-    kinds = {"spm": SPMEstimator, "template": TemplatePose}
+    kinds = {"spm": SPMEstimator, "template": TemplatePose, "cnn": CNNPose}
     if header.get("kind") not in kinds:
         raise ModelError(f"{path}: not an spm model file (kind {header.get('kind')!r}, expected one of "
-                         f"{sorted(kinds)}); give the model.npz or reference-model.npz that spm train wrote")
+                         f"{sorted(kinds)}); give the model.npz, reference-model.npz or cnn-model.npz that spm "
+                         "train wrote")
+    getattr(kinds[header["kind"]], "check_available", lambda: None)()   # cnn: torch, or one line naming the extra
     try:
         model = kinds[header["kind"]].from_model_file(header, arrays)
         model.check_loaded()
@@ -41,7 +45,7 @@ def evaluate_model(model_path, shards, *, progress=None, executor=None,
     {"classes": {class: summary}, "all": summary} (summaries: spm_model/bench/metrics.py).
     progress: a callable taking count deltas, told each step (feature_cache.progress_phase):
     the features (load_features), "predicting", "scoring". bop: a BopOutput (bop_output.py): also
-    write the estimates as a BOP results file, method "spm" or "template" (the result's ``bop_results``)."""
+    write the estimates as a BOP results file, method "spm", "template" or "cnn" (the result's ``bop_results``)."""
     if bop is not None:
         bop.check(shards, allow_partial=allow_partial)
     model = load_model(model_path)
@@ -70,6 +74,6 @@ def evaluate_model(model_path, shards, *, progress=None, executor=None,
 
 def _method(model) -> str:
     """The method name of a results file: spm train's name of the method the model is of."""
-    return "spm" if isinstance(model, SPMEstimator) else "template"
+    return "spm" if isinstance(model, SPMEstimator) else "cnn" if isinstance(model, CNNPose) else "template"
 
 

@@ -13,11 +13,14 @@ from spm_data.io.locking import OutputLock
 from spm_data.io.outputs import removing_created
 from spm_data.io.shards import MANIFEST, list_shards, read_attrs, read_manifest
 from spm_model.bench.feature_cache import FeatureTable, load_features, offgrid_table, progress_phase
+from spm_model.base.frames import Frames
+from spm_model.bench.fitting import failure
 from spm_model.bench.isolation import DEFAULT_TIMEOUT
 from spm_model.bench.plugin_refs import describe
-from spm_model.bench.protocols import FINAL_MODELS, evaluate
+from spm_model.bench.protocols import FINAL_MODELS, evaluate, training_rows
 from spm_model.bench.report import (check_report_folder, declined_everywhere, summary_text, write_error,
                                     write_report)
+from spm_model.methods.cnn import CNNPose
 from spm_model.spm.features import FeatureConfig
 
 
@@ -102,7 +105,7 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
     (protocols.evaluate), "report". bop: a BopOutput (bop_output.py): also write the first run's
     estimates as BOP results files (its ``bop_results``). timeout: seconds a plug-in's call (construct
     and fit, or one predict) may take before the plug-in is declined (None: no limit).
-    Returns {"report": folder, "model", "reference_model": paths, "summary", "evaluation", "text"}."""
+    Returns {"report": folder, "model", "reference_model", "cnn_model": paths, "summary", "evaluation", "text"}."""
     if runs < 1:
         raise ModelError(f"--runs must be at least 1, got {runs}")
     if test is not None and protocol not in ("offgrid", None):
@@ -158,9 +161,10 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
                           progress=progress, timeout=timeout)
     model, reference, train_features, final_declined = evaluation.pop("final_models")
     check_some_method_ran(evaluation)
-    asked = [m for m in FINAL_MODELS if builtins is None or m in builtins]   # a model only of a method asked for
+    learned = _final_cnn(table, evaluation["train_occluded"], final_declined) if _asked("cnn", builtins) else None
+    asked = [m for m in (*FINAL_MODELS, "cnn") if _asked(m, builtins)]   # a model only of a method asked for
     models = {m: "written" if fitted is not None else {"declined": final_declined.get(m, "")}
-              for m, fitted in (("spm", model), ("template", reference)) if m in asked}
+              for m, fitted in (("spm", model), ("template", reference), ("cnn", learned)) if m in asked}
     context = {"command": command, "shards": str(shards), **({"test": str(test)} if test is not None else {}),
                "frames": len(table), "train_features": int(train_features),
                "query_features": int(np.isfinite(table.query_vector).all(axis=1).sum()),
@@ -170,17 +174,20 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
                "features": asdict(features), "estimators": {name: getattr(cls, "spec", None) or
                                                             f"{cls.__module__}:{cls.__qualname__}"
                                                             for name, cls in plugins.items()},
-               "models": models, **({"length_unit": unit} if unit != "m" else {})}
+               "models": models, **({"length_unit": unit} if unit != "m" else {}),
+               **({"training": {"cnn": learned.training_}} if learned is not None else {})}
     progress_phase(progress, "report", None, None)
     try:
         model_path = _save(model, out / "model.npz")
         reference_path = _save(reference, out / "reference-model.npz")
+        cnn_path = _save(learned, out / "cnn-model.npz")
     except OSError as exc:
         raise write_error(out, exc) from None
     summary = write_report(evaluation, context, out)
     written = [] if bop is None else _bop_results(bop, table, evaluation["protocol"], model_params, builtins,
                                                    plugins, train_occluded, test or shards, allow_partial, timeout)
-    return {"report": out, "model": model_path, "reference_model": reference_path, "summary": summary,
+    return {"report": out, "model": model_path, "reference_model": reference_path, "cnn_model": cnn_path,
+            "summary": summary,
             "evaluation": evaluation, "text": summary_text(summary), "models": models, "bop_results": written}
 
 
@@ -193,11 +200,31 @@ def _bop_results(bop, table, protocol, model_params, builtins, plugins, train_oc
     return bop.write(folder, table, predictions, allow_partial)
 
 
+def _asked(method: str, builtins) -> bool:
+    return builtins is None or method in builtins
+
+
+def _final_cnn(table: FeatureTable, train_occluded: bool, declined: dict):
+    """The cnn model on every training frame, as protocols.final_models fits the others (after the
+    splits, in this process, on one BLAS thread); None with its reason in ``declined`` when it fails."""
+    from threadpoolctl import threadpool_limits
+
+    rows = np.flatnonzero(~table.test) if "test" in table.arrays else np.arange(len(table))
+    rows = training_rows(table, rows, train_occluded)
+    try:
+        with threadpool_limits(limits=1, user_api="blas"):
+            return CNNPose().fit(Frames(table, rows), table.pose[rows])
+    except Exception as exc:  # noqa: BLE001 - as in the splits: the other models are still written
+        declined["cnn"] = failure(exc)
+        return None
+
+
 def _save(model, path: Path):
     """Write ``model`` to ``path`` and return the path; None (and a stale file of an earlier run at
     ``path`` removed, so the folder never pairs this report with another run's model) without one."""
     if model is None:
         path.unlink(missing_ok=True)
+        path.with_suffix(".safetensors").unlink(missing_ok=True)   # the cnn model's weights beside it
         return None
     return model.save(path)
 

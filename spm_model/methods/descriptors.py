@@ -34,19 +34,32 @@ def box_of(mask: np.ndarray) -> tuple[float, float, float] | None:
 def template_descriptor(rgb: np.ndarray, mask: np.ndarray, K: np.ndarray, hog=None) -> np.ndarray:
     """(H, W, 3) uint8, (H, W) bool, (3, 3) -> (HOG_SIZE + 7,) float32: the HOG
     descriptor then GEOMETRY; NaN when the mask is empty."""
-    import cv2
-
     out = np.full(HOG_SIZE + len(GEOMETRY), np.nan, dtype=np.float32)
     mask = np.asarray(mask) > 0
     box = box_of(mask)
     if box is None:
         return out
     u, v, side = box
-    scale = SIDE / (side * (1 + 2 * MARGIN))
-    warp = np.array([[scale, 0, SIDE / 2 - 0.5 - scale * u], [0, scale, SIDE / 2 - 0.5 - scale * v]], np.float32)
-    grey = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)
-    grey = np.where(mask, grey, 0).astype(np.uint8)
-    crop = cv2.warpAffine(grey, warp, (SIDE, SIDE), flags=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
+    crop = crop_box(masked_grey(rgb, mask), box, SIDE)
     out[:HOG_SIZE] = (hog or hog_descriptor()).compute(crop).ravel()
     out[HOG_SIZE:] = (u, v, side, K[0, 0], K[1, 1], K[0, 2], K[1, 2])
     return out
+
+
+def masked_grey(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8, (H, W) bool -> (H, W) uint8: the grey image, 0 outside the mask."""
+    import cv2
+
+    grey = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)
+    return np.where(mask, grey, 0).astype(np.uint8)
+
+
+def crop_box(image: np.ndarray, box: tuple, side: int) -> np.ndarray:
+    """(H, W) image -> (side, side): the square around ``box`` (u, v, longer side; box_of) with
+    MARGIN on each side, warped to side x side pixels (area-averaged when shrinking)."""
+    import cv2
+
+    u, v, size = box
+    scale = side / (size * (1 + 2 * MARGIN))
+    warp = np.array([[scale, 0, side / 2 - 0.5 - scale * u], [0, scale, side / 2 - 0.5 - scale * v]], np.float32)
+    return cv2.warpAffine(image, warp, (side, side), flags=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)

@@ -9,7 +9,9 @@ Built in: SPM and KNN on its re-projected vectors (the paper's Tables 1 and 2),
 the PCA- and LS-based raw-image baselines (§3.3-3.4), N3M and SMM (the paper's
 Fig. 5 comparisons, spm_model/methods/n3m*.py and smm*.py), SIFT + PnP (N3M's matching
 and robust PnP without its markers; ours, not in a paper: spm_model/methods/sift_pnp.py),
-the reference template matcher (spm_model/methods/template.py) and chance (a random
+the reference template matcher (spm_model/methods/template.py), a small CNN trained on
+the training frames with nearest-neighbour retrieval in its embedding (ours:
+spm_model/methods/cnn.py; torch is the optional extra ``learn``) and chance (a random
 training pose). Any class
 with the same contract joins them: ``spm train --estimator MODULE:CLASS``
 (docs/estimators.md).
@@ -24,6 +26,7 @@ import numpy as np
 
 from spm_data.errors import ModelError
 from spm_model.methods.baselines import ChancePose, RawImagePose
+from spm_model.methods.cnn import CNNPose
 from spm_model.methods.n3m import N3MPose
 from spm_model.methods.sift_pnp import SiftPnPPose
 from spm_model.methods.smm import SMMPose
@@ -35,6 +38,7 @@ METHOD_NAMES = {"spm": "SPM", "knn1": "KNN K=1", "knn3": "KNN K=3", "pca": "PCA-
                 "n3m": "N3M (Hinterstoisser et al. 2007; marker levels only)",
                 "sift-pnp": "SIFT + PnP (all matches; not in a paper)", "smm": "SMM (Mei et al. 2011)",
                 "template": "HOG templates (reference)",
+                "cnn": "CNN embedding + retrieval (ours)",
                 "chance": "chance (random training pose)"}
 
 
@@ -44,7 +48,7 @@ def builtin_methods(seed: int, features: FeatureConfig, model_params: dict | Non
     return {"spm": spm, "knn1": SPMNeighbours(k=1, spm=spm), "knn3": SPMNeighbours(k=3, spm=spm),
             "pca": RawImagePose(kind="pca"), "ls": RawImagePose(kind="ls"), "n3m": N3MPose(),
             "sift-pnp": SiftPnPPose(), "smm": SMMPose(seed=seed),
-            "template": TemplatePose(), "chance": ChancePose(seed=seed)}
+            "template": TemplatePose(), "cnn": CNNPose(seed=seed), "chance": ChancePose(seed=seed)}
 
 
 def load_estimator_class(spec: str):

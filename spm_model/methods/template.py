@@ -120,19 +120,8 @@ class TemplatePose(PoseEstimator):
         return self
 
     def _distance(self, geometry: np.ndarray) -> np.ndarray:
-        """(m, 7) query geometry -> (m,) metres: median distance of the training frames of closest apparent size."""
-        size_t = np.log(self.geometry_[:, 2] / self.geometry_[:, 3])
-        order = np.argsort(size_t)
-        n = len(order)
-        k = min(self.size_neighbours, n)
-        pos = np.searchsorted(size_t[order], np.log(geometry[:, 2] / geometry[:, 3]))
-        # The k nearest on a line lie in the 2k-window around the insertion point; at either end
-        # of the sizes the window slides inwards (never clipped, which would repeat one frame).
-        start = np.clip(pos - k, 0, max(n - 2 * k, 0))
-        window = start[:, None] + np.arange(min(2 * k, n))[None]
-        gap = np.abs(size_t[order][window] - np.log(geometry[:, 2] / geometry[:, 3])[:, None])
-        nearest = np.take_along_axis(window, np.argsort(gap, axis=1, kind="stable")[:, :k], axis=1)
-        return np.median(self.distance_[order][nearest], axis=1)
+        """(m, 7) query geometry -> (m,) metres (distance_by_size over the templates)."""
+        return distance_by_size(self.geometry_, self.distance_, geometry, self.size_neighbours)
 
     def nearest(self, hog: np.ndarray) -> np.ndarray:
         """(m, HOG_SIZE) descriptors -> (m,) index of the nearest template."""
@@ -150,17 +139,9 @@ class TemplatePose(PoseEstimator):
         if not ok.any():
             return out
         j = self.nearest(desc[ok, :HOG_SIZE])
-        R_t, t_t = label_to_pose(self.poses_[j])
-        g_t, g_q, K_q = self.geometry_[j], desc[ok, HOG_SIZE:].astype(np.float64), np.asarray(K, np.float64)[ok]
-        # The template's object centre in its image, as an offset from its box centre in box sides.
-        centre_t = t_t[:, :2] / t_t[:, 2:3] * g_t[:, 3:5] + g_t[:, 5:7]
-        offset = (centre_t - g_t[:, :2]) / g_t[:, 2:3]
-        ray_q = _rays(K_q, g_q[:, :2] + offset * g_q[:, 2:3])
-        R_q = R_t
-        if self.ray_correction:
-            R_q = _rotation_between(t_t / np.linalg.norm(t_t, axis=1, keepdims=True), ray_q) @ R_t
-        t_q = ray_q * self._distance(g_q)[:, None]
-        out[ok] = pose_to_label(R_q, t_q)
+        g_q = desc[ok, HOG_SIZE:].astype(np.float64)
+        out[ok] = place(self.poses_[j], self.geometry_[j], g_q, np.asarray(K, np.float64)[ok], self._distance(g_q),
+                        self.ray_correction)
         return out
 
     def predict_image(self, rgb: np.ndarray, mask=None, K=None) -> dict:
@@ -217,3 +198,37 @@ class TemplatePose(PoseEstimator):
 def _unit(x: np.ndarray) -> np.ndarray:
     x = np.asarray(x, dtype=np.float64)
     return x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-12)
+
+
+def distance_by_size(geometry_t: np.ndarray, distance_t: np.ndarray, geometry_q: np.ndarray, k: int) -> np.ndarray:
+    """(m, 7) query geometry -> (m,) metres: the median distance ``distance_t`` of the ``k`` training
+    frames (geometry ``geometry_t``) whose apparent size is closest: size in the image is inverse
+    to distance, and objects are normalised to one size, so this transfers between classes."""
+    size_t = np.log(geometry_t[:, 2] / geometry_t[:, 3])
+    order = np.argsort(size_t)
+    n = len(order)
+    k = min(k, n)
+    size_q = np.log(geometry_q[:, 2] / geometry_q[:, 3])
+    pos = np.searchsorted(size_t[order], size_q)
+    # The k nearest on a line lie in the 2k-window around the insertion point; at either end
+    # of the sizes the window slides inwards (never clipped, which would repeat one frame).
+    start = np.clip(pos - k, 0, max(n - 2 * k, 0))
+    window = start[:, None] + np.arange(min(2 * k, n))[None]
+    gap = np.abs(size_t[order][window] - size_q[:, None])
+    nearest = np.take_along_axis(window, np.argsort(gap, axis=1, kind="stable")[:, :k], axis=1)
+    return np.median(distance_t[order][nearest], axis=1)
+
+
+def place(poses_t: np.ndarray, geometry_t: np.ndarray, geometry_q: np.ndarray, K_q: np.ndarray,
+          distance_q: np.ndarray, ray_correction: bool = False) -> np.ndarray:
+    """(m, 6) labels: each matched training frame's pose (``poses_t``, its box ``geometry_t``) moved
+    to the query's box (``geometry_q``, ``K_q``) at ``distance_q`` metres (module docstring)."""
+    R_t, t_t = label_to_pose(poses_t)
+    # The template's object centre in its image, as an offset from its box centre in box sides.
+    centre_t = t_t[:, :2] / t_t[:, 2:3] * geometry_t[:, 3:5] + geometry_t[:, 5:7]
+    offset = (centre_t - geometry_t[:, :2]) / geometry_t[:, 2:3]
+    ray_q = _rays(K_q, geometry_q[:, :2] + offset * geometry_q[:, 2:3])
+    R_q = R_t
+    if ray_correction:
+        R_q = _rotation_between(t_t / np.linalg.norm(t_t, axis=1, keepdims=True), ray_q) @ R_t
+    return pose_to_label(R_q, ray_q * distance_q[:, None])

@@ -244,8 +244,8 @@ def damaged_models(models, root):
                                     f".npz archive); {FOREIGN}"))
     sealed_model(root / "kind.npz", {"format": 2, "kind": "forest", "params": {}}, {})
     out.append((root / "kind.npz", f"{root / 'kind.npz'}: not an spm model file (kind 'forest', expected one of "
-                                   "['spm', 'template']); give the model.npz or reference-model.npz that spm "
-                                   "train wrote"))
+                                   "['cnn', 'spm', 'template']); give the model.npz, reference-model.npz or "
+                                   "cnn-model.npz that spm train wrote"))
     sealed_model(root / "hollow.npz", {"format": 2, "kind": "spm", "params": {}}, {})
     out.append((root / "hollow.npz", f"{root / 'hollow.npz'}: damaged spm model file (no 'features' in it); {RETRAIN}"))
     arrays = dict(np.load(models["template"]))

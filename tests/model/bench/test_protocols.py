@@ -84,7 +84,7 @@ def test_a_plugged_in_estimator_is_scored_beside_every_built_in_method(loco_repo
     seen = [json.loads(line) for line in (loco_report[1].parent / "notes.jsonl").read_text().splitlines()]
     assert seen == [{"rgb": [[128, 128, 3], "uint8"], "mask": "bool", "K": [3, 3], "n": 96, "poses": [96, 6]}] * 6
     overall = evaluation["runs"][0]["overall"]
-    assert set(overall) == {"spm", "knn1", "knn3", "pca", "ls", "n3m", "sift-pnp", "smm", "template", "chance",
+    assert set(overall) == {"spm", "knn1", "knn3", "pca", "ls", "n3m", "sift-pnp", "smm", "template", "cnn", "chance",
                             "MeanPose"}
     assert overall["MeanPose"]["frames"] == 144 and overall["MeanPose"]["estimated"] == 144
 

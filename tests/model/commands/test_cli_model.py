@@ -77,7 +77,7 @@ def test_train_fits_and_names_only_the_models_of_methods_asked_for(model_shards,
     r = CliRunner().invoke(model_cli, ["train", str(shards), "--runs", "1", "--protocol", "views",
                                        "--methods", "pca,chance"])
     assert r.exit_code == 0, r.output
-    assert r.output.splitlines()[-1].endswith("models: none (neither spm nor template was asked for)")
+    assert r.output.splitlines()[-1].endswith("models: none (neither spm, template nor cnn was asked for)")
     assert sorted(p.name for p in (shards / "report").iterdir()) == ["accuracy.png", "occlusion.png", "results.json",
                                                                     "results.md"]
     payload = json.loads((shards / "report" / "results.json").read_text())

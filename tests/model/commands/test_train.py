@@ -22,14 +22,15 @@ from spm_model.methods.registry import METHOD_NAMES
 @pytest.mark.slow  # the full benchmark (loco_report: every built-in method, 2 runs)
 def test_train_loco_writes_the_report_and_model(model_shards, loco_report, tmp_path):
     result, report = loco_report  # train(model_shards, protocol="loco", runs=2) with a plug-in (tests/conftest.py)
-    assert sorted(p.name for p in report.iterdir()) == ["accuracy.png", "model.npz", "occlusion.png",
-                                                        "reference-model.npz", "results.json", "results.md"]
+    assert sorted(p.name for p in report.iterdir()) == ["accuracy.png", "cnn-model.npz", "cnn-model.safetensors",
+                                                        "model.npz", "occlusion.png", "reference-model.npz",
+                                                        "results.json", "results.md"]
     payload = json.loads((report / "results.json").read_text())
     assert payload["schema"] == "spm-results" and payload["schema_version"] == 5
     assert payload["context"]["frames"] == 144 and len(payload["evaluation"]["runs"]) == 2
     summary = payload["summary"]
     assert set(summary["methods"]) == {"spm", "knn1", "knn3", "pca", "ls", "n3m", "sift-pnp", "smm", "template",
-                                       "MeanPose"}
+                                       "cnn", "MeanPose"}
     assert set(summary["classes"]) == {"box", "car", "cup"}
     for entry in [*summary["methods"].values(), summary["chance"]]:
         assert 0 <= entry["success_tol5"] <= 100 and entry["success_sum3"] <= entry["success_sum5"] <= entry["success_tol5"]
@@ -162,7 +163,7 @@ def test_a_transforms_json_capture_trains_under_views_with_every_method(tmp_path
            in r.output
     rows = _rows(tmp_path / "imported" / "report")
     assert json.loads((tmp_path / "imported" / "report" / "results.json").read_text())["summary"]["protocol"] == "views"
-    assert set(rows) == {"spm", "knn1", "knn3", "pca", "ls", "n3m", "sift-pnp", "smm", "template", "chance"}
+    assert set(rows) == {"spm", "knn1", "knn3", "pca", "ls", "n3m", "sift-pnp", "smm", "template", "cnn", "chance"}
     assert rows["smm"].startswith("needs 2 camera paths"), rows
 
 

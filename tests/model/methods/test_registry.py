@@ -16,11 +16,12 @@ def test_builtin_methods_in_report_order_knn_sharing_the_spm_model():
     features = FeatureConfig(ellipse="direct")
     methods = builtin_methods(3, features, {"projection_samples": 16})
     assert list(methods) == ["spm", "knn1", "knn3", "pca", "ls", "n3m", "sift-pnp", "smm", "template",
-                             "chance"] == list(METHOD_NAMES)
+                             "cnn", "chance"] == list(METHOD_NAMES)
     spm = methods["spm"]
     assert spm.seed == 3 and spm.features == features and spm.params == {"projection_samples": 16}
     assert methods["knn1"].spm is spm and methods["knn3"].spm is spm and methods["knn3"].k == 3
     assert (methods["pca"].kind, methods["ls"].kind, methods["chance"].seed) == ("pca", "ls", 3)
+    assert methods["cnn"].seed == 3 and type(methods["cnn"]).DETERMINISTIC is False   # seeded: fitted every run
 
 
 def test_n3m_is_the_papers_method_and_sift_pnp_its_fallback_alone_each_named_for_it():

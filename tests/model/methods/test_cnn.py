@@ -1,0 +1,154 @@
+import json
+import sys
+
+import numpy as np
+import pytest
+
+from spm_data.errors import ModelError
+from spm_model.base.safetensors_file import read_safetensors
+from spm_model.bench.metrics import wilson_interval
+from spm_model.methods.baselines import ChancePose
+from spm_model.methods.cnn import CNNPose, soft_targets, view_bins, rotation_quaternions
+from tests.helpers import grid_split, within_5_degrees
+
+# A budget for tests: seconds on one thread (the default trains 800 steps of 64 frames).
+SMALL = {"steps": 150, "epochs": 100, "batch": 32, "width": 8, "embed": 32, "threads": 1, "device": "cpu"}
+
+
+@pytest.fixture(scope="module")
+def split(model_shards):
+    """Training frames on a 10-degree grid (3 classes, 72 frames) and test frames 5 degrees off them (24)."""
+    return grid_split(model_shards)
+
+
+@pytest.fixture(scope="module")
+def fitted(split):
+    train, poses, test, truth = split
+    return CNNPose(**SMALL).fit(train, poses)
+
+
+def test_it_learns_poses_far_above_chance(split, fitted):
+    train, poses, test, truth = split
+    hit = within_5_degrees(fitted.predict(test), truth)
+    chance = within_5_degrees(ChancePose(seed=0).fit(train, poses).predict(test), truth)
+    low, _ = wilson_interval(100 * hit.mean(), len(hit))
+    _, high = wilson_interval(100 * chance.mean(), len(chance))
+    assert low > high, (hit.mean(), chance.mean())               # the 95% intervals do not overlap
+    assert fitted.training_["steps"] == 150 and fitted.training_["device"] == "cpu"
+    assert fitted.training_["frames"] == 72 and fitted.training_["seconds"] > 0
+
+
+def test_two_fits_with_one_seed_give_the_same_predictions(split, fitted):
+    train, poses, test, truth = split
+    again = CNNPose(**SMALL).fit(train, poses)
+    assert all(np.array_equal(again.net_[k], fitted.net_[k]) for k in fitted.net_)
+    assert np.array_equal(again.predict(test), fitted.predict(test))
+
+
+def test_the_model_file_round_trips_and_its_safetensors_hold_the_same_weights(split, fitted, tmp_path):
+    from spm_model.commands.evaluate import load_model
+
+    train, poses, test, truth = split
+    path = fitted.save(tmp_path / "cnn-model.npz")
+    loaded = load_model(path)                                     # as spm evaluate and spm predict load it
+    assert isinstance(loaded, CNNPose) and loaded.get_params() == fitted.get_params()
+    assert np.array_equal(loaded.predict(test), fitted.predict(test))
+    assert loaded.training_ == json.loads(json.dumps(fitted.training_))
+    arrays, metadata = read_safetensors(path.with_suffix(".safetensors"))
+    assert json.loads(metadata["params"])["steps"] == 150
+    for name, value in fitted.net_.items():
+        assert np.array_equal(arrays[f"net.{name}"], value) and arrays[f"net.{name}"].dtype == value.dtype
+    assert np.array_equal(arrays["embeddings"], fitted.embeddings_)
+    one = loaded.predict_image(test[0]["rgb"], test[0]["mask"], test[0]["K"])["pose"]
+    assert np.allclose(one, fitted.predict(test[:1])[0])
+
+
+def test_an_empty_mask_gives_no_estimate_and_an_unfitted_model_one_error(split, fitted):
+    train, poses, test, truth = split
+    blank = {**test[0], "mask": np.zeros_like(test[0]["mask"])}
+    out = fitted.predict([blank, test[1]])
+    assert np.isnan(out[0]).all() and np.isfinite(out[1]).all()
+    with pytest.raises(ModelError, match=r"^this CNNPose is not fitted yet; call fit\(frames, poses\) first, "
+                                         r"or load a model file with CNNPose\.load\(path\)$"):
+        CNNPose().predict(test)
+
+
+def test_without_torch_fit_and_load_fail_with_one_line_naming_the_extra(split, fitted, monkeypatch, tmp_path):
+    from spm_model.commands.evaluate import load_model
+
+    train, poses, test, truth = split
+    path = fitted.save(tmp_path / "cnn-model.npz")
+    monkeypatch.setitem(sys.modules, "torch", None)                # import torch raises ImportError
+    for call in (lambda: CNNPose(**SMALL).fit(train, poses), lambda: load_model(path)):
+        with pytest.raises(ModelError) as caught:
+            call()
+        assert str(caught.value) == ("the cnn method needs PyTorch, which is not installed here; "
+                                     "pip install 'spm[learn]' (make install includes it)")
+
+
+def test_view_bins_spread_over_the_rotations_and_targets_favour_the_nearest():
+    labels = np.zeros((36, 6))
+    labels[:, 2] = np.arange(0, 360, 10)                          # one turn, 10 degrees apart
+    labels[:, 5] = 1.0
+    q = rotation_quaternions(labels)
+    assert sorted(view_bins(q, 100)) == list(range(36))           # fewer poses than bins: one bin each
+    four = view_bins(q, 4)
+    angles = np.sort(labels[four, 2])
+    assert len(four) == 4 and np.allclose(np.diff(angles), 90, atol=10)   # spread round the turn
+    t = soft_targets(q, q)
+    assert np.allclose(t.sum(axis=1), 1) and (np.argmax(t, axis=1) == np.arange(36)).all()
+    assert np.isclose(t[0, 1], t[0, 35]) and t[0, 1] < t[0, 0] / 5  # neighbours alike, well below the pose
+
+
+def test_spm_train_writes_the_cnn_model_with_its_cost_and_spm_predict_runs_it(model_shards, tmp_path):
+    from PIL import Image
+
+    from spm_data.io.shards import list_shards, read_shard
+    from spm_model.commands.predict import predict_images
+    from spm_model.commands.train import train
+    from spm_model.spm.features import FeatureConfig
+
+    result = train(model_shards, tmp_path / "report", protocol="views", runs=1,
+                   features=FeatureConfig(ellipse="direct"), builtins=["cnn", "chance"])
+    assert result["models"] == {"cnn": "written"} and result["cnn_model"] == tmp_path / "report" / "cnn-model.npz"
+    assert (tmp_path / "report" / "cnn-model.safetensors").is_file() and result["model"] is None
+    payload = json.loads((tmp_path / "report" / "results.json").read_text())
+    cost = payload["context"]["training"]["cnn"]
+    assert cost["frames"] == 144 and cost["steps"] == 90 and cost["device"] in ("cpu", "cuda")  # 40 epochs of 144
+    assert f"The CNN trained in {cost['seconds']:.1f} s (90 steps, 40 epochs of 144 frames" in \
+        (tmp_path / "report" / "results.md").read_text()
+    assert "cnn" in payload["summary"]["methods"]
+    frame = read_shard(list_shards(model_shards)[0], ("rgb", "mask"), frames=slice(0, 1))
+    Image.fromarray(frame["rgb"][0]).save(tmp_path / "view.png")
+    Image.fromarray((frame["mask"][0] > 0).astype(np.uint8) * 255).save(tmp_path / "mask.png")
+    out = predict_images(result["cnn_model"], [tmp_path / "view.png"], mask_path=tmp_path / "mask.png")
+    assert "error" not in out[0] and np.isfinite(list(out[0]["pose"].values())).all()
+
+
+def test_augmentation_hides_part_of_the_object_and_recuts_the_crop_to_what_is_seen():
+    from spm_model.methods.cnn import augmented, frame_crop, net_input
+
+    rgb = np.zeros((96, 128, 3), np.uint8)
+    rgb[20:70, 30:90] = 180                                          # a bright 60 x 50 object
+    mask = rgb[..., 0] > 0
+    crop, geometry = frame_crop(rgb, mask, np.array([[100.0, 0, 63.5], [0, 100.0, 47.5], [0, 0, 1]]))
+    assert np.allclose(geometry[:3], (59.5, 44.5, 60.0))              # box centre and longer side, pixels
+    plain = net_input(crop, 32)
+    rng = np.random.default_rng(0)
+    draws = [augmented(crop, 32, 0.6, rng) for _ in range(40)]
+    assert all(d.shape == (2, 32, 32) and d.dtype == np.float32 and 0 <= d.min() <= d.max() <= 1 for d in draws)
+    seen = np.array([(d[1] > 0.5).mean() for d in draws])
+    hidden = np.array([((d[1] > 0.5) & (d[0] == 0)).sum() for d in draws])
+    assert (hidden == 0).all()                                        # hidden pixels leave the mask too
+    # A crop whose left half is hidden is re-cut to the box of its right half (as a test frame's visible
+    # mask cuts it): what is seen spans the input's long side (32 px less the 5% margins)...
+    half = crop.copy()
+    half[:, :, :32] = 0
+    recut = net_input(half, 32)[1] > 0.5
+    assert max(np.ptp(np.flatnonzero(recut.any(axis=k))) for k in (0, 1)) >= 27          # 50 px of the half: 29
+    assert np.ptp(np.flatnonzero(recut.any(axis=0))) < np.ptp(np.flatnonzero(recut.any(axis=1)))  # 30 x 50 px
+    # ...and some draws lose part of it (about half are occluded), others keep it whole.
+    whole = (plain[1] > 0.5).mean()
+    assert (seen < whole - 0.02).sum() >= 5 and np.isclose(seen, whole, atol=0.02).sum() >= 5
+    clean = [augmented(crop, 32, 0.0, rng) for _ in range(5)]         # no occlusion: only the jitter
+    assert all(np.array_equal(d[1], plain[1]) for d in clean)

@@ -1,0 +1,44 @@
+import numpy as np
+import pytest
+
+from spm_data.errors import ModelError
+from spm_model.methods import cnn_net
+
+torch = cnn_net.torch_module()   # the suite runs with the extra learn installed (make install)
+
+
+def test_the_network_embeds_to_unit_length_and_its_arrays_rebuild_it():
+    with cnn_net.torch_settings(torch, seed=0, threads=1):
+        net = cnn_net.make_net(torch, 32, 4, 8, 5).eval()
+        x = np.random.default_rng(0).random((3, 2, 32, 32)).astype(np.float32)
+        z = cnn_net.embed_all(torch, net, x, "cpu")
+        assert z.shape == (3, 8) and np.allclose(np.linalg.norm(z, axis=1), 1, atol=1e-6)
+        arrays = cnn_net.state_arrays(net)
+        assert arrays["head.weight"].shape == (5, 8) and arrays["embed.weight"].shape == (8, 16 * 2 * 2)
+        again = cnn_net.net_from_arrays(torch, arrays, 32, 4, 8, 5)
+        assert np.array_equal(cnn_net.embed_all(torch, again, x, "cpu"), z)
+        with pytest.raises(ValueError, match="the network's arrays do not fit it"):
+            cnn_net.net_from_arrays(torch, arrays, 32, 4, 8, 6)
+
+
+def test_training_lowers_the_loss_on_separable_targets_and_settings_are_restored():
+    threads, deterministic = torch.get_num_threads(), torch.are_deterministic_algorithms_enabled()
+    x = np.zeros((8, 2, 16, 16), np.float32)
+    for i in range(8):
+        x[i, :, i: i + 6, 2: 14] = 1.0                                # a bar at 8 heights: 2 bins
+    targets = np.eye(2, dtype=np.float32)[np.arange(8) // 4]
+    with cnn_net.torch_settings(torch, seed=0, threads=1):
+        net = cnn_net.make_net(torch, 16, 4, 8, 2)
+        cost = cnn_net.train_net(torch, net, lambda step: (np.arange(8), x), targets, steps=60, lr=0.01,
+                                 device="cpu")
+        scores = net["head"](cnn_net.embeddings(torch, net, torch.from_numpy(x)) * 16.0).detach().numpy()
+    assert cost["steps"] == 60 and cost["device"] == "cpu" and cost["seconds"] > 0
+    assert (scores.argmax(axis=1) == np.arange(8) // 4).all()
+    assert (torch.get_num_threads(), torch.are_deterministic_algorithms_enabled()) == (threads, deterministic)
+
+
+def test_devices_auto_resolves_and_an_unknown_one_is_one_error():
+    assert cnn_net.resolve_device(torch, "auto") == ("cuda" if torch.cuda.is_available() else "cpu")
+    assert cnn_net.resolve_device(torch, "cpu") == "cpu"
+    with pytest.raises(ModelError, match="^device 'gpu0' is not one torch knows; give cpu, cuda, cuda:N or auto$"):
+        cnn_net.resolve_device(torch, "gpu0")
