@@ -49,7 +49,6 @@ from spm_model.bench.feature_cache import FeatureTable, load_features, memo_fold
 from spm_model.bench.scoring import eccentricity, frame_errors, run_summary
 from spm_model.bench.surface_metrics import mesh_keys
 from spm_model.bench.symmetry_errors import instance_symmetries
-from spm_model.methods.registry import builtin_methods
 from spm_model.methods.spm_pose import SPMPose
 from spm_model.methods.template import TemplatePose
 from spm_model.spm.estimator import SPMEstimator
