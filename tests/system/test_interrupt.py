@@ -115,13 +115,13 @@ def test_sigterm_at_any_moment_of_train_is_143_and_leaves_no_partial_report(mode
 
 SLOW_PLUGIN = '''
 import os
-import time
+import threading
 
 class Slow:
     def fit(self, frames, poses):
         with open(os.environ["SLOW_FIT_MARK"], "w") as fh:
             fh.write(str(os.getpid()))
-        time.sleep(600)
+        threading.Event().wait()   # blocks until its process is ended (never a fixed time)
         return self
 
     def predict(self, frames):
