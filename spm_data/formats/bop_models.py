@@ -32,10 +32,10 @@ import numpy as np
 
 from spm_data.errors import SpmError
 from spm_data.core.meshes import TexturedMesh
+from spm_data.core.raster import MM_PER_M
 from spm_data.core.symmetries import NO_SYMMETRY, Symmetries
 from spm_data.formats.ply import load_ply, save_ply
 
-MM_PER_M = 1000.0
 EVAL_CELL_FRACTION = 0.02  # models_eval: one vertex per cell of 2 % of the diameter
 
 

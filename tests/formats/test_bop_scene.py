@@ -103,6 +103,29 @@ def test_without_distractors_the_targets_ground_truth_is_the_same(cluttered):
     assert next(objects).keys() < next(objects).keys()   # the distractors are objects of the export with them
 
 
+
+def test_a_cluttered_frames_masks_are_what_the_export_counts(tmp_path):
+    # Its amodal mask is the numpy silhouette, drawn by the export's own rules (llvmpipe's): for a
+    # target inside the image, px_count_all is its pixel count and visib_fract 1 - occlusion_fraction
+    # to the last bit. Before the silhouette followed them, frame 9 was a pixel off (2633 pixels in the
+    # shard, 2634 in px_count_all: a pixel centre on a triangle's edge).
+    (tmp_path / "specs").mkdir()
+    (tmp_path / "specs" / "c.toml").write_text(CLUTTERED.format(cls="c").replace("views = 12", "views = 48"))
+    render_dataset(load_run_specs(all_classes=True, specs_dir=tmp_path / "specs"), tmp_path / "r", limit=12)
+    export_bop(tmp_path / "r", tmp_path / "bop", include_distractors=False)
+    ids, k = frame_ids(tmp_path / "r"), 0
+    for path in open_folder(tmp_path / "r").shards:
+        d = read_shard(path, ["mask", "visible_mask", "occlusion_fraction"])
+        for mask, visible, occlusion in zip(d["mask"] > 0, d["visible_mask"] > 0, d["occlusion_fraction"]):
+            sdir, im = tmp_path / "bop" / "train" / f"{int(ids.scene_id[k]):06d}", int(ids.im_id[k])
+            info = json.loads((sdir / "scene_gt_info.json").read_text())[str(im)][0]
+            assert not (mask[[0, -1]].any() or mask[:, [0, -1]].any())   # inside the image
+            assert (info["px_count_all"], info["px_count_visib"]) == (mask.sum(), visible.sum()), k
+            assert np.float32(1.0 - info["visib_fract"]) == occlusion, k
+            np.testing.assert_array_equal(png(sdir / "mask" / f"{im:06d}_000000.png"), mask)
+            k += 1
+    assert k == 12
+
 def frame_data(h=16, w=20):
     mask = np.zeros((1, h, w), np.uint8)
     mask[0, 4:10, 5:12] = 1
