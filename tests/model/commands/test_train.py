@@ -286,6 +286,29 @@ def test_the_length_unit_of_a_capture_imported_without_scale(tmp_path):
     assert length_unit(tmp_path / "units") == length_unit(tmp_path / "metric", tmp_path / "units") == "capture unit"
 
 
+
+def test_frames_without_path_neighbours_are_expected_under_render_limit_and_said_so(tmp_path, small_specs_dir):
+    from types import SimpleNamespace
+
+    from spm_data.commands.occlude_jobs import occlude_dataset
+    from spm_data.commands.render_jobs import load_run_specs, render_dataset
+    from spm_data.io.shards import list_shards
+    from spm_model.commands.train import alone_line
+
+    render_dataset(load_run_specs(classes=["cup"], specs_dir=small_specs_dir), tmp_path / "limited", limit=4)
+    render_dataset(load_run_specs(classes=["box"], specs_dir=small_specs_dir), tmp_path / "full")
+    occlude_dataset(tmp_path / "limited", tmp_path / "occluded")   # as make demo: the copies keep --limit
+    limited, full = list_shards(tmp_path / "limited")[0], list_shards(tmp_path / "full")[0]
+    occluded = list_shards(tmp_path / "occluded")[0]
+    table = SimpleNamespace(train_neighbours=np.array([0, 0, 1]), shard=np.array([str(limited), str(occluded),
+                                                                                  str(full)]))
+    assert alone_line(table) == ("2 frames have no 5-degree path neighbour in their shard, as expected: "
+                                 "`spm-data render --limit` spreads a shard's frames over its camera path; their "
+                                 "training features use every keypoint in the mask (docs/method.md)")
+    table.train_neighbours = np.array([0, 1, 0])   # one of them in a shard rendered without --limit
+    assert alone_line(table).startswith("2 frames have no 5-degree path neighbour in their shard; their training")
+
+
 BAD_PLUGINS = '''
 import os
 import time
