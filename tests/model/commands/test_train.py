@@ -309,6 +309,23 @@ def test_frames_without_path_neighbours_are_expected_under_render_limit_and_said
     assert alone_line(table).startswith("2 frames have no 5-degree path neighbour in their shard; their training")
 
 
+
+def test_the_data_lines_class_counts_add_up_to_its_frames_with_or_without_features():
+    """make demo's line once counted only frames with SPM's features per class (1,524 of 1,728)."""
+    from spm_model.commands.train import class_counts, data_line
+
+    class Table:
+        class_name = np.array(["cup"] * 4 + ["box"] * 3)
+        train_vector = np.ones((7, 16))
+
+        def __len__(self):
+            return 7
+
+    table = Table()
+    table.train_vector[[0, 1, 5]] = np.nan   # three frames without SPM's training features
+    assert data_line(table, class_counts(table)) == "7 frames, 2 classes: box 3, cup 4; 4 with SPM's training features"
+
+
 BAD_PLUGINS = '''
 import os
 import time
