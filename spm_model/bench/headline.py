@@ -103,7 +103,7 @@ def _dof_lines(summary: dict, best: str) -> list[str]:
     return lines
 
 
-SPM_AT_CHANCE = ("- SPM not above chance is what we expect: SPM built as the paper's text describes it is at or "
+SPM_AT_CHANCE = ("- SPM not beating chance is expected: SPM built as the paper's text describes it is at or "
                  "below chance on our data in every protocol (docs/results.md, \"Where we differ from the paper, and why\"; "
                  "docs/spm-ablation.md finds where its pose information is lost).")
 
