@@ -104,8 +104,8 @@ def _dof_lines(summary: dict, best: str) -> list[str]:
 
 
 SPM_AT_CHANCE = ("- SPM not beating chance is expected: SPM built as the paper's text describes it is at or "
-                 "below chance on our data in every protocol (docs/results.md, \"Where we differ from the paper, and why\"; "
-                 "docs/spm-ablation.md finds where its pose information is lost).")
+                 "below chance on our data in every protocol (docs/results.md, \"Where we differ from the paper, "
+                 "and why\"; docs/spm-ablation.md finds where its pose information is lost).")
 
 
 def _spm_note(summary: dict) -> list[str]:
