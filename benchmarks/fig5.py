@@ -180,19 +180,22 @@ def report_curves(summary: dict, title: str) -> None:
                 print(f"  {m:<26}" + "".join(f"{_cell(r[i]):>14}" for i in bins))
 
 
-def fig5_line(summary: dict) -> str:
-    """One line: every method's sum < 5° success per occlusion bin (± σ over runs), seen instances,
-    rectangles; each bin's frame count, those under FEW marked."""
+def fig5_table(summary: dict) -> str:
+    """Fig. 5 in a few lines: a title naming what the numbers are, a header row of occlusion bins
+    and one of their frame counts (those under FEW marked), then a row per method of its sum < 5°
+    success per bin (± σ over runs); seen instances, rectangles."""
     fig5 = summary["fig5"].get("seen") or summary["fig5"]["all"]
     curves = fig5.get("rectangles") or fig5["all"]
     rows = next(iter(curves.values()))
     bins = _bins(rows)
     runs = summary.get("runs", 1)
-    header = " ".join(f"{rows[i]['low']:.0%} ({_n(rows[i])})" for i in bins)
-    few = f"; * under {FEW} frames, too few to read" if any(rows[i]["frames"] < FEW for i in bins) else ""
-    cells = " | ".join(f"{m} " + " ".join(_rate(r[i]) for i in bins) for m, r in curves.items())
     spread = f", mean ± σ over {runs} runs" if runs > 1 else ", 1 run"
-    return f"Fig. 5 (seen instances, rectangles, sum < 5° %{spread}; occlusion bins {header}{few}): {cells}"
+    few = f"; * under {FEW} frames, too few to read" if any(rows[i]["frames"] < FEW for i in bins) else ""
+    width = max([len("occluded")] + [len(m) for m in curves]) + 2
+    table = [("occluded", [f"{rows[i]['low']:.0%}-{rows[i]['high']:.0%}" for i in bins]),
+             ("frames", [_n(rows[i]) for i in bins]), *((m, [_rate(r[i]) for i in bins]) for m, r in curves.items())]
+    return "\n".join([f"Fig. 5 (seen instances, rectangles): sum < 5° success % per occlusion bin{spread}{few}"]
+                     + [f"  {label:<{width}}" + "".join(f"{cell:>9}" for cell in cells) for label, cells in table])
 
 
 def _cell(row) -> str:
@@ -269,7 +272,7 @@ def main(argv=None) -> int:
                                      progress=bar, log=lambda m: print("  " + m, flush=True)))
     trained = time.perf_counter() - started
     if args.quick:
-        print(fig5_line(result["summary"]))
+        print(fig5_table(result["summary"]))
         print(f"render and occlude {timing['rendered_s']:.0f} s, train and test {trained:.0f} s; report: "
               f"{out / 'report'}")
         return 0

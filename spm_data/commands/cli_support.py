@@ -129,7 +129,10 @@ class Progress:
     """Progress of a long step, fed count deltas (negative when a crashed shard's frames are taken
     back): a tqdm bar on a terminal; elsewhere (a log, a pipe) one line on stderr every EVERY
     seconds, the first after EVERY seconds (none for a shorter run), e.g.
-    ``render: 1,234/5,000 frames, 41.2 frames/s, 1 min 31 s left`` (no "left" without a total).
+    ``render: 1,234/5,000 frames, 41.2 frames/s, 1 min 31 s left`` (no "left" without a total). The
+    time left is that of the rate up to the last count, less the time since it: between the ends of
+    a few long items (splits) it counts down, and once it runs out it is left out, never a guess
+    that grows while nothing ends.
 
     EVERY: None reads $SPM_PROGRESS_EVERY (default 10 s). ``phase(label, total, unit)`` starts
     a command's next step (a new count); setting ``total`` starts a new count of the same step;
@@ -153,7 +156,8 @@ class Progress:
 
     def _start(self, label, total, unit):
         with self._lock:
-            self.label, self._total, self.unit, self.done, self.started = label, total, unit, 0, time.monotonic()
+            self.label, self._total, self.unit, self.done = label, total, unit, 0
+            self.started = self.counted = time.monotonic()   # counted: when the count last grew
 
     @property
     def total(self):
@@ -173,6 +177,8 @@ class Progress:
     def __call__(self, n=1):
         with self._lock:
             self.done += n
+            if n > 0:
+                self.counted = time.monotonic()
         if self.bar is not None:
             self.bar.update(n)
 
@@ -180,14 +186,18 @@ class Progress:
         """The progress line as it stands (what is printed off a terminal)."""
         with self._lock:
             label, unit, total, done = self.label, self.unit, self._total, max(self.done, 0)
-            elapsed = time.monotonic() - self.started
+            now = time.monotonic()
+            elapsed, counting = now - self.started, self.counted - self.started
         if unit is None:
             return f"{label}: {_duration(elapsed)} so far"
         units = unit + ("es" if unit.endswith(("s", "x", "ch", "sh")) else "s")
         rate = done / elapsed if elapsed > 0 else 0.0
         speed = (f"{rate:,.1f} {units}/s" if rate >= 0.1 else f"0 {units}/s" if rate == 0 else
                  f"{rate * 60:.1f} {units}/min")
-        left = f", {_duration((total - done) / rate)} left" if total and rate > 0 and done < total else ""
+        # Time left at the rate of the counts so far, less the time since the last one: it counts down
+        # while a long item runs (a split) instead of growing, and is not guessed once that has run out.
+        left = (total - done) * counting / done - (now - self.counted) if total and 0 < done < total else 0
+        left = f", {_duration(left)} left" if counting > 0 and left >= 0.5 else ""
         return f"{label}: {_count(done)}{f'/{_count(total)}' if total is not None else ''} {units}, {speed}{left}"
 
     def _tick(self):

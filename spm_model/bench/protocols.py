@@ -47,6 +47,7 @@ from spm_model.bench.fitting import builtin_classes, failure, fit_predict, unmet
 from spm_model.bench.isolation import DEFAULT_TIMEOUT
 from spm_model.bench.feature_cache import FeatureTable, load_features, memo_folder, offgrid_table, progress_phase
 from spm_model.bench.scoring import eccentricity, frame_errors, run_summary
+from spm_model.bench.split_lines import SplitLines
 from spm_model.bench.surface_metrics import mesh_keys
 from spm_model.bench.symmetry_errors import instance_symmetries
 from spm_model.methods.spm_pose import SPMPose
@@ -199,7 +200,7 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
     final: also fit the final models (:func:`final_models`), as the first job, so they are fitted
     while the splits run instead of after them. timeout: seconds a plug-in's call may take
     before it is declined (None: no limit). progress: a callable taking count deltas
-    (feature_cache.progress_phase): "fitting" counts the splits (the final models one more), "scoring" runs.
+    (feature_cache.progress_phase): "fitting" counts the splits (not the final models), "scoring" runs.
     Returns {"protocol", "runs": [...], "eccentricity", "classes", "methods", "train_occluded"} (and
     with ``final`` "final_models": final_models' result)."""
     if protocol not in PROTOCOLS:
@@ -217,7 +218,7 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
     wanted = tuple(m for m in FINAL_MODELS if builtins is None or m in builtins)   # only what was asked for
     finals = [("final", key, dict(model_params or {}), train_occluded, wanted)] if final else []
     progress = progress or (lambda n: None)
-    progress_phase(progress, "fitting", len(finals + jobs), "split")
+    progress_phase(progress, "fitting", len(jobs), "split")
     outputs = _run_jobs(finals + jobs, executor if source is not None else None, report, progress)
     models, outputs = (outputs[0], outputs[1:]) if final else (None, outputs)
     if reused:
@@ -318,15 +319,15 @@ def bench_job(job, report=lambda n: None):
 
 
 def _run_jobs(jobs: list, executor, report, progress) -> list:
-    """Outputs of bench_job for every job, in order, ``progress(1)`` as each ends; in this process
-    without an executor."""
+    """Outputs of bench_job for every job, in order, ``progress(1)`` as each split job ends (the
+    final models are not a split: counted, a quick one would make the time left a guess from it),
+    each split's line said in job order (split_lines.py); in this process without an executor."""
+    lines = SplitLines(jobs, report)
+
     def said(job, output):
-        progress(1)
-        if job[0] != "final" and len(output[2]):
-            declined = output[4]["declined"]
-            reused = "; every method's predictions reused from run 1" if job[2] and not output[3] else ""
-            report(f"run {job[2] + 1}: {job[1]} test {output[0]} ({output[1]} train / {len(output[2])} test frames)"
-                   + (f"; declined: {', '.join(declined)}" if declined else "") + reused)
+        if job[0] != "final":
+            progress(1)
+        lines(job, output)
 
     if executor is None:
         outputs = []
@@ -334,7 +335,7 @@ def _run_jobs(jobs: list, executor, report, progress) -> list:
             outputs.append(bench_job(job))
             said(job, outputs[-1])
         return outputs
-    outcomes = executor.run(bench_job, jobs, on_outcome=lambda o: progress(1) if o.error else said(o.job, o.result))
+    outcomes = executor.run(bench_job, jobs, on_outcome=lambda o: said(o.job, None if o.error else o.result))
     failed = [o for o in outcomes if o.error]
     if failed:
         raise ModelError(failed[0].error if failed[0].error.count("\n") == 0 else failed[0].error.splitlines()[-1])

@@ -150,10 +150,8 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
     if unit != "m":
         log("lengths are the capture's world units (imported without --scale): the report's mm are thousandths "
             "of that unit")
-    alone = int((table.train_neighbours == 0).sum())
-    if alone:
-        log(f"{alone} frames have no 5-degree path neighbour in their shard; their training features "
-            "use every keypoint in the mask (docs/method.md)")
+    if (table.train_neighbours == 0).any():
+        log(alone_line(table))
     model_params = dict(model_params or {}, features=features)
     source = (str(shards), None if test is None else str(test), features, allow_partial)
     evaluation = evaluate(table, protocol, runs, model_params, estimators=plugins, report=log, builtins=builtins,
@@ -189,6 +187,26 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
     return {"report": out, "model": model_path, "reference_model": reference_path, "cnn_model": cnn_path,
             "summary": summary,
             "evaluation": evaluation, "text": summary_text(summary), "models": models, "bop_results": written}
+
+
+def alone_line(table: FeatureTable) -> str:
+    """The note on the frames without a 5-degree path neighbour in their shard: as expected (not a
+    warning) where every one of them is in a shard rendered with --limit, which spreads the frames
+    over the camera path so that no two are neighbours."""
+    alone = table.train_neighbours == 0
+    limited = all(_frame_limit(shard) for shard in set(np.asarray(table.shard)[alone].tolist()))
+    why = (", as expected: `spm-data render --limit` spreads a shard's frames over its camera path" if limited
+           else "")
+    return (f"{int(alone.sum())} frames have no 5-degree path neighbour in their shard{why}; their training "
+            "features use every keypoint in the mask (docs/method.md)")
+
+
+def _frame_limit(shard) -> int:
+    """The --limit the shard was rendered with (0: none, or not a render, or unreadable now)."""
+    try:
+        return int(read_attrs(shard).get("frame_limit", 0))
+    except (SpmError, OSError, ValueError):
+        return 0
 
 
 def _bop_results(bop, table, protocol, model_params, builtins, plugins, train_occluded, folder, allow_partial,

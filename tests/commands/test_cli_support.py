@@ -198,6 +198,7 @@ def test_off_a_terminal_a_fed_progress_prints_a_line_with_rate_and_time_left(mon
     with Progress("frame", "render", total=5000, stream=out) as progress:
         assert progress.bar is None   # not a terminal: no bar
         progress(1234)
+        progress.started = progress.counted - 30   # as if fed over 30 s (at once, the time left would be 0)
         wait_for(lambda: out.getvalue().count("\n") >= 2)
     lines = out.getvalue().splitlines()
     assert all(LINE.match(line) for line in lines), lines
@@ -219,6 +220,24 @@ def test_the_line_says_count_rate_and_time_left_and_no_time_left_without_a_total
         progress.phase("report", None, None)   # a step that counts nothing
         progress.started = time.monotonic() - 75
         assert progress.line() == "report: 1 min 15 s so far"
+
+
+def test_the_time_left_counts_down_between_long_items_and_is_not_guessed_once_run_out(monkeypatch):
+    """fig5's `fitting: 1/4 splits` once said 48 s left, then 2 min 48 s while nothing ended."""
+    monkeypatch.setenv("SPM_PROGRESS_EVERY", "3600")
+    with Progress("split", "fitting", total=4, stream=io.StringIO()) as progress:
+        assert progress.line() == "fitting: 0/4 splits, 0 splits/s"   # nothing ended: no time left
+        progress(1)
+        now = time.monotonic()
+        progress.started, progress.counted = now - 10, now        # the first split took 10 s
+        assert progress.line().endswith(", 30 s left")
+        progress.started, progress.counted = now - 25, now - 15   # ... and nothing has ended for 15 s since
+        assert progress.line().endswith(", 15 s left")
+        progress.started, progress.counted = now - 50, now - 40   # past the guess: none is made
+        assert "left" not in progress.line()
+        progress(1)   # the next one ends: a new guess from the rate of both
+        progress.started = time.monotonic() - 50
+        assert progress.line().endswith(", 50 s left")
 
 
 def test_a_run_shorter_than_the_interval_prints_nothing(monkeypatch):
@@ -275,6 +294,7 @@ def test_a_command_off_a_terminal_prints_progress_lines_to_stderr_not_stdout(mon
         def call(progress):
             progress.total = 100
             progress(40)
+            progress.started = progress.counted - 30   # as if fed over 30 s
             wait_for(lambda: getattr(progress, "line_count", 0) >= 1)
             return Summary()
 

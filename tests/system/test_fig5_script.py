@@ -1,5 +1,5 @@
 """benchmarks/fig5.py: the options that made OUT's data are recorded there and a rerun with
-other ones stops in one line; its one-line Fig. 5 shows each bin's frames and σ over runs."""
+other ones stops in one line; its short Fig. 5 table names its columns, each bin's frames and σ over runs."""
 
 import importlib.util
 import json
@@ -63,18 +63,21 @@ def _rows(frames, rate, std):
              "success_tol5": rate, "std": {"success_sum5": std}} for i, n in enumerate(frames)]
 
 
-def test_fig5_line_shows_each_bins_frames_marks_the_few_and_carries_sigma(fig5):
+def test_fig5_table_names_its_columns_shows_each_bins_frames_marks_the_few_and_carries_sigma(fig5):
     frames = [48, 25, 20, 31, 19, 22, 0, 0, 0, 0]
     summary = {"runs": 3, "fig5": {"seen": {"rectangles": {"spm": _rows(frames, 84.0, 2.4),
                                                            "chance": _rows(frames, 0.0, 0.0)}}}}
-    line = fig5.fig5_line(summary)
-    assert "\n" not in line
-    assert ("occlusion bins 0% (n=48) 10% (n=25) 20% (n=20) 30% (n=31) 40% (n=19*) 50% (n=22); "
-            "* under 20 frames, too few to read" in line)
-    assert "mean ± σ over 3 runs" in line and line.endswith("spm 84±2 84±2 84±2 84±2 84±2 84±2 | chance 0±0 0±0 0±0 "
-                                                            "0±0 0±0 0±0")
-    one = fig5.fig5_line({"runs": 1, "fig5": {"seen": {"rectangles": {"spm": _rows([30] * 6, 50.0, None)}}}})
-    assert "1 run" in one and "*" not in one and one.endswith("spm 50 50 50 50 50 50")
+    lines = fig5.fig5_table(summary).splitlines()
+    assert lines[0] == ("Fig. 5 (seen instances, rectangles): sum < 5° success % per occlusion bin, mean ± σ over "
+                        "3 runs; * under 20 frames, too few to read")
+    assert [line.split() for line in lines[1:]] == [
+        ["occluded", "0%-10%", "10%-20%", "20%-30%", "30%-40%", "40%-50%", "50%-60%"],   # empty bins left out
+        ["frames", "n=48", "n=25", "n=20", "n=31", "n=19*", "n=22"],
+        ["spm", *["84±2"] * 6], ["chance", *["0±0"] * 6]]
+    # Every column is right-aligned under its header: the cells end where the bin's name ends.
+    assert {len(line) for line in lines[1:]} == {len(lines[1])}
+    one = fig5.fig5_table({"runs": 1, "fig5": {"seen": {"rectangles": {"spm": _rows([30] * 6, 50.0, None)}}}})
+    assert "1 run" in one and "*" not in one and one.splitlines()[-1].split() == ["spm", *["50"] * 6]
 
 
 def test_a_small_run_records_its_command_and_resumes(fig5, tmp_path, capsys):

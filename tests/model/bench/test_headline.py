@@ -70,3 +70,17 @@ def test_spy_the_headline_names_a_method_only_beyond_both_intervals():
 def test_rate_text_carries_frames_and_interval():
     assert rate_text(_entry(50.0, 10)) == "50.0% (95% CI 23.7–76.3, 10 frames)"
     assert rate_text({"success_tol5": None}) == "–" and rate_text({"success_tol5": 5.0}) == "5.0%"
+
+
+def test_spm_at_chance_is_said_to_be_the_known_result_and_only_then():
+    from spm_model.bench.headline import SPM_AT_CHANCE
+
+    at_chance = {"protocol": "loco", "methods": {"spm": _entry(0.4, 1000), "pca": _entry(60.0, 1000)},
+                 "chance": _entry(0.7, 1000)}
+    lines = plain_summary(at_chance)
+    assert lines.count(SPM_AT_CHANCE) == 1 and "docs/results.md" in SPM_AT_CHANCE
+    assert lines.index(SPM_AT_CHANCE) == 2   # after the headline and every other method's rate
+    above = {**at_chance, "methods": {"spm": _entry(60.0, 1000)}}
+    assert SPM_AT_CHANCE not in plain_summary(above)
+    assert SPM_AT_CHANCE not in plain_summary({**at_chance, "chance": None})   # nothing to compare with
+    assert SPM_AT_CHANCE not in plain_summary({**at_chance, "methods": {"pca": _entry(60.0, 1000)}})

@@ -260,7 +260,7 @@ def test_train_reports_each_step_features_first(tmp_path):
     train(tmp_path / "out", runs=1, features=FeatureConfig(ellipse="direct"), builtins=["knn1", "template"],
           progress=progress)
     assert progress.steps == [["checking cached features", 2, "shard", 2], ["features", 48, "frame", 48],
-                              ["reading features", 2, "shard", 2], ["fitting", 3, "split", 3],   # loco: 2 + final
+                              ["reading features", 2, "shard", 2], ["fitting", 2, "split", 2],   # loco: 2 (the final models uncounted)
                               ["scoring", 1, "run", 1], ["report", None, None, 0]]
     progress = Steps()   # again: every feature cached
     train(tmp_path / "out", runs=1, features=FeatureConfig(ellipse="direct"), builtins=["knn1"], progress=progress)
@@ -284,6 +284,46 @@ def test_the_length_unit_of_a_capture_imported_without_scale(tmp_path):
     with pytest.warns(Warning, match="no --scale"):
         import_nerf(capture, tmp_path / "units")
     assert length_unit(tmp_path / "units") == length_unit(tmp_path / "metric", tmp_path / "units") == "capture unit"
+
+
+
+def test_frames_without_path_neighbours_are_expected_under_render_limit_and_said_so(tmp_path, small_specs_dir):
+    from types import SimpleNamespace
+
+    from spm_data.commands.occlude_jobs import occlude_dataset
+    from spm_data.commands.render_jobs import load_run_specs, render_dataset
+    from spm_data.io.shards import list_shards
+    from spm_model.commands.train import alone_line
+
+    render_dataset(load_run_specs(classes=["cup"], specs_dir=small_specs_dir), tmp_path / "limited", limit=4)
+    render_dataset(load_run_specs(classes=["box"], specs_dir=small_specs_dir), tmp_path / "full")
+    occlude_dataset(tmp_path / "limited", tmp_path / "occluded")   # as make demo: the copies keep --limit
+    limited, full = list_shards(tmp_path / "limited")[0], list_shards(tmp_path / "full")[0]
+    occluded = list_shards(tmp_path / "occluded")[0]
+    table = SimpleNamespace(train_neighbours=np.array([0, 0, 1]), shard=np.array([str(limited), str(occluded),
+                                                                                  str(full)]))
+    assert alone_line(table) == ("2 frames have no 5-degree path neighbour in their shard, as expected: "
+                                 "`spm-data render --limit` spreads a shard's frames over its camera path; their "
+                                 "training features use every keypoint in the mask (docs/method.md)")
+    table.train_neighbours = np.array([0, 1, 0])   # one of them in a shard rendered without --limit
+    assert alone_line(table).startswith("2 frames have no 5-degree path neighbour in their shard; their training")
+
+
+
+def test_the_data_lines_class_counts_add_up_to_its_frames_with_or_without_features():
+    """make demo's line once counted only frames with SPM's features per class (1,524 of 1,728)."""
+    from spm_model.commands.train import class_counts, data_line
+
+    class Table:
+        class_name = np.array(["cup"] * 4 + ["box"] * 3)
+        train_vector = np.ones((7, 16))
+
+        def __len__(self):
+            return 7
+
+    table = Table()
+    table.train_vector[[0, 1, 5]] = np.nan   # three frames without SPM's training features
+    assert data_line(table, class_counts(table)) == "7 frames, 2 classes: box 3, cup 4; 4 with SPM's training features"
 
 
 BAD_PLUGINS = '''
