@@ -9,27 +9,11 @@ from multiprocessing import Pipe
 import numpy as np
 
 from spm_model.commands.check_contract import ContractChecks
+from tests.model.commands.test_check_estimator import Good as Mean   # a plug-in keeping the contract
 
 POSES = np.arange(24, dtype=np.float64).reshape(4, 6)
 FRAMES = np.zeros((4, 1))   # the checks only count and index frames; the plug-ins below ignore them
 CAMERA = np.zeros((3, 1))
-
-
-class Mean:
-    def __init__(self, *, shift=0.0):
-        self.shift = shift
-
-    def get_params(self):
-        return {"shift": self.shift}
-
-    def fit(self, frames, poses):
-        self.mean_ = np.asarray(poses).mean(axis=0) + self.shift
-        return self
-
-    def predict(self, frames):
-        if not hasattr(self, "mean_"):
-            raise RuntimeError("not fitted")
-        return np.tile(self.mean_, (len(frames), 1))
 
 
 class ReturnsNone(Mean):
