@@ -87,7 +87,9 @@ class FrameMaker:
             labels.update(draws.labels(lights_width(spec)))
         if placement is not None:
             images["mask"] = placement.amodal.astype(np.uint8)
-            images["visible_mask"] = out["mask"] & images["mask"]
+            # Hidden means something drawn in front: an amodal pixel the render left empty (its
+            # rasteriser and ours split a silhouette edge differently) is visible, as BOP counts it.
+            images["visible_mask"] = images["mask"] & (out["mask"] | (out["depth"] == 0))
             labels.update(self._distractor_labels(placement, images))
         for field in ("instances", "normals"):
             if field in self.image_fields:

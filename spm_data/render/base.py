@@ -132,6 +132,33 @@ def mask_from_depth(depth: np.ndarray) -> np.ndarray:
     return (depth > 0).astype(np.uint8)
 
 
+def labels_agreeing_with_depth(labels: np.ndarray, depth: np.ndarray, label_depth: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 instance labels that agree with ``depth`` (H, W) float32 metres, 0 = nothing.
+
+    ``labels`` (H, W) uint8 come from a second GL pass whose own depth is ``label_depth``. A GL
+    driver may compile that pass's shader differently (Mesa's does), so at about one pixel in a
+    hundred frames it covers a silhouette pixel the colour pass did not, or the reverse. A label
+    is kept where both passes drew the same depth; elsewhere the pixel takes the label of its
+    8-neighbour (among the kept, non-zero ones) nearest in depth, and none where depth has no
+    surface. So the visible mask and the depth a BOP export writes say the same of every pixel."""
+    labels = np.where(depth > 0, labels, 0).astype(np.uint8)
+    doubtful = (depth > 0) & ((labels == 0) | (label_depth != depth))
+    if not doubtful.any():
+        return labels
+    kept_depth = np.where((depth > 0) & ~doubtful & (labels > 0), depth, np.inf)
+    h, w = depth.shape
+    pad_d = np.pad(kept_depth, 1, constant_values=np.inf)
+    pad_l = np.pad(labels, 1)
+    ys, xs = np.nonzero(doubtful)
+    shifts = [(dy, dx) for dy in (0, 1, 2) for dx in (0, 1, 2) if (dy, dx) != (1, 1)]
+    near = np.stack([pad_d[ys + dy, xs + dx] for dy, dx in shifts])          # (8, n) neighbours' depths
+    names = np.stack([pad_l[ys + dy, xs + dx] for dy, dx in shifts])
+    best = np.argmin(np.abs(near - depth[ys, xs]), axis=0)
+    found = np.isfinite(near[best, np.arange(len(ys))])
+    labels[ys[found], xs[found]] = names[best, np.arange(len(ys))][found]
+    return labels
+
+
 # --------------------------------------------------------------------------- GPUs
 
 def parse_gpus(text) -> tuple[int, ...] | None:

@@ -15,7 +15,8 @@ import numpy as np
 from spm_data.errors import RenderError
 from spm_data.core.poses import K_to_corner_origin, cv_to_gl_camera_to_world
 from spm_data.core.raster import CLIP_FAR, CLIP_NEAR
-from spm_data.render.base import Renderer, assigned_gpu, decode_normals, light_rotations, mask_from_depth
+from spm_data.render.base import (Renderer, assigned_gpu, decode_normals, labels_agreeing_with_depth, light_rotations,
+                                  mask_from_depth)
 
 # EGL needs no display; it must be chosen before OpenGL is first imported.
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
@@ -318,9 +319,9 @@ class PyrenderRenderer(Renderer):
         out = {"rgb": np.ascontiguousarray(color[..., :3], dtype=np.uint8), "depth": depth}
         if distractors or self.outputs.instances or self.outputs.normals:
             ids = {node: k + 1 for k, nodes in enumerate([self._target_nodes, *added]) for node in nodes}
-            seg, _ = self._renderer.render(self._scene, flags=flags | pr.RenderFlags.SEG,
-                                           seg_node_map={node: [k, k, k] for node, k in ids.items()})
-            instances = np.where(depth > 0, seg[..., 0], 0).astype(np.uint8)
+            seg, seg_depth = self._renderer.render(self._scene, flags=flags | pr.RenderFlags.SEG,
+                                                   seg_node_map={node: [k, k, k] for node, k in ids.items()})
+            instances = labels_agreeing_with_depth(seg[..., 0], depth, np.asarray(seg_depth, dtype=np.float32))
             out["instances"] = instances
             mask = (instances == 1).astype(np.uint8)
         else:

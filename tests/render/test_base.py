@@ -9,7 +9,7 @@ import pytest
 from spm_data.core.poses import intrinsics_from_fov
 from spm_data.core.specs import parse_spec
 from spm_data.errors import RenderError
-from spm_data.render.base import Renderer, light_rotations, mask_from_depth, spec_intrinsics
+from spm_data.render.base import Renderer, labels_agreeing_with_depth, light_rotations, mask_from_depth, spec_intrinsics
 
 SPEC = 'class = "cup"\n[image]\nwidth = 64\nheight = 48\nfov = 40\n[render]\nrenderer = "pyrender"\n'
 
@@ -68,6 +68,28 @@ def test_mask_from_depth():
     depth = np.array([[0.0, 0.5], [1e-9, -0.0]], np.float32)
     mask = mask_from_depth(depth)
     assert mask.dtype == np.uint8 and mask.tolist() == [[0, 1], [1, 0]]
+
+
+def test_labels_follow_the_colour_pass_where_the_label_pass_disagrees():
+    depth = np.array([[0.5, 0.5, 0.9, 0.0],
+                      [0.5, 0.7, 0.9, 0.9],
+                      [0.0, 0.0, 0.9, 0.0]], np.float32)
+    label_depth = depth.copy()
+    labels = np.array([[1, 1, 2, 0],
+                       [1, 0, 2, 2],
+                       [0, 3, 2, 0]], np.uint8)
+    agreeing = np.where(depth > 0, labels, 0)
+    agreeing[1, 1] = 1
+    np.testing.assert_array_equal(labels_agreeing_with_depth(agreeing, depth, depth), agreeing)   # nothing to do
+    label_depth[1, 1] = 0.0            # the label pass missed a pixel the colour pass drew (Mesa, 1 px)
+    label_depth[0, 2] = 0.55           # ... and drew another surface at one pixel
+    labels[0, 2] = 1
+    label_depth[2, 1] = 0.3            # drew where the colour pass has nothing: no label there
+    out = labels_agreeing_with_depth(labels, depth, label_depth)
+    assert out.dtype == np.uint8
+    assert out.tolist() == [[1, 1, 2, 0],  # [0, 2]: its kept neighbours nearest 0.9 are label 2
+                            [1, 1, 2, 2],  # [1, 1] at 0.7: neighbour 0.5 (label 1) is nearer than 0.9 (2)
+                            [0, 0, 2, 0]]
 
 
 # --------------------------------------------------------------------------- GPUs
