@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.base.feature_memo import use_folder
 from spm_model.base.frames import Frames
 from spm_model.bench.fitting import builtin_classes, failure, fit_predict, unmet_needs

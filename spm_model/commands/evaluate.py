@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from spm_data.errors import ModelError, SpmError, one_line
+from spm_data.errors import SpmError, one_line
+from spm_model.errors import ModelError
 from spm_model.base.frames import Frames
 from spm_model.base.model_files import load_model_file
 from spm_model.bench.feature_cache import load_features, progress_phase

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from spm_data.errors import ModelError, ShardError, SpmError
+from spm_data.errors import ShardError, SpmError
+from spm_model.errors import ModelError
 from spm_data.io.folders import find_folders
 from spm_data.io.locking import OutputLock
 from spm_data.io.outputs import removing_created

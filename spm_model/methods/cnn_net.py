@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 
 INSTALL_HINT = "pip install 'spm[learn]' (make install includes it)"
 

@@ -24,7 +24,7 @@ import re
 
 import numpy as np
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.methods.baselines import ChancePose, RawImagePose
 from spm_model.methods.cnn import CNNPose
 from spm_model.methods.n3m import N3MPose

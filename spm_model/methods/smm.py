@@ -23,7 +23,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from spm_data.core.poses import label_to_pose, label_to_view, wrap_degrees
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.base.estimator import Needs, PoseEstimator
 from spm_model.base.ranking import smallest_k
 from spm_model.methods.smm_graph import manifold_distances, select_parts, selection_weights, training_pairs

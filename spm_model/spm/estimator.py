@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from spm_model.spm.features import FeatureConfig, image_features
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.base.estimator import Estimator, check_fitted
 from spm_model.base.model_files import check_xy, load_model_file, need, need_finite, save_model_file
 from spm_model.spm.regressor import RBFPoseRegressor

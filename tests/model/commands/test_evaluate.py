@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.commands.evaluate import load_model
 
 

@@ -3,7 +3,7 @@ printed for results and failures."""
 
 import pytest
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.commands.predict import format_predictions, prediction_errors, roi_mask
 
 

@@ -199,7 +199,7 @@ def test_when_no_method_but_chance_can_run_train_exits_1_with_one_line(tmp_path)
 
 
 def test_a_plug_in_with_a_wrong_needs_is_refused_before_any_work(tmp_path, monkeypatch):
-    from spm_data.errors import ModelError
+    from spm_model.errors import ModelError
     from spm_model.commands.train import load_estimators
 
     (tmp_path / "odd_pose.py").write_text("class Odd:\n    NEEDS = {'depth': True}\n"

@@ -4,7 +4,7 @@ import sys
 import numpy as np
 import pytest
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.base.safetensors_file import read_safetensors
 from spm_model.bench.metrics import wilson_interval
 from spm_model.methods.baselines import ChancePose

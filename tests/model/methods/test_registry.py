@@ -6,7 +6,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.base.estimator import Needs, needs_of
 from spm_model.methods.registry import METHOD_NAMES, builtin_methods, check_predictions, load_estimator_class
 from spm_model.spm.features import FeatureConfig
