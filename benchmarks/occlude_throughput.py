@@ -32,7 +32,7 @@ def main(frames: int = 1024) -> None:
     # __mp_main__), and the renderer's imports (trimesh, scipy) would cost each worker ~1 s.
     import numpy as np
 
-    from spm_data.commands.cli_support import stage
+    from spm_data.jobs.progress import stage
     from spm_data.commands.occlude_jobs import occlude_dataset
     from spm_data.core.occlusion import apply_occlusion, occlude_mask
     from spm_data.io.shards import forget_checks, list_shards, read_shard, verify_shard

@@ -36,7 +36,7 @@ from pathlib import Path
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from spm_data.commands.cli_support import Progress  # noqa: E402
+from spm_data.jobs.progress import Progress  # noqa: E402
 from spm_data.errors import SpmError  # noqa: E402
 from spm_data.formats.coil100 import NAME, import_coil20, import_coil100, list_members  # noqa: E402
 from spm_data.io.files import atomic_file  # noqa: E402

@@ -21,7 +21,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from spm_data.commands.cli_support import stage  # noqa: E402
+from spm_data.jobs.progress import stage  # noqa: E402
 from spm_model.bench.feature_cache import load_features  # noqa: E402
 from spm_model.bench.protocols import evaluate  # noqa: E402
 from spm_model.spm.features import FeatureConfig  # noqa: E402

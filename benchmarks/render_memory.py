@@ -89,7 +89,7 @@ def child(mode: str, size: int, frames: int) -> dict:
 
 
 def measure(mode: str, size: int = 0, frames: int = 0) -> dict:
-    from spm_data.commands.cli_support import stage
+    from spm_data.jobs.progress import stage
 
     env = {**os.environ, "PYOPENGL_PLATFORM": os.environ.get("PYOPENGL_PLATFORM", "egl")}
     what = f"{mode}, {frames} frames of {size}x{size}" if size else mode

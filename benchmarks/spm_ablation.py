@@ -61,7 +61,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from spm_data.commands.cli_support import Progress  # noqa: E402
+from spm_data.jobs.progress import Progress  # noqa: E402
 from spm_data.io.shards import list_shards, read_shard  # noqa: E402
 from spm_model.spm.bunches import BunchError, fit_bunches  # noqa: E402
 from spm_model.spm.ellipse import EllipseError, fit_ellipse  # noqa: E402

@@ -101,7 +101,7 @@ def contact_sheet(shard, out_png, frames: int = 24, columns: int = 6, scale: flo
     outline is yellow, its visible part's (distractors, occlusion) green; the pose axes are drawn
     from K, R, t; captions give the camera's azimuth, elevation and distance (metres), from R and t
     where the shard leaves them NaN (imports). A progress line on stderr counts the tiles."""
-    from spm_data.commands.cli_support import Progress
+    from spm_data.jobs.progress import Progress
     from spm_data.io.shards import ShardReader
 
     out_png = check_image_path(out_png, "sheet.png")

@@ -78,7 +78,7 @@ def validate_shard(path) -> list[str]:
 
 
 def _phase(progress, label: str, total: int) -> None:
-    """Start a step of ``progress`` (spm_data.commands.cli_support.Progress, or any callable with a
+    """Start a step of ``progress`` (spm_data.jobs.progress.Progress, or any callable with a
     settable ``total``) counting ``total`` shards."""
     if progress is not None:
         if hasattr(progress, "phase"):

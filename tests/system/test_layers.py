@@ -10,11 +10,11 @@ from pathlib import Path
 from spm_data.render import RENDERERS
 
 ROOT = Path(__file__).resolve().parents[2]
-PACKAGES = ("spm_data", "spm_model", "cli.py")
+PACKAGES = ("spm_data", "spm_model", "spm_cli", "cli.py")
 # Lowest first; a module may import its own layer and those below it, never above.
 LAYERS = ("spm_data.errors", "spm_data.io", "renderer registry", "spm_data.core", "spm_data.render", "spm_data.jobs",
           "spm_data.formats", "spm_data.commands", "spm_model.errors", "spm_model.base", "spm_model.spm",
-          "spm_model.methods", "spm_model.bench", "spm_model.commands", "cli")
+          "spm_model.methods", "spm_model.bench", "spm_model.commands", "spm_cli", "cli")
 # The registry (spm_data/render/__init__.py) and the backends' settings modules sit below core,
 # which reads them for the specs; the Renderer base and the backends sit above it.
 REGISTRY = {"spm_data.render"} | {b.settings.__module__ for b in RENDERERS.values() if b.settings}
@@ -93,6 +93,19 @@ def test_imports_go_downward_only():
 
 def test_no_import_cycles():
     assert import_cycles(graph()) == []
+
+
+def imports_click(path: Path) -> bool:
+    tree = ast.parse(path.read_text())
+    return any(isinstance(n, ast.Import) and any(a.name.split(".")[0] == "click" for a in n.names)
+               or isinstance(n, ast.ImportFrom) and n.level == 0 and (n.module or "").split(".")[0] == "click"
+               for n in ast.walk(tree))
+
+
+def test_only_the_command_line_imports_click():
+    """spm_cli/ is the face: the library (and so the benchmarks, which import the library) never needs click."""
+    clicky = sorted(m for m, p in module_files().items() if imports_click(p))
+    assert clicky and [m for m in clicky if m.split(".")[0] != "spm_cli"] == []
 
 
 def test_no_module_over_max_lines():

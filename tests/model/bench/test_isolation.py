@@ -227,7 +227,7 @@ def test_a_method_that_exits_or_runs_too_long_is_declined_and_the_others_are_sco
 
 def test_the_commands_default_time_limit_is_the_librarys():
     from spm_model.bench.isolation import DEFAULT_TIMEOUT
-    from spm_model.commands.cli_model import PLUGIN_TIMEOUT_S
+    from spm_cli.model import PLUGIN_TIMEOUT_S
 
     assert PLUGIN_TIMEOUT_S == DEFAULT_TIMEOUT
 

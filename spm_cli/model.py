@@ -7,7 +7,7 @@ import sys
 
 import click
 
-from spm_data.commands.cli_support import ALLOW_PARTIAL, Progress, executor_options, handle_errors, old_spelling
+from spm_cli.support import ALLOW_PARTIAL, Progress, executor_options, handle_errors, old_spelling
 from spm_data.errors import SpmError
 
 

@@ -1,4 +1,4 @@
-"""spm_data.commands.cli_import (spm-data import): an import end to end with its skips reported and a
+"""spm_cli.importers (spm-data import): an import end to end with its skips reported and a
 rerun resuming, the class map under its own name (--class-map), and the dataset as the first argument
 (the coil_folder fixture: tests/conftest.py)."""
 

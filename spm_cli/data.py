@@ -9,7 +9,7 @@ import sys
 
 import click
 
-from spm_data.commands.cli_support import (ALLOW_PARTIAL, Group, Progress, executor_options, handle_errors,
+from spm_cli.support import (ALLOW_PARTIAL, Group, Progress, executor_options, handle_errors,
                                            old_spelling, run_with_progress)
 from spm_data.render import renderer_names
 

@@ -8,7 +8,7 @@ import importlib
 
 import click
 
-from spm_data.commands.cli_support import Group, executor_options, handle_errors, old_spelling, run_with_progress
+from spm_cli.support import Group, executor_options, handle_errors, old_spelling, run_with_progress
 from spm_data.formats import IMPORTERS, Option
 
 import_group = Group("import", help="Turn real datasets (COIL-100, COIL-20, CVL, BOP, transforms.json captures, "

@@ -1,4 +1,4 @@
-"""spm_model.commands.cli_model (spm): train, predict and evaluate end to end, and bad input as one-line errors."""
+"""spm_cli.model (spm): train, predict and evaluate end to end, and bad input as one-line errors."""
 
 import json
 import shutil

@@ -1,4 +1,4 @@
-"""spm_data.commands.cli_data (spm-data): its commands end to end, errors in one line with exit status 1, the console
+"""spm_cli.data (spm-data): its commands end to end, errors in one line with exit status 1, the console
 scripts as processes (the coil_folder fixture: tests/conftest.py)."""
 
 import subprocess
@@ -67,7 +67,7 @@ def test_off_a_terminal_render_and_validate_print_progress_lines_on_stderr(small
     import time
 
     import spm_data.commands.validate as validate
-    from spm_data.commands.cli_support import Progress
+    from spm_cli.support import Progress
 
     monkeypatch.setenv("SPM_PROGRESS_EVERY", "0.01")   # rendering 10 frames takes far longer
     r = run("render", "--class", "cup", "--specs-dir", small_specs_dir, "--out", tmp_path / "out", "--limit", 10)
