@@ -36,10 +36,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from out_options import claim  # noqa: E402
-from spm_data.commands.occlude_jobs import occlude_dataset  # noqa: E402
-from spm_data.commands.render_jobs import load_run_specs, render_dataset  # noqa: E402
+from spm_data.pipelines.occlude_jobs import occlude_dataset  # noqa: E402
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset  # noqa: E402
 from spm_data.jobs import make_executor  # noqa: E402
-from spm_model.commands.train import train  # noqa: E402
+from spm_model.pipelines.train import train  # noqa: E402
 from spm_model.spm.features import FeatureConfig  # noqa: E402
 
 CLASSES = ("box", "car", "motorcycle", "ball", "animal4", "cup")

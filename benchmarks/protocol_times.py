@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from spm_data.jobs.progress import stage  # noqa: E402
 from spm_data.jobs.executor import LocalExecutor  # noqa: E402
-from spm_model.commands.train import train  # noqa: E402
+from spm_model.pipelines.train import train  # noqa: E402
 
 TARGETS = {"total": 600.0, "loco": 300.0}
 

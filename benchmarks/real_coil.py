@@ -42,7 +42,7 @@ from spm_data.formats.coil100 import NAME, import_coil20, import_coil100, list_m
 from spm_data.io.files import atomic_file  # noqa: E402
 from spm_data.io.shards import list_shards, read_attrs  # noqa: E402
 from spm_data.jobs import make_executor  # noqa: E402
-from spm_model.commands.train import train  # noqa: E402
+from spm_model.pipelines.train import train  # noqa: E402
 from spm_model.methods.registry import METHOD_NAMES  # noqa: E402
 
 PAPER_TABLE2 = ("The paper's Table 2, KNN on SPM's vectors: 82.6-94.7% within ±5° per class (K=1), 82.8-95.5% (K=3), "

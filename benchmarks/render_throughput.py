@@ -38,10 +38,10 @@ from spm_data.jobs.progress import stage  # noqa: E402
 from spm_data.core.paths import camera_path  # noqa: E402
 from spm_data.render import make_renderer  # noqa: E402
 from spm_data.core.instances import load_instance  # noqa: E402
-from spm_data.commands.render_frames import FrameMaker  # noqa: E402
-from spm_data.commands.render_jobs import RECYCLE_AFTER, plan_shards, render_dataset  # noqa: E402
+from spm_data.pipelines.render_frames import FrameMaker  # noqa: E402
+from spm_data.pipelines.render_jobs import RECYCLE_AFTER, plan_shards, render_dataset  # noqa: E402
 from spm_data.core.specs import all_spec_paths, find_spec, load_spec  # noqa: E402
-from spm_data.commands.render_gpus import use_gpus  # noqa: E402
+from spm_data.pipelines.render_gpus import use_gpus  # noqa: E402
 from spm_data.jobs.executor import LocalExecutor, run_jobs  # noqa: E402
 
 STAGES = ("render", "readback", "composite", "compress", "write")

@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from spm_data.jobs.progress import stage  # noqa: E402
 from out_options import claim  # noqa: E402
-from spm_data.commands.render_jobs import load_run_specs, render_dataset  # noqa: E402
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset  # noqa: E402
 from spm_data.io.shards import read_shard  # noqa: E402
 from spm_model.methods.smm import SMMPose, pose_bins  # noqa: E402
 

@@ -115,7 +115,7 @@ def subset_masks(labels: dict, instances: int, az_step: int, el_step: int, keys=
 # ----------------------------------------------------------------------------- render (512 px)
 
 def cmd_render(args) -> None:
-    from spm_data.commands.render_jobs import ShardJob, effective_spec, plan_shards, render_shard
+    from spm_data.pipelines.render_jobs import ShardJob, effective_spec, plan_shards, render_shard
     from spm_data.core.specs import parse_spec
 
     labels = read_labels(list_shards(args.shards))

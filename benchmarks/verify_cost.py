@@ -20,7 +20,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from spm_data.jobs.progress import stage  # noqa: E402
-from spm_data.commands.render_jobs import load_run_specs, render_dataset  # noqa: E402
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset  # noqa: E402
 from spm_data.io.loaders import ShardDataset  # noqa: E402
 from spm_data.io.shards import list_shards, read_shard, reader, seal  # noqa: E402
 

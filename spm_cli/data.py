@@ -36,8 +36,8 @@ from spm_data.render import renderer_names
 @handle_errors
 def render_cmd(classes, all_classes, spec_files, specs_dir, out, renderer, seed, limit, executor, gpus, task_gpus):
     """Render classes (--class, --all, --spec) over their camera paths into shards in --out; a rerun resumes."""
-    from spm_data.commands.render_gpus import render_executor
-    from spm_data.commands.render_jobs import load_run_specs, render_dataset
+    from spm_data.pipelines.render_gpus import render_executor
+    from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 
     specs = load_run_specs(classes, all_classes, spec_files, specs_dir, renderer=renderer, seed=seed)
     executor = render_executor(executor, gpus, task_gpus, specs)
@@ -60,7 +60,7 @@ def render_cmd(classes, all_classes, spec_files, specs_dir, out, renderer, seed,
 @handle_errors
 def occlude_cmd(in_dir, out_dir, low, high, copies, rects, seed, allow_partial, executor):
     """Write copies of the shards in FOLDER with black rectangles covering --min..--max of each object."""
-    from spm_data.commands.occlude_jobs import occlude_dataset, occlusion_report
+    from spm_data.pipelines.occlude_jobs import occlude_dataset, occlusion_report
 
     run_with_progress(lambda bar: occlude_dataset(in_dir, out_dir, low=low, high=high, copies=copies, rects=rects,
                                                   seed=seed, progress=bar, executor=executor,
@@ -82,7 +82,7 @@ def occlude_cmd(in_dir, out_dir, low, high, copies, rects, seed, allow_partial, 
 @handle_errors
 def merge_cmd(folders, out_dir, sources, renames, frames_per_shard, allow_partial, executor):
     """Combine the shard folders FOLDER... into --out, rebalanced into full shards."""
-    from spm_data.commands.merge import merge_folders, parse_renames
+    from spm_data.pipelines.merge import merge_folders, parse_renames
 
     keep = [s.strip() for s in sources.split(",") if s.strip()] if sources else None
     run_with_progress(lambda bar: merge_folders(folders, out_dir, sources=keep,
@@ -96,7 +96,7 @@ def merge_cmd(folders, out_dir, sources, renames, frames_per_shard, allow_partia
 @handle_errors
 def validate_cmd(folder):
     """Check every shard in FOLDER against the schema and the manifest against the files; exit 1 on any problem."""
-    from spm_data.commands.validate import validate_folder, validation_report
+    from spm_data.pipelines.validate import validate_folder, validation_report
 
     with Progress("shard") as progress:
         problems = validate_folder(folder, progress)
@@ -112,7 +112,7 @@ def info_cmd(path):
     """Print what a shard or a shard folder holds: classes, frames, fields, the spec it came from.
     Exit 1 (after the description) when a folder is not whole: a listed shard missing or damaged,
     an unlisted shard, no manifest."""
-    from spm_data.commands.info import check_noted, info_text
+    from spm_data.pipelines.info import check_noted, info_text
 
     text = info_text(path)
     click.echo(text)
@@ -132,7 +132,7 @@ def info_cmd(path):
 @handle_errors
 def show_cmd(shard, out_png, frames, field, tile):
     """Write a contact sheet of SHARD's frames with their pose axes drawn, to check the labels by eye."""
-    from spm_data.commands.figures import contact_sheet
+    from spm_data.pipelines.figures import contact_sheet
 
     click.echo(f"wrote {contact_sheet(shard, out_png, frames=frames, field=field, tile=tile)}")
 
@@ -145,7 +145,7 @@ def show_cmd(shard, out_png, frames, field, tile):
 @handle_errors
 def hist_cmd(folder, out_png, allow_partial):
     """Write a histogram of the occluded fractions of the frames in FOLDER."""
-    from spm_data.commands.figures import occlusion_histogram
+    from spm_data.pipelines.figures import occlusion_histogram
 
     click.echo(f"wrote {occlusion_histogram(folder, out_png, allow_partial=allow_partial)}")
 

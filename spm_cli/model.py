@@ -46,7 +46,7 @@ def _method_names(text):
 
 
 def bop_options(command):
-    """--bop-results DIR and its naming options (spm_model/commands/bop_output.py)."""
+    """--bop-results DIR and its naming options (spm_model/pipelines/bop_output.py)."""
     for option in reversed([
         click.option("--bop-results", "bop_results", default=None, type=click.Path(),
                      help="Also write the estimates as BOP results files DIR/METHOD_DATASET-SPLIT.csv, one per "
@@ -66,7 +66,7 @@ def _bop(bop_results, bop_dataset, bop_split, bop_ids_from):
     """The BopOutput of the --bop-* options (None without --bop-results)."""
     if bop_results is None:
         return None
-    from spm_model.commands.bop_output import BopOutput
+    from spm_model.pipelines.bop_output import BopOutput
 
     return BopOutput(bop_results, bop_dataset, bop_split, bop_ids_from)
 
@@ -113,7 +113,7 @@ def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs,
     """Extract features of the shards in SHARDS (searched recursively, cached), evaluate SPM and the
     other methods under --protocol (offgrid: test on --test), and write the report and the models to --out."""
     from spm_model.spm.features import FeatureConfig
-    from spm_model.commands.train import train
+    from spm_model.pipelines.train import train
 
     bar = Progress()
     try:
@@ -154,7 +154,7 @@ def _models_line(result) -> str:
 def check_estimator_cmd(spec, timeout):
     """Run your estimator MODULE:CLASS through the contract `spm train --estimator` relies on, on a small
     built-in set (rendered with pyrender): one line a check; exit status 1 if any check fails."""
-    from spm_model.commands.check_estimator import check_estimator, failed
+    from spm_model.pipelines.check_estimator import check_estimator, failed
 
     with Progress() as bar:
         checks = check_estimator(spec, progress=bar, log=bar.write, timeout=timeout)
@@ -180,7 +180,7 @@ def evaluate_cmd(model_path, shards, as_json, bop_results, bop_dataset, bop_spli
     < 3°, median errors per class."""
     import json
 
-    from spm_model.commands.evaluate import evaluate_model
+    from spm_model.pipelines.evaluate import evaluate_model
 
     bar = Progress()
     try:
@@ -214,7 +214,7 @@ def predict_cmd(model_path, images, roi, mask_path, as_json):
     stdout: one line per image that got a pose (--json: every image, failed ones as
     {"image", "error"}); stderr: one "error: IMAGE: reason" line per image that failed.
     The other images still get their results; exit status 1 if any image failed."""
-    from spm_model.commands.predict import format_predictions, prediction_errors, predict_images
+    from spm_model.pipelines.predict import format_predictions, prediction_errors, predict_images
 
     with Progress("image") as bar:
         results = predict_images(model_path, images, roi=None if roi is None else _parse_roi(roi),

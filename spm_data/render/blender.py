@@ -10,7 +10,7 @@ frames (persistent data) and, with a transparent film, renders only a border
 around the objects (blender_scene.border_box); Blender 5.0.1 headless offers no
 way to read a render without a file.
 
-Blender runs in worker processes only (spm_data.commands.render_jobs): a crash or a
+Blender runs in worker processes only (spm_data.pipelines.render_jobs): a crash or a
 leak in Blender takes down a worker, never the run.
 """
 

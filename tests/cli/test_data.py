@@ -66,7 +66,7 @@ def test_off_a_terminal_render_and_validate_print_progress_lines_on_stderr(small
     import re
     import time
 
-    import spm_data.commands.validate as validate
+    import spm_data.pipelines.validate as validate
     from spm_cli.support import Progress
 
     monkeypatch.setenv("SPM_PROGRESS_EVERY", "0.01")   # rendering 10 frames takes far longer

@@ -42,7 +42,7 @@ def test_cli_train_predict_evaluate_and_bad_input(model_shards, tmp_path):
 
 
 def test_cli_offgrid_writes_the_fig5_tables_and_refuses_bad_method_names(model_shards, tmp_path):
-    from spm_data.commands.occlude_jobs import occlude_dataset
+    from spm_data.pipelines.occlude_jobs import occlude_dataset
 
     runner = CliRunner()
     shards = tmp_path / "train"

@@ -9,7 +9,7 @@ import numpy as np
 from spm_data.formats.bop import import_bop
 from spm_data.formats.bop_export import export_bop
 from spm_data.core.poses import camera_pose
-from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 from spm_data.io.shards import list_shards, read_shard
 
 

@@ -18,7 +18,7 @@ from spm_data.errors import MeshError, SpmError
 from spm_data.formats.ply import load_ply
 from spm_data.core.poses import cv_to_gl_camera_to_world
 from spm_data.render.pyrender_backend import _offscreen
-from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 from spm_data.io.folders import open_folder
 from spm_data.io.shards import list_shards, read_attrs, read_shard, write_shard
 from tests.helpers import write_small_specs
@@ -280,7 +280,7 @@ def test_split_must_be_one_folder_name_and_meshes_from_a_folder(small_specs_dir,
 
 def test_a_cluttered_export_keeps_the_rendered_depth_and_visible_masks(tmp_path):
     DEPTH_SCALE = 0.1  # every depth here is within 6.5 m: the finest scale (bop_gt.DEPTH_SCALES)
-    from tests.commands.test_render_frames import CLUTTERED
+    from tests.pipelines.test_render_frames import CLUTTERED
 
     folder = tmp_path / "specs"
     folder.mkdir()

@@ -19,7 +19,7 @@ from spm_data.formats.bop_gt import (bbox, depth_scale_for, depth_units, distanc
                                      png_depth_mm, visible_mask)
 from spm_data.formats.coco import load_scene_gt_coco
 from spm_data.formats.ply import load_ply
-from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 
 SIZE = 64
 TRUNCATED = """

@@ -13,8 +13,8 @@ ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("spm_data", "spm_model", "spm_cli", "cli.py")
 # Lowest first; a module may import its own layer and those below it, never above.
 LAYERS = ("spm_data.errors", "spm_data.io", "renderer registry", "spm_data.core", "spm_data.render", "spm_data.jobs",
-          "spm_data.formats", "spm_data.commands", "spm_model.errors", "spm_model.base", "spm_model.spm",
-          "spm_model.methods", "spm_model.bench", "spm_model.commands", "spm_cli", "cli")
+          "spm_data.formats", "spm_data.pipelines", "spm_model.errors", "spm_model.base", "spm_model.spm",
+          "spm_model.methods", "spm_model.bench", "spm_model.pipelines", "spm_cli", "cli")
 # The registry (spm_data/render/__init__.py) and the backends' settings modules sit below core,
 # which reads them for the specs; the Renderer base and the backends sit above it.
 REGISTRY = {"spm_data.render"} | {b.settings.__module__ for b in RENDERERS.values() if b.settings}
@@ -114,10 +114,10 @@ def test_no_module_over_max_lines():
 
 
 def test_the_checks_find_what_they_look_for():
-    planted = {"spm_data.io.a": {"spm_data.commands.b"}, "spm_data.commands.b": {"spm_data.io.a"}}
-    assert upward_imports(planted) == ["spm_data.io.a (layer spm_data.io) imports spm_data.commands.b "
-                                       "(layer spm_data.commands)"]
-    assert import_cycles(planted) == ["spm_data.commands.b -> spm_data.io.a -> spm_data.commands.b"]
+    planted = {"spm_data.io.a": {"spm_data.pipelines.b"}, "spm_data.pipelines.b": {"spm_data.io.a"}}
+    assert upward_imports(planted) == ["spm_data.io.a (layer spm_data.io) imports spm_data.pipelines.b "
+                                       "(layer spm_data.pipelines)"]
+    assert import_cycles(planted) == ["spm_data.io.a -> spm_data.pipelines.b -> spm_data.io.a"]
     assert len(modules()) > 60 and "spm_data.io.shards.reader" in modules() and "cli" in modules()
     assert BACKENDS == {"spm_data.render.pyrender_backend", "spm_data.render.blender"}
     assert REGISTRY == {"spm_data.render", "spm_data.render.blender_settings"}

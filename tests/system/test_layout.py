@@ -75,7 +75,7 @@ def test_the_mirror_maps_as_documented():
     assert mirror(Path("spm_data/errors.py")) == Path("tests/test_errors.py")
     assert mirror(Path("spm_data/io/shards/reader.py")) == Path("tests/io/shards/test_reader.py")
     assert mirror(Path("spm_data/render/__init__.py")) == Path("tests/render/test_render.py")
-    assert mirror(Path("spm_model/commands/train.py")) == Path("tests/model/commands/test_train.py")
+    assert mirror(Path("spm_model/pipelines/train.py")) == Path("tests/model/pipelines/test_train.py")
     assert mirror(Path("cli.py")) == Path("tests/test_cli.py") and Path("cli.py") in library_modules()
     assert mirror(Path("spm_cli/support.py")) == Path("tests/cli/test_support.py")
     assert mirror(Path("spm_data/__init__.py")) == Path("tests/test_spm_data.py")

@@ -10,7 +10,7 @@ import pytest
 from spm_model.spm.estimator import ModelError, SPMEstimator
 from spm_model.base.model_files import load_model_file
 from spm_model.methods.template import TemplatePose
-from spm_model.commands.evaluate import load_model
+from spm_model.pipelines.evaluate import load_model
 from tests.helpers import FAST_SPM, N, frames, labels, sealed_model, vectors
 
 

@@ -1,10 +1,10 @@
-"""spm_model.commands.evaluate: a file that is not an spm model is refused in one line."""
+"""spm_model.pipelines.evaluate: a file that is not an spm model is refused in one line."""
 
 import numpy as np
 import pytest
 
 from spm_model.errors import ModelError
-from spm_model.commands.evaluate import load_model
+from spm_model.pipelines.evaluate import load_model
 
 
 def test_a_foreign_file_is_not_a_model(tmp_path):

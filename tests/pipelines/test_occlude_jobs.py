@@ -5,9 +5,9 @@ import pytest
 from click.testing import CliRunner
 
 from cli import data_cli
-from spm_data.commands.occlude_jobs import occlude_dataset
+from spm_data.pipelines.occlude_jobs import occlude_dataset
 from spm_data.errors import ShardError
-from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 from spm_data.io.files import file_sha256
 from spm_data.io.shards import list_shards, read_attrs, read_manifest, read_shard, write_manifest, write_shard
 from spm_data.jobs.executor import LocalExecutor
@@ -180,7 +180,7 @@ def test_shards_occluded_in_a_spawned_worker_are_the_same_bytes(rendered, tmp_pa
     """The jobs run in a spawned worker (which takes the parent's check of each input) give the
     bytes this process gives; occlude_dataset with --workers 2 mixes the two."""
     import spm_data.io.shards.seal as seal_module
-    from spm_data.commands.occlude_jobs import check_inputs, occlude_shard, plan_occlusion
+    from spm_data.pipelines.occlude_jobs import check_inputs, occlude_shard, plan_occlusion
     from spm_data.jobs.shard_runs import run_shard_jobs
 
     monkeypatch.setattr(seal_module, "RACY_SECONDS", -1.0)  # the inputs were just made: remember their checks

@@ -1,4 +1,4 @@
-"""spm_model.commands.train: a loco run writes the report and both models, which predict from images and
+"""spm_model.pipelines.train: a loco run writes the report and both models, which predict from images and
 evaluate shards; every method gets its row on any data (a class with few frames, a small render, 32-pixel
 turntable images, a transforms.json capture): figures, or declined with its reason."""
 
@@ -13,9 +13,9 @@ from PIL import Image
 
 from cli import model_cli
 from spm_data.io.shards import read_shard
-from spm_model.commands.check_estimator import CHECK_SPEC
-from spm_model.commands.evaluate import evaluate_model
-from spm_model.commands.predict import predict_images
+from spm_model.pipelines.check_estimator import CHECK_SPEC
+from spm_model.pipelines.evaluate import evaluate_model
+from spm_model.pipelines.predict import predict_images
 from spm_model.methods.registry import METHOD_NAMES
 
 
@@ -101,7 +101,7 @@ def _rows(report) -> dict:
 def test_default_methods_on_a_two_class_24_frame_render_each_have_a_row(tmp_path):
     """The issue's small render: SMM cannot pair sequences (one camera path per training class
     under loco) and is declined with why; every other method is scored; exit 0."""
-    from spm_data.commands.render_jobs import load_run_specs, render_dataset
+    from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 
     (tmp_path / "specs").mkdir()
     for cls in ("cup", "box"):
@@ -145,7 +145,7 @@ def test_default_methods_on_a_32_px_coil_layout_set_each_have_a_row(tmp_path):
 def test_a_transforms_json_capture_trains_under_views_with_every_method(tmp_path):
     """One captured object: leave-one-class-out cannot run, so the views protocol does (said in one
     line), and every method has a row."""
-    from spm_data.commands.render_jobs import load_run_specs, render_dataset
+    from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
     from spm_data.formats.nerf import import_nerf
     from spm_data.io.shards import list_shards
     from tests.helpers import CENTER, SCALE, write_capture
@@ -168,7 +168,7 @@ def test_a_transforms_json_capture_trains_under_views_with_every_method(tmp_path
 
 
 def test_loco_on_one_class_is_refused_before_any_feature_is_extracted(tmp_path, small_specs_dir):
-    from spm_data.commands.render_jobs import load_run_specs, render_dataset
+    from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 
     render_dataset(load_run_specs(classes=["cup"], specs_dir=small_specs_dir), tmp_path / "out", limit=4)
     r = CliRunner().invoke(model_cli, ["train", str(tmp_path / "out"), "--protocol", "loco"])
@@ -200,7 +200,7 @@ def test_when_no_method_but_chance_can_run_train_exits_1_with_one_line(tmp_path)
 
 def test_a_plug_in_with_a_wrong_needs_is_refused_before_any_work(tmp_path, monkeypatch):
     from spm_model.errors import ModelError
-    from spm_model.commands.train import load_estimators
+    from spm_model.pipelines.train import load_estimators
 
     (tmp_path / "odd_pose.py").write_text("class Odd:\n    NEEDS = {'depth': True}\n"
                                           "    def fit(self, f, p):\n        return self\n"
@@ -248,8 +248,8 @@ class Steps:
 def test_train_reports_each_step_features_first(tmp_path):
     """spm train's long steps each say how far they are: every frame's features (24 frames a
     class, none cached yet), the splits and final models fitted, the runs scored, the report."""
-    from spm_data.commands.render_jobs import load_run_specs, render_dataset
-    from spm_model.commands.train import train
+    from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
+    from spm_model.pipelines.train import train
     from spm_model.spm.features import FeatureConfig
 
     (tmp_path / "specs").mkdir()
@@ -271,7 +271,7 @@ def test_train_reports_each_step_features_first(tmp_path):
 def test_the_length_unit_of_a_capture_imported_without_scale(tmp_path):
     from spm_data.core.poses import camera_pose, intrinsics_from_fov
     from spm_data.formats.nerf import import_nerf
-    from spm_model.commands.train import length_unit
+    from spm_model.pipelines.train import length_unit
     from tests.helpers import write_capture
 
     rgb = np.zeros((2, 20, 30, 3), np.uint8)
@@ -290,10 +290,10 @@ def test_the_length_unit_of_a_capture_imported_without_scale(tmp_path):
 def test_frames_without_path_neighbours_are_expected_under_render_limit_and_said_so(tmp_path, small_specs_dir):
     from types import SimpleNamespace
 
-    from spm_data.commands.occlude_jobs import occlude_dataset
-    from spm_data.commands.render_jobs import load_run_specs, render_dataset
+    from spm_data.pipelines.occlude_jobs import occlude_dataset
+    from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
     from spm_data.io.shards import list_shards
-    from spm_model.commands.train import alone_line
+    from spm_model.pipelines.train import alone_line
 
     render_dataset(load_run_specs(classes=["cup"], specs_dir=small_specs_dir), tmp_path / "limited", limit=4)
     render_dataset(load_run_specs(classes=["box"], specs_dir=small_specs_dir), tmp_path / "full")
@@ -312,7 +312,7 @@ def test_frames_without_path_neighbours_are_expected_under_render_limit_and_said
 
 def test_the_data_lines_class_counts_add_up_to_its_frames_with_or_without_features():
     """make demo's line once counted only frames with SPM's features per class (1,524 of 1,728)."""
-    from spm_model.commands.train import class_counts, data_line
+    from spm_model.pipelines.train import class_counts, data_line
 
     class Table:
         class_name = np.array(["cup"] * 4 + ["box"] * 3)

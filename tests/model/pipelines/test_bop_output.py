@@ -1,4 +1,4 @@
-"""spm_model.commands.bop_output: --bop-results of spm train and spm evaluate, end to end on a tiny
+"""spm_model.pipelines.bop_output: --bop-results of spm train and spm evaluate, end to end on a tiny
 render: the files bop_toolkit reads, numbered as spm-data export bop numbers the frames."""
 
 import json
@@ -15,7 +15,7 @@ from spm_data.formats.bop_results import HEADER, load_bop_results, load_test_tar
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     """cup and box, 12 frames each (64 px, shards of 8 frames), exported as BOP split "test"."""
-    from spm_data.commands.render_jobs import load_run_specs, render_dataset
+    from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
     from tests.helpers import write_small_specs
 
     root = tmp_path_factory.mktemp("bop")
@@ -89,7 +89,7 @@ def test_each_frames_ground_truth_label_becomes_its_exports_scene_gt(tiny, tmp_p
     """The mapping alone: the table's own labels written as estimates are the export's ground
     truth, row for row (same scene, image, object, R, and t in mm)."""
     from spm_model.bench.feature_cache import load_features
-    from spm_model.commands.bop_output import BopOutput
+    from spm_model.pipelines.bop_output import BopOutput
     from spm_model.spm.features import FeatureConfig
 
     table = load_features(tiny / "render", FeatureConfig(ellipse="direct"))
@@ -123,7 +123,7 @@ def test_bad_names_are_refused_in_one_line_before_any_work(tiny, tmp_path, args,
 def test_frames_of_another_folder_are_refused_in_one_line(tiny, tmp_path):
     from spm_data.errors import SpmError
     from spm_model.bench.feature_cache import FeatureTable
-    from spm_model.commands.bop_output import BopOutput, frame_positions
+    from spm_model.pipelines.bop_output import BopOutput, frame_positions
 
     shard = sorted((tiny / "render").glob("*.h5"))[1]
     table = FeatureTable({"pose": np.zeros((3, 6)), "shard": np.array([str(shard)] * 2 + ["/elsewhere/x.h5"]),

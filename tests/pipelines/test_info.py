@@ -1,9 +1,9 @@
-"""spm_data.commands.info: what ``spm-data info`` prints for a shard and for a folder."""
+"""spm_data.pipelines.info: what ``spm-data info`` prints for a shard and for a folder."""
 
 import numpy as np
 import pytest
 
-from spm_data.commands.info import info_text
+from spm_data.pipelines.info import info_text
 from spm_data.errors import ShardError
 from spm_data.io.shards import write_manifest, write_shard
 from tests.helpers import make_arrays

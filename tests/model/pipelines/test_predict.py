@@ -1,10 +1,10 @@
-"""spm_model.commands.predict: the region of interest must lie inside the image; what is
+"""spm_model.pipelines.predict: the region of interest must lie inside the image; what is
 printed for results and failures."""
 
 import pytest
 
 from spm_model.errors import ModelError
-from spm_model.commands.predict import format_predictions, prediction_errors, roi_mask
+from spm_model.pipelines.predict import format_predictions, prediction_errors, roi_mask
 
 
 def test_roi_mask_is_the_box_and_refuses_one_outside_the_image():
@@ -30,7 +30,7 @@ def test_predict_counts_every_image_read_or_failed(tmp_path, monkeypatch):
     import numpy as np
     from PIL import Image
 
-    import spm_model.commands.predict as predict
+    import spm_model.pipelines.predict as predict
 
     class Model:
         def predict_image(self, rgb, mask):

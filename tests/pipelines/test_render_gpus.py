@@ -1,10 +1,10 @@
-"""spm_data.commands.render_gpus: the executor of a render run for its GPUs: local workers spread
+"""spm_data.pipelines.render_gpus: the executor of a render run for its GPUs: local workers spread
 over the GPUs the renderers list in few GL contexts a GPU, Ray tasks asking for theirs, and every
 refusal in one line (tested without a GPU: pyrender's device list is injected)."""
 
 import pytest
 
-from spm_data.commands.render_gpus import render_executor, use_gpus
+from spm_data.pipelines.render_gpus import render_executor, use_gpus
 from spm_data.errors import RenderError, SpmError, SpmWarning
 
 

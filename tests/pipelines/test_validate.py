@@ -7,9 +7,9 @@ import pytest
 from click.testing import CliRunner
 
 from cli import data_cli
-from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 from spm_data.io.shards import SCHEMA_VERSION, read_attrs, read_shard, write_manifest, write_shard
-from spm_data.commands.validate import validate_folder
+from spm_data.pipelines.validate import validate_folder
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""spm_model.commands.check_contract: each check of check-estimator is one message to the parent;
+"""spm_model.pipelines.check_contract: each check of check-estimator is one message to the parent;
 a plug-in that returns the wrong thing, or raises SystemExit, fails its check and the child goes
 on (it never ends the process that runs the checks)."""
 
@@ -8,8 +8,8 @@ from multiprocessing import Pipe
 
 import numpy as np
 
-from spm_model.commands.check_contract import ContractChecks
-from tests.model.commands.test_check_estimator import Good as Mean   # a plug-in keeping the contract
+from spm_model.pipelines.check_contract import ContractChecks
+from tests.model.pipelines.test_check_estimator import Good as Mean   # a plug-in keeping the contract
 
 POSES = np.arange(24, dtype=np.float64).reshape(4, 6)
 FRAMES = np.zeros((4, 1))   # the checks only count and index frames; the plug-ins below ignore them

@@ -213,7 +213,7 @@ def _frame_limit(shard) -> int:
 def _bop_results(bop, table, protocol, model_params, builtins, plugins, train_occluded, folder, allow_partial,
                  timeout):
     """The first run's estimates of every method as BOP results files (bop_output.py)."""
-    from spm_model.commands.bop_output import first_run_predictions
+    from spm_model.pipelines.bop_output import first_run_predictions
 
     predictions = first_run_predictions(table, protocol, model_params, builtins, plugins, train_occluded, timeout)
     return bop.write(folder, table, predictions, allow_partial)

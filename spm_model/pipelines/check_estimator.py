@@ -58,7 +58,7 @@ class Check:
 
 def built_in_set(folder: Path, progress=None):
     """Render the check's set into ``folder`` and return its feature table (FeatureTable)."""
-    from spm_data.commands.render_jobs import render_dataset
+    from spm_data.pipelines.render_jobs import render_dataset
     from spm_data.core.specs import parse_spec
     from spm_model.bench.feature_cache import load_features, progress_phase
     from spm_model.spm.features import FeatureConfig
@@ -126,7 +126,7 @@ def run_checks(plugin, table, log=lambda line: None, timeout: float | None = Non
     camera = read_camera_frames(table, test)
     permuted = poses[np.random.default_rng(1).permutation(len(poses))]
     predictions, call = {}, "construct"
-    child = EstimatorProcess("spm_model.commands.check_contract:serve_checks")
+    child = EstimatorProcess("spm_model.pipelines.check_contract:serve_checks")
     try:
         child.send(("checks", plugin, frames, poses, camera, permuted))
         while True:

@@ -25,7 +25,7 @@ from spm_data.core.instances import instance_count, load_instance, mesh_attrs, m
 from spm_data.core.paths import camera_path
 from spm_data.core.poses import pose_to_label
 from spm_data.render import RENDERERS, make_renderer
-from spm_data.commands.render_frames import FrameMaker, FramePipeline, pipeline_threads
+from spm_data.pipelines.render_frames import FrameMaker, FramePipeline, pipeline_threads
 from spm_data.core.distractors import pool_names
 from spm_data.core.mesh_store import save_mesh
 from spm_data.core.shard_meshes import store_pool

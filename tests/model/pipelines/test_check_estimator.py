@@ -1,4 +1,4 @@
-"""spm_model.commands.check_estimator: a plug-in run through the estimator contract on the built-in
+"""spm_model.pipelines.check_estimator: a plug-in run through the estimator contract on the built-in
 set, one line a check; a plug-in that breaks it fails the named checks, exit status 1."""
 
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 from click.testing import CliRunner
 
 from cli import model_cli
-from spm_model.commands.check_estimator import built_in_set, failed, run_checks
+from spm_model.pipelines.check_estimator import built_in_set, failed, run_checks
 from tests.model.bench.test_isolation import MemoCheat, OrderCheat, StackCheat
 
 

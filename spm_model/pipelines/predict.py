@@ -10,7 +10,7 @@ from spm_data.errors import ImageError, one_line
 from spm_model.errors import FeatureError, ModelError
 from spm_data.io.images import decode_bytes, read_image_file
 from spm_model.bench.feature_cache import progress_phase
-from spm_model.commands.evaluate import load_model
+from spm_model.pipelines.evaluate import load_model
 
 LABEL_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
 

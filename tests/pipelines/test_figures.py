@@ -1,11 +1,11 @@
-"""spm_data.commands.figures: contact sheets (frames with their pose axes) and occlusion
+"""spm_data.pipelines.figures: contact sheets (frames with their pose axes) and occlusion
 histograms, written whole as PNG, JPEG, PDF or SVG; bad output paths refused before any work."""
 
 import cv2
 import numpy as np
 import pytest
 
-from spm_data.commands.figures import AXIS_COLOURS, check_image_path, contact_sheet, draw_pose, occlusion_histogram
+from spm_data.pipelines.figures import AXIS_COLOURS, check_image_path, contact_sheet, draw_pose, occlusion_histogram
 from spm_data.core.poses import intrinsics_from_fov
 from spm_data.errors import ShardError, SpmError
 from spm_data.io.shards import write_manifest, write_shard
@@ -95,7 +95,7 @@ def test_a_shard_without_frames(tmp_path):
 
 
 def test_a_sheet_of_an_outputs_field_in_false_colour(tmp_path):
-    from spm_data.commands.figures import INSTANCE_COLOURS, false_colour
+    from spm_data.pipelines.figures import INSTANCE_COLOURS, false_colour
 
     a = make_arrays(n=2, h=16, w=20)
     a["t"][:] = (0.0, 0.0, -1.0)
@@ -136,7 +136,7 @@ def test_a_large_imported_frame_is_a_tile_of_the_set_size_with_axes_and_no_nan(t
     for colour in AXIS_COLOURS[:2]:
         assert (np.abs(tile.astype(int) - colour).max(axis=2) < 30).sum() > 40   # long enough to see
     assert (np.abs(tile.astype(int) - (255, 220, 0)).max(axis=2) < 30).sum() > 60  # the mask's outline
-    from spm_data.commands import figures
+    from spm_data.pipelines import figures
 
     frame = {"R": R, "t": t, "azimuth": np.nan, "elevation": np.nan, "distance": np.nan}
     assert figures._caption(frame, 3) == "#3 az30 el20 d2.50m"

@@ -1,6 +1,6 @@
 """One rendered frame, as a shard stores it: the spec's draws and distractors, the
 render, the background, and the opt-in outputs; and the pipeline that takes frames from
-the renderer's thread to the shard (spm_data.commands.render_jobs streams them into shards).
+the renderer's thread to the shard (spm_data.pipelines.render_jobs streams them into shards).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from spm_data.errors import ShardError, SpecError
-from spm_data.commands.render_jobs import load_run_specs, plan_shards, render_dataset
+from spm_data.pipelines.render_jobs import load_run_specs, plan_shards, render_dataset
 from spm_data.io.files import file_sha256
 from spm_data.io.shards import list_shards, read_attrs, read_manifest, read_shard
 from spm_data.jobs.executor import LocalExecutor
@@ -185,7 +185,7 @@ renderer = "pyrender"
                                           (10**9 + 7, 3), (864_144_000, 4), (864_144_000, 1000), (2**40, 999),
                                           (123_457, 123_456)])
 def test_limit_picks_are_the_old_linspace_picks(total, limit):
-    from spm_data.commands.render_jobs import limit_picks
+    from spm_data.pipelines.render_jobs import limit_picks
 
     if total <= 10**7:
         old = np.unique(np.round(np.linspace(0, total - 1, limit)).astype(np.int64))
@@ -253,7 +253,7 @@ def test_an_absurd_plan_is_refused_in_one_line(tmp_path):
 
 
 def test_a_streamed_shard_is_what_write_shard_writes(small_specs_dir, tmp_path, monkeypatch):
-    from spm_data.commands import render_jobs
+    from spm_data.pipelines import render_jobs
     from spm_data.io.shards import write_shard
 
     def rewrite(path, to):
@@ -386,7 +386,7 @@ class SerialPipeline:
 def test_the_pipelined_shard_is_the_serial_paths_bytes(tmp_path, monkeypatch, block_bytes):
     """Compositing (random backgrounds), the opt-in outputs, compression and storing run on
     the pipeline's threads: every shard is byte for byte what the serial path writes."""
-    from spm_data.commands import render_jobs
+    from spm_data.pipelines import render_jobs
 
     (tmp_path / "clutter.toml").write_text(CLUTTERED)
     specs = load_run_specs(spec_files=[tmp_path / "clutter.toml"])
@@ -415,7 +415,7 @@ def pipeline_writer(tmp_path, n=4):
 def test_the_pipeline_holds_at_most_ahead_frames_and_gives_labels_in_order(tmp_path):
     import threading
 
-    from spm_data.commands.render_frames import FramePipeline
+    from spm_data.pipelines.render_frames import FramePipeline
 
     arrays, images, shard = pipeline_writer(tmp_path)
     go, started = threading.Event(), []
@@ -437,7 +437,7 @@ def test_the_pipeline_holds_at_most_ahead_frames_and_gives_labels_in_order(tmp_p
 
 
 def test_a_failing_frame_is_raised_on_the_renderers_thread_and_nothing_is_left(tmp_path):
-    from spm_data.commands.render_frames import FramePipeline
+    from spm_data.pipelines.render_frames import FramePipeline
     from spm_data.errors import RenderError
 
     arrays, images, shard = pipeline_writer(tmp_path)
@@ -466,7 +466,7 @@ def test_a_failing_frame_is_raised_on_the_renderers_thread_and_nothing_is_left(t
 
 
 def test_a_failed_store_stops_the_render_and_an_early_exit_stops_the_threads(tmp_path, monkeypatch):
-    from spm_data.commands.render_frames import FramePipeline
+    from spm_data.pipelines.render_frames import FramePipeline
 
     arrays, images, shard = pipeline_writer(tmp_path)
 
@@ -487,7 +487,7 @@ def test_a_failed_store_stops_the_render_and_an_early_exit_stops_the_threads(tmp
 
 
 def test_a_workers_pipeline_threads_are_its_share_of_the_cores(monkeypatch):
-    from spm_data.commands.render_frames import pipeline_threads
+    from spm_data.pipelines.render_frames import pipeline_threads
 
     for cores, threads in (("1", 2), ("8", 8), ("64", 16)):
         monkeypatch.setenv("SPM_WORKER_CORES", cores)

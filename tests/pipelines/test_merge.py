@@ -1,12 +1,12 @@
-"""spm_data.commands.merge: folders merged into full shards per image size, every frame once,
+"""spm_data.pipelines.merge: folders merged into full shards per image size, every frame once,
 sources filtered, classes renamed; mixed schemas refused (the coil_folder fixture: tests/conftest.py)."""
 
 import numpy as np
 from click.testing import CliRunner
 
 from cli import data_cli
-from spm_data.commands.merge import merge_folders
-from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.pipelines.merge import merge_folders
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 from spm_data.formats.coil100 import import_coil100
 from spm_data.io.shards import list_shards, read_manifest, read_shard
 

@@ -8,8 +8,8 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
-from spm_data.commands.occlude_jobs import occlude_dataset
-from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.pipelines.occlude_jobs import occlude_dataset
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 from spm_data.core.instances import load_instance
 from spm_data.core.mesh_store import has_mesh
 from spm_data.errors import ShardError
@@ -154,7 +154,7 @@ def test_occluding_a_shard_that_has_distractors_is_refused(cluttered, tmp_path):
 
 
 def test_merge_keeps_the_distractor_fields(cluttered, tmp_path):
-    from spm_data.commands.merge import merge_folders
+    from spm_data.pipelines.merge import merge_folders
 
     merge_folders([cluttered], tmp_path / "merged")
     merged = read_shard(list_shards(tmp_path / "merged")[0])
@@ -186,7 +186,7 @@ def _frame_pool_names(folder):
 
 
 def test_merge_of_datasets_with_different_distractor_pools_makes_one_pool(tmp_path):
-    from spm_data.commands.merge import merge_folders
+    from spm_data.pipelines.merge import merge_folders
 
     for name, cls in (("a", "box"), ("b", "ball")):
         folder = tmp_path / f"specs_{name}"
@@ -205,7 +205,7 @@ def test_merge_of_datasets_with_different_distractor_pools_makes_one_pool(tmp_pa
 
 
 def test_merge_keeps_same_named_meshes_of_other_seeds_apart(tmp_path):
-    from spm_data.commands.merge import merge_folders
+    from spm_data.pipelines.merge import merge_folders
 
     for name, seed in (("a", 1), ("b", 2)):
         folder = tmp_path / f"specs_{name}"
@@ -224,7 +224,7 @@ def test_merge_keeps_same_named_meshes_of_other_seeds_apart(tmp_path):
 
 
 def test_merge_of_cluttered_and_plain_frames_keeps_the_distractors(tmp_path):
-    from spm_data.commands.merge import merge_folders
+    from spm_data.pipelines.merge import merge_folders
     plain = re.sub(r"\[distractors\]\n(?:[a-z].*\n)*", "", CLUTTERED.format(cls="box"))   # the same frames, uncluttered
     for name, text in (("a", CLUTTERED.format(cls="a")), ("box", plain)):
         folder = tmp_path / f"specs_{name}"
@@ -239,7 +239,7 @@ def test_merge_of_cluttered_and_plain_frames_keeps_the_distractors(tmp_path):
 
 
 def test_merge_of_occluded_and_plain_frames_keeps_what_is_hidden(tmp_path):
-    from spm_data.commands.merge import merge_folders
+    from spm_data.pipelines.merge import merge_folders
 
     folder = tmp_path / "specs"
     folder.mkdir()
@@ -262,8 +262,8 @@ def test_the_pipeline_runs_behind_the_renderer_and_gives_the_switch_interval_bac
     import sys
     import threading
 
-    from spm_data.commands.render_frames import PIPELINE_NICE, SWITCH_SECONDS, FramePipeline
-    from tests.commands.test_render_jobs import pipeline_writer
+    from spm_data.pipelines.render_frames import PIPELINE_NICE, SWITCH_SECONDS, FramePipeline
+    from tests.pipelines.test_render_jobs import pipeline_writer
 
     arrays, images, shard = pipeline_writer(tmp_path)
     before, mine = sys.getswitchinterval(), os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
