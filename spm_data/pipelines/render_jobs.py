@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spm_data import __version__
+from spm_data.version import __version__
 from spm_data.errors import RenderError, SpecError
 from spm_data.core.instances import instance_count, load_instance, mesh_attrs, mesh_record
 from spm_data.core.paths import camera_path

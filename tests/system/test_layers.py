@@ -12,8 +12,8 @@ from spm_data.render import RENDERERS
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("spm_data", "spm_model", "spm_cli", "cli.py")
 # Lowest first; a module may import its own layer and those below it, never above.
-LAYERS = ("spm_data.errors", "spm_data.io", "renderer registry", "spm_data.core", "spm_data.render", "spm_data.jobs",
-          "spm_data.formats", "spm_data.pipelines", "spm_model.errors", "spm_model.base", "spm_model.spm",
+LAYERS = ("spm_data.errors", "spm_data.version", "spm_data.io", "renderer registry", "spm_data.core",
+          "spm_data.render", "spm_data.jobs", "spm_data.formats", "spm_data.pipelines", "spm_model.errors", "spm_model.base", "spm_model.spm",
           "spm_model.methods", "spm_model.bench", "spm_model.pipelines", "spm_cli", "cli")
 # The registry (spm_data/render/__init__.py) and the backends' settings modules sit below core,
 # which reads them for the specs; the Renderer base and the backends sit above it.
@@ -52,8 +52,8 @@ def imports_of(path: Path, known) -> set:
 def layer(module: str) -> int:
     if module in REGISTRY:
         return LAYERS.index("renderer registry")
-    if module == "spm_data":   # the package itself: its version and docstring
-        return 0
+    if module == "spm_data":   # the package itself: its errors and version (the rest of its face is lazy)
+        return LAYERS.index("spm_data.version")
     if module == "spm_model":  # likewise, at the bottom of its own layers
         return LAYERS.index("spm_model.base")
     return max(i for i, prefix in enumerate(LAYERS) if module == prefix or module.startswith(prefix + "."))
