@@ -32,17 +32,23 @@ def _parse_roi(text):
 
 
 def _method_names(text):
-    """--methods a,b -> ["a", "b"] (None: all); SpmError naming an unknown one."""
+    """--methods a,b -> ["a", "b"] (None: all); the registry's one-line error naming an unknown one."""
     if text is None:
         return None
-    from spm_model.methods.registry import METHOD_NAMES
+    from spm_model.methods.registry import check_method_names
 
-    names = [n.strip() for n in text.split(",") if n.strip()]
-    unknown = [n for n in names if n not in METHOD_NAMES]
-    if unknown or not names:
-        raise SpmError(f"--methods: unknown {', '.join(unknown) or 'empty list'}; choose from "
-                       f"{', '.join(METHOD_NAMES)}")
-    return names
+    return check_method_names([n.strip() for n in text.split(",") if n.strip()], "--methods")
+
+
+class MethodsOption(click.Option):
+    """--methods, whose help lists the registry's names (read when help is shown: the registry
+    imports every method)."""
+
+    def get_help_record(self, ctx):
+        from spm_model.methods.registry import METHOD_NAMES
+
+        self.help = self.help.format(names=", ".join(METHOD_NAMES))
+        return super().get_help_record(ctx)
 
 
 def bop_options(command):
@@ -90,9 +96,8 @@ def _bop_line(result) -> None:
 @click.option("--train-occluded/--clean-training", "train_occluded", default=None,
               help="Whether occluded frames train too (the paper's training with noise) [default: yes, but no "
                    "under offgrid].")
-@click.option("--methods", "methods", default=None, metavar="NAME,...",
-              help="Built-in methods to run (default all): spm, knn1, knn3, pca, ls, n3m, sift-pnp, smm, template, cnn, "
-                   "chance.")
+@click.option("--methods", "methods", cls=MethodsOption, default=None, metavar="NAME,...",
+              help="Built-in methods to run (default all): {names}.")
 @click.option("--runs", default=3, show_default=True, type=click.IntRange(min=1, max=100),
               help="Repeated runs (seeds) for sigma (at most 100).")
 @click.option("--ellipse", type=click.Choice(["pso", "direct"]), default="pso", show_default=True,

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from spm_model.bench.headline import coverage_note as _cov, declined_lines, fmt, name, plain_summary
 from spm_model.bench.metrics import METRICS, RATES, metric_value
+from spm_model.methods.registry import SAVED_MODELS
 
 PAPER_TABLE1 = {"box": (97.2, 0.9, 0.31, 0.09), "car": (95.6, 1.1, 0.44, 0.12), "motorcycle": (92.8, 1.6, 0.61, 0.11),
                 "ball": (88.4, 2.5, 0.76, 0.08), "animal4": (87.9, 2.9, 0.84, 0.09), "cup": (86.6, 3.3, 0.87, 0.07)}
@@ -60,8 +61,7 @@ def markdown(evaluation: dict, summary: dict, context: dict) -> str:
         f"occlusion). {models_sentence(context)}", ""])
 
 
-MODEL_FILES = {"spm": ("model.npz", "SPM"), "template": ("reference-model.npz", "HOG templates"),
-               "cnn": ("cnn-model.npz", "CNN")}
+MODEL_FILES = {name: (m.model_file, m.model_title) for name, m in SAVED_MODELS.items()}
 
 
 def models_sentence(context: dict) -> str:

@@ -12,8 +12,7 @@ from spm_model.bench.feature_cache import load_features, progress_phase
 from spm_model.bench.metrics import summarise
 from spm_model.bench.scoring import frame_errors
 from spm_model.bench.surface_metrics import mesh_keys
-from spm_model.methods.cnn import CNNPose
-from spm_model.methods.template import TemplatePose
+from spm_model.methods.registry import SAVED_MODELS
 from spm_model.spm.estimator import SPMEstimator
 from spm_model.spm.features import FeatureConfig
 
@@ -23,10 +22,10 @@ def load_model(path):
     or a CNNPose (cnn-model.npz).
     ModelError naming the file for a missing, truncated, corrupt or foreign one."""
     header, arrays = load_model_file(path)  # read once
-    kinds = {"spm": SPMEstimator, "template": TemplatePose, "cnn": CNNPose}
+    kinds = {name: method.model_class() for name, method in SAVED_MODELS.items()}
     if header.get("kind") not in kinds:
         raise ModelError(f"{path}: not an spm model file (kind {header.get('kind')!r}, expected one of "
-                         f"{sorted(kinds)}); give the model.npz, reference-model.npz or cnn-model.npz that spm "
+                         f"{sorted(kinds)}); give the {' or '.join(m.model_file for m in SAVED_MODELS.values())} that spm "
                          "train wrote")
     getattr(kinds[header["kind"]], "check_available", lambda: None)()   # cnn: torch, or one line naming the extra
     try:
@@ -75,6 +74,6 @@ def evaluate_model(model_path, shards, *, progress=None, executor=None,
 
 def _method(model) -> str:
     """The method name of a results file: spm train's name of the method the model is of."""
-    return "spm" if isinstance(model, SPMEstimator) else "cnn" if isinstance(model, CNNPose) else "template"
+    return next(name for name, method in SAVED_MODELS.items() if isinstance(model, method.model_class()))
 
 

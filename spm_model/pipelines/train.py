@@ -18,10 +18,11 @@ from spm_model.base.frames import Frames
 from spm_model.bench.fitting import failure
 from spm_model.bench.isolation import DEFAULT_TIMEOUT
 from spm_model.bench.plugin_refs import describe
-from spm_model.bench.protocols import FINAL_MODELS, evaluate, training_rows
+from spm_model.bench.protocols import evaluate, training_rows
 from spm_model.bench.report import (check_report_folder, declined_everywhere, summary_text, write_error,
                                     write_report)
 from spm_model.methods.cnn import CNNPose
+from spm_model.methods.registry import SAVED_MODELS, check_method_names
 from spm_model.spm.features import FeatureConfig
 
 
@@ -109,6 +110,7 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
     Returns {"report": folder, "model", "reference_model", "cnn_model": paths, "summary", "evaluation", "text"}."""
     if runs < 1:
         raise ModelError(f"--runs must be at least 1, got {runs}")
+    builtins = check_method_names(builtins)   # before any work: an unknown name is one line, not no method
     if test is not None and protocol not in ("offgrid", None):
         raise ModelError(f"--test goes with --protocol offgrid, got --protocol {protocol}; leave --protocol out "
                          "or give offgrid")
@@ -161,7 +163,7 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
     model, reference, train_features, final_declined = evaluation.pop("final_models")
     check_some_method_ran(evaluation)
     learned = _final_cnn(table, evaluation["train_occluded"], final_declined) if _asked("cnn", builtins) else None
-    asked = [m for m in (*FINAL_MODELS, "cnn") if _asked(m, builtins)]   # a model only of a method asked for
+    asked = [m for m in SAVED_MODELS if _asked(m, builtins)]   # a model only of a method asked for
     models = {m: "written" if fitted is not None else {"declined": final_declined.get(m, "")}
               for m, fitted in (("spm", model), ("template", reference), ("cnn", learned)) if m in asked}
     context = {"command": command, "shards": str(shards), **({"test": str(test)} if test is not None else {}),
@@ -177,9 +179,9 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
                **({"training": {"cnn": learned.training_}} if learned is not None else {})}
     progress_phase(progress, "report", None, None)
     try:
-        model_path = _save(model, out / "model.npz")
-        reference_path = _save(reference, out / "reference-model.npz")
-        cnn_path = _save(learned, out / "cnn-model.npz")
+        model_path = _save(model, out / SAVED_MODELS["spm"].model_file)
+        reference_path = _save(reference, out / SAVED_MODELS["template"].model_file)
+        cnn_path = _save(learned, out / SAVED_MODELS["cnn"].model_file)
     except OSError as exc:
         raise write_error(out, exc) from None
     summary = write_report(evaluation, context, out)
