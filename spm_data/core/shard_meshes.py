@@ -29,12 +29,6 @@ def store_pool(spec, folder, used: np.ndarray) -> list[str]:
     return [save_mesh(folder, pool_mesh(spec, k)) if k in indices else "" for k in range(size)]
 
 
-def _spec(attrs: dict):
-    from spm_data.core.specs import parse_spec
-
-    return parse_spec(attrs["spec"]).replace(seed=int(attrs.get("seed", 0)))
-
-
 class FrameMeshes:
     """The meshes of the frames of shards in one folder (``folder``); ``spec_dir``: where a
     mesh-file spec's files are when not where the shards recorded (export bop --meshes-from)."""
@@ -71,7 +65,9 @@ class FrameMeshes:
             return [str(d) for d in json.loads(attrs["distractor_mesh_digests"])]
         if not attrs.get("distractor_meshes") or attrs.get("source") != "synthetic":
             return []
-        spec = _spec(attrs)
+        from spm_data.core.specs import shard_spec
+
+        spec = shard_spec(attrs)
         return [self._remember(pool_mesh(spec, k)) for k in range(len(json.loads(attrs["distractor_meshes"])))]
 
     def _remember(self, mesh) -> str:

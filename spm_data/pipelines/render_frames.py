@@ -10,24 +10,18 @@ import queue
 import sys
 import threading
 import time
-import zlib
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from spm_data.core.backgrounds import background_image, composite
 from spm_data.core.distractors import place_distractors
-from spm_data.core.randomize import frame_draws, lights_width
+from spm_data.core.randomize import frame_draws, frame_rng, lights_width
 from spm_data.core.raster import object_coords
 from spm_data.errors import ShardError
 from spm_data.io.shards import FIELDS, OPTIONAL_FIELDS
 from spm_data.io.shards.chunks import encode_chunk
 from spm_data.jobs.executor import WORKER_CORES
-
-
-def frame_rng(spec, instance: int, path_index: int) -> np.random.Generator:
-    """Per-frame randomness (backgrounds): independent of shard layout and worker."""
-    return np.random.default_rng([spec.seed, zlib.crc32(spec.class_name.encode()), instance, path_index, 1])
 
 
 class FrameMaker:
@@ -80,7 +74,8 @@ class FrameMaker:
         kind = draws.background if draws is not None else spec.background.kind
         rgb = out["rgb"]
         if kind != "black":
-            rgb = composite(rgb, out["alpha"], background_image(spec, frame_rng(spec, instance, path_index), kind))
+            background = background_image(spec, frame_rng(spec, instance, path_index, "background"), kind)
+            rgb = composite(rgb, out["alpha"], background)
         images = {"rgb": rgb, "depth": out["depth"], "mask": out["mask"]}
         labels = {"K": K}
         if draws is not None:

@@ -34,7 +34,7 @@ from spm_data.jobs.plan_diff import first_difference, flatten
 from spm_data.jobs.shard_runs import RunSummary, run_shard_jobs
 from spm_data.io.outputs import check_out_name
 from spm_data.io.shards import SCHEMA_VERSION, ShardWriter, manifest_entry
-from spm_data.core.specs import RenderSpec, all_spec_paths, find_spec, load_spec, parse_spec, validate_spec
+from spm_data.core.specs import RenderSpec, all_spec_paths, find_spec, load_spec, shard_spec, validate_spec
 
 
 @dataclass(frozen=True, init=False)
@@ -82,7 +82,7 @@ class ShardJob:
     def plan_difference(self, attrs: dict) -> tuple | None:
         """(key, old, new): the first spec key, seed, renderer or --limit that the shard with
         ``attrs`` was made with otherwise (shard_runs' refusal); None if none is found."""
-        old = parse_spec(str(attrs["spec"]), "the shard's spec", self.spec.base_dir).replace(seed=int(attrs["seed"]))
+        old = shard_spec(attrs, "the shard's spec", self.spec.base_dir)
         if attrs.get("renderer") in RENDERERS:   # --renderer changes the run's spec, not its text
             old = old.replace(render=replace(old.render, renderer=str(attrs["renderer"])))
         limit = int(attrs["frame_limit"]) or None if "frame_limit" in attrs else self.limit  # older: not kept

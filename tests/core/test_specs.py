@@ -2,7 +2,7 @@ import pytest
 
 from spm_data.errors import SpecError
 from spm_data.core.shapes import CLASSES
-from spm_data.core.specs import all_spec_paths, load_spec, parse_spec
+from spm_data.core.specs import all_spec_paths, load_spec, parse_spec, shard_spec
 
 
 def test_builtin_specs_cover_the_six_classes_and_load():
@@ -90,3 +90,11 @@ def test_the_example_specs_load():
     for path in examples:
         spec = load_spec(path)
         assert spec.randomize.enabled and spec.distractors.count == 2 and spec.outputs.coords
+
+
+def test_a_shards_spec_is_its_text_with_the_runs_seed():
+    text = 'class = "cup"\nseed = 7\n[mesh]\ngenerator = "cup"\n'
+    spec = shard_spec({"spec": text, "seed": 11})
+    assert spec.seed == 11 and spec.class_name == "cup"
+    assert spec.fingerprint() == parse_spec(text).replace(seed=11).fingerprint()
+    assert shard_spec({"spec": text}).seed == 0   # a shard without the attribute: the default seed
