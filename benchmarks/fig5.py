@@ -1,4 +1,5 @@
-"""Our reading of the paper's Fig. 5 (it does not describe its test views): every method trained on a camera grid, tested on views
+"""Our reading of the paper's Fig. 5 (it does not describe its test views): every method trained on a camera grid,
+tested on views
 at random poses within the grid's range (off the grid), occluded 5-95% by rectangles
 (spm-data occlude) and by 3-D distractors ([distractors]); seen instances and, as a second
 table, unseen instances of the same classes. Runs every method 3 times (--runs) and prints
@@ -284,7 +285,8 @@ def main(argv=None) -> int:
             out / "train", out / "report-noise", test=out / "test", runs=args.runs, executor=executor,
             builtins=methods, train_occluded=True, command=command, progress=bar))
         report_curves(noisy["summary"], "Fig. 5, trained with noise (occluded copies)")
-    print(f"\nrender and occlude {timing['rendered_s']:.0f} s, train and test {trained:.0f} s; report: {out / 'report'}")
+    print(f"\nrender and occlude {timing['rendered_s']:.0f} s, train and test {trained:.0f} s; "
+          f"report: {out / 'report'}")
     return 0
 
 

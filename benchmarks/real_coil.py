@@ -8,7 +8,8 @@ method, 3 runs each:
 
 Prints one table per protocol (coverage, features found, ±5° with σ and its range over runs,
 the declined methods with their reasons) beside the paper's Table 2 (KNN on SPM's vectors:
-82.6-95.5% within ±5°, on COIL-100, CVL and renders together), and writes the same as markdown to OUT/real_coil.md with the date, machine and
+82.6-95.5% within ±5°, on COIL-100, CVL and renders together), and writes the same as markdown to OUT/real_coil.md with
+the date, machine and
 commands; the reports are in OUT/report-views and OUT/report-interleaved.
 
     python benchmarks/real_coil.py coil-20-proc/ --out out/real-coil20

@@ -64,7 +64,8 @@ def main(argv=None) -> int:
             got = figure(ref, key)
             met = got >= target if op == ">=" else got <= target
             rows.append((protocol, key, f"{got:.1f}", f"{figure(chance, key):.1f}", f"{op} {target:g}",
-                         "met" if met else "missed", f"{ref['std'].get(key, ref['std']['median_error'].get(key)) or 0:.1f}"))
+                         "met" if met else "missed",
+                         f"{ref['std'].get(key, ref['std']['median_error'].get(key)) or 0:.1f}"))
         rows.append((protocol, "geodesic median / AUC 45 / ADD(-S) recall",
                      f"{ref['geodesic_median_deg']:.1f} / {ref['auc_45']:.1f} / "
                      f"{(ref['surface'] or {}).get('add_s_recall') or float('nan'):.1f}",

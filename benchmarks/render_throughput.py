@@ -1,4 +1,5 @@
-"""Render throughput: frames per second of a bare render loop and of the whole path, their ratio, and where the time goes.
+"""Render throughput: frames per second of a bare render loop and of the whole path, their ratio, and where the time
+goes.
 
 pyrender (per image size and worker count, best of --rounds interleaved runs): (1) a bare
 loop of renderer.render over the frames, with the frames' own draws and distractors (made
@@ -88,7 +89,8 @@ def bench(spec, frames: int, workers: int, rounds: int = 3) -> dict:
                 best["whole_cpu"] = min(best["whole_cpu"], _cpu_seconds() - cpu)
             assert summary.frames == frames and not summary.failed, summary.report()
             ratios.append((ended - started) / bare)
-            best["warm"] = min(best["warm"], (ended - first.first) * frames / (frames - 1))  # the first frame's own time
+            # the first frame's own time
+            best["warm"] = min(best["warm"], (ended - first.first) * frames / (frames - 1))
             if ended - started < best["whole"]:
                 splits = [result.get("seconds", {}) for result in summary.results.values()]
                 best["whole"], best["split"] = ended - started, {k: sum(s.get(k, 0.0) for s in splits) for k in STAGES}
@@ -178,7 +180,8 @@ def bench_pyrender(base, cls: str, frames: int, sizes, workers_list, rounds: int
             n = frames * workers
             r = bench(spec, n, workers, rounds)
             split = " | ".join(f"{1e3 * r['split'].get(k, 0.0) / n:.3f}" for k in STAGES)
-            print(f"| {size}x{size} | {workers} | {r['processes']} | {n / r['bare']:.0f} | {n / r['whole']:.0f} | {n / r['warm']:.0f} | "
+            print(f"| {size}x{size} | {workers} | {r['processes']} | {n / r['bare']:.0f} | {n / r['whole']:.0f} | "
+                  f"{n / r['warm']:.0f} | "
                   f"{r['whole'] / r['bare']:.3f} | {r['paired']:.3f} | {1e3 * r['bare_cpu'] / n:.2f} | "
                   f"{1e3 * r['whole_cpu'] / n:.2f} | {split} | {os.getloadavg()[0]:.2f} |", flush=True)
 

@@ -81,7 +81,8 @@ def main(frames: int) -> None:
     for name in unchecked:
         w, wo = frames / checked[name], frames / unchecked[name]
         print(f"| {name} | {w:,.0f} | {wo:,.0f} | {100 * (checked[name] / unchecked[name] - 1):.0f}% |")
-    print(f"| SHA-256 of every byte alone | {frames / checked['hash']:,.0f} ({size / 1e6 / checked['hash']:,.0f} MB/s) | | |")
+    print(f"| SHA-256 of every byte alone | {frames / checked['hash']:,.0f} ({size / 1e6 / checked['hash']:,.0f} MB/s) "
+          f"| | |")
 
 
 if __name__ == "__main__":

@@ -9,20 +9,22 @@ import sys
 
 import click
 
-from spm_cli.support import (ALLOW_PARTIAL, Group, Progress, executor_options, handle_errors,
-                                           old_spelling, run_with_progress)
+from spm_cli.support import (ALLOW_PARTIAL, Group, Progress, comma_list, executor_options, handle_errors,
+                             old_spelling, run_with_progress)
 from spm_data.render import renderer_names
 
 
 @click.command("render")
-@click.option("--class", "classes", multiple=True, help="Class to render (its spec is render_specs/CLASS.toml). Repeatable.")
+@click.option("--class", "classes", multiple=True,
+              help="Class to render (its spec is render_specs/CLASS.toml). Repeatable.")
 @click.option("--all", "all_classes", is_flag=True, help="Render every spec in the specs folder.")
 @click.option("--spec", "spec_files", multiple=True, type=click.Path(), help="A spec file to render. Repeatable.")
 @click.option("--specs-dir", type=click.Path(), default=None, help="Where --class/--all look for specs "
                                                                    "[default: render_specs/].")
 @click.option("--out", default="out", show_default=True, type=click.Path(), help="Folder to write the shards to.")
 @click.option("--renderer", type=click.Choice(renderer_names()), default=None, help="Override the spec's renderer.")
-@click.option("--seed", type=click.IntRange(min=0), default=None, help="Override the spec's seed.")
+@click.option("--seed", type=click.IntRange(min=0), default=None,
+              help="Override the spec's seed [default: the spec's own seed, so a spec always renders the same].")
 @click.option("--limit", type=click.IntRange(min=1, max=10**7), default=None,
               help="At most N frames per class, spread over views (at most 10,000,000).")
 @executor_options("Render processes", recycle_after=16,
@@ -48,8 +50,10 @@ def render_cmd(classes, all_classes, spec_files, specs_dir, out, renderer, seed,
 @click.argument("in_dir", metavar="FOLDER", required=False, type=click.Path())
 @click.option("--out", "out_dir", default="out_occluded", show_default=True, type=click.Path(),
               help="Folder to write the occluded shards to.")
-@click.option("--min", "low", default=0.0, show_default=True, type=float, help="Smallest covered fraction of the object.")
-@click.option("--max", "high", default=0.6, show_default=True, type=float, help="Largest covered fraction of the object.")
+@click.option("--min", "low", default=0.0, show_default=True, type=float,
+              help="Smallest covered fraction of the object.")
+@click.option("--max", "high", default=0.6, show_default=True, type=float,
+              help="Largest covered fraction of the object.")
 @click.option("--copies", default=1, show_default=True, type=click.IntRange(min=1, max=100),
               help="Differently occluded copies per frame (at most 100: each copy is the whole dataset again).")
 @click.option("--rects", default=1, show_default=True, type=click.IntRange(min=1), help="Rectangles per frame.")
@@ -71,7 +75,8 @@ def occlude_cmd(in_dir, out_dir, low, high, copies, rects, seed, allow_partial, 
 @click.command("merge")
 @click.argument("folders", metavar="FOLDER...", nargs=-1, type=click.Path())
 @click.option("--out", "out_dir", required=True, type=click.Path(), help="Folder to write the merged shards to.")
-@click.option("--sources", default=None, help="Keep only frames of these sources, e.g. synthetic,coil100.")
+@click.option("--sources", "sources", multiple=True, metavar="NAME[,NAME...]",
+              help="Keep only frames of these sources, e.g. synthetic,coil100. Repeatable, or comma-separated.")
 @click.option("--rename", "renames", multiple=True, metavar="OLD=NEW",
               help="Rename a class (OLD=NEW, or several as OLD=NEW,OLD2=NEW2). Repeatable.")
 @click.option("--frames-per-shard", default=256, show_default=True, type=click.IntRange(min=1, max=65536),
@@ -84,7 +89,7 @@ def merge_cmd(folders, out_dir, sources, renames, frames_per_shard, allow_partia
     """Combine the shard folders FOLDER... into --out, rebalanced into full shards."""
     from spm_data.pipelines.merge import merge_folders, parse_renames
 
-    keep = [s.strip() for s in sources.split(",") if s.strip()] if sources else None
+    keep = comma_list(sources) or None
     run_with_progress(lambda bar: merge_folders(folders, out_dir, sources=keep,
                                                 renames=parse_renames(",".join(renames)),
                                                 frames_per_shard=frames_per_shard, progress=bar,
@@ -123,7 +128,8 @@ def info_cmd(path):
 @click.argument("shard", type=click.Path())
 @click.option("--out", "out_png", default="sheet.png", show_default=True, type=click.Path(),
               help="Image to write: .png, .jpg, .jpeg, .pdf or .svg.")
-@click.option("--frames", default=24, show_default=True, type=click.IntRange(min=1, max=1024), help="Frames on the sheet (at most 1,024).")
+@click.option("--frames", default=24, show_default=True, type=click.IntRange(min=1, max=1024),
+              help="Frames on the sheet (at most 1,024).")
 @click.option("--field", default="rgb", show_default=True,
               type=click.Choice(["rgb", "normals", "instances", "coords", "depth"]),
               help="What the tiles show: the image, or an [outputs] field in false colour.")

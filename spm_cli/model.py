@@ -7,7 +7,7 @@ import sys
 
 import click
 
-from spm_cli.support import ALLOW_PARTIAL, Progress, executor_options, handle_errors, old_spelling
+from spm_cli.support import ALLOW_PARTIAL, Progress, comma_list, executor_options, handle_errors, old_spelling
 from spm_data.errors import SpmError
 
 
@@ -31,13 +31,14 @@ def _parse_roi(text):
     return x, y, w, h
 
 
-def _method_names(text):
-    """--methods a,b -> ["a", "b"] (None: all); the registry's one-line error naming an unknown one."""
-    if text is None:
+def _method_names(values):
+    """--methods a,b --methods c -> ["a", "b", "c"] (none given: None, all); the registry's one-line error
+    naming an unknown one."""
+    if not values:
         return None
     from spm_model.methods.registry import check_method_names
 
-    return check_method_names([n.strip() for n in text.split(",") if n.strip()], "--methods")
+    return check_method_names(comma_list(values), "--methods")
 
 
 class MethodsOption(click.Option):
@@ -96,8 +97,8 @@ def _bop_line(result) -> None:
 @click.option("--train-occluded/--clean-training", "train_occluded", default=None,
               help="Whether occluded frames train too (the paper's training with noise) [default: yes, but no "
                    "under offgrid].")
-@click.option("--methods", "methods", cls=MethodsOption, default=None, metavar="NAME,...",
-              help="Built-in methods to run (default all): {names}.")
+@click.option("--methods", "methods", cls=MethodsOption, multiple=True, metavar="NAME[,NAME...]",
+              help="Built-in methods to run (default all): {names}. Repeatable, or comma-separated.")
 @click.option("--runs", default=3, show_default=True, type=click.IntRange(min=1, max=100),
               help="Repeated runs (seeds) for sigma (at most 100).")
 @click.option("--ellipse", type=click.Choice(["pso", "direct"]), default="pso", show_default=True,

@@ -112,6 +112,12 @@ class Progress(progress.Progress):
         super().__init__(unit, label or _command_label(), total, stream)
 
 
+def comma_list(values) -> list:
+    """A repeatable option's values, each of which may itself be a comma-separated list, as one list
+    (``("a,b", "c")`` -> ``["a", "b", "c"]``): the one list grammar of both programs."""
+    return [part.strip() for value in values for part in str(value).split(",") if part.strip()]
+
+
 def run_with_progress(call, report=lambda summary: summary.report(), unit="frame"):
     """Run ``call(progress)`` (a :class:`Progress`), print its summary, exit 130 if interrupted, 1 if shards failed."""
     bar = Progress(unit)
@@ -147,11 +153,13 @@ def executor_options(workers: str, recycle_after: int = 0, task_cpus: str = ""):
             click.option("--workers", default=1, show_default=True, type=click.IntRange(min=1, max=1024),
                          help=f"{workers} running at once, at most 1,024 (with --executor ray and no --address: the "
                               "CPUs of the local Ray instance)."),
-            click.option("--recycle-after", default=recycle_after, show_default=True, type=click.IntRange(min=0, max=10**6),
+            click.option("--recycle-after", default=recycle_after, show_default=True,
+                         type=click.IntRange(min=0, max=10**6),
                          help="Replace each worker process after this many jobs (0: never; at most 1,000,000); "
                               "bounds leaks."),
             click.option("--executor", "executor_name", type=click.Choice(["local", "ray"]), default="local",
-                         show_default=True, help="Where the jobs run: local processes, or Ray tasks (docs/scaling.md)."),
+                         show_default=True,
+                         help="Where the jobs run: local processes, or Ray tasks (docs/scaling.md)."),
             click.option("--address", default=None, help="Ray cluster address (auto or HOST:PORT); default: a local "
                                                          "Ray instance with --workers CPUs."),
             click.option("--task-cpus", default=1.0, show_default=True, type=click.FloatRange(min=0.01),

@@ -3,7 +3,8 @@
 A shard written since the store exists names its target's digest per frame (field ``mesh``) and
 its distractors' (attribute ``distractor_mesh_digests``); the meshes are in its folder's
 ``meshes/`` (for a synthetic shard copied without them, rebuilt from its spec: used only when the
-rebuilt mesh has the digest the frame names). An older synthetic shard names none: its meshes are rebuilt from the spec and seed
+rebuilt mesh has the digest the frame names). An older synthetic shard names none: its meshes are rebuilt from the spec
+and seed
 it recorded (instances.shard_mesh, distractors.pool_mesh), digested, and kept in memory, so
 merge and export treat both alike. Imported frames have no mesh: digest "".
 """

@@ -12,7 +12,7 @@ from spm_data.errors import ShardError, SpmError
 from spm_data.core.poses import project_points
 from spm_data.io.outputs import check_creatable, removing_created, space_fix
 from spm_data.io.files import atomic_file
-from spm_data.io.shards import read_attrs, read_shard, shard_layout
+from spm_data.io.shards import read_shard
 
 AXIS_COLOURS = ((255, 40, 40), (40, 255, 40), (60, 120, 255))  # x red, y green, z blue (RGB)
 IMAGE_TYPES = {".png": "png", ".jpg": "jpeg", ".jpeg": "jpeg", ".pdf": "pdf", ".svg": "svg"}  # extension: format

@@ -59,7 +59,8 @@ def folder_info(folder) -> str:
     for p in shards:
         a = read_attrs(p)
         total += int(a["frames"])
-        lines.append(f"  {p.name:<28} {a['frames']:>6} frames  {p.stat().st_size / 1e6:8.2f} MB  {a.get('renderer', '')}")
+        lines.append(f"  {p.name:<28} {a['frames']:>6} frames  {p.stat().st_size / 1e6:8.2f} MB  "
+                     f"{a.get('renderer', '')}")
     lines.append(f"  total: {total} frames")
     return "\n".join(lines)
 

@@ -273,7 +273,8 @@ class BlenderRenderer(Renderer):
         if distractors or self.outputs.instances or self.outputs.normals:
             out["instances"] = self._instances
         if self.outputs.normals:
-            world_to_camera = np.stack([np.eye(3), *([R] * (1 + len(distractors)))])  # Blender's normals are in the world
+            # Blender's normals are in the world
+            world_to_camera = np.stack([np.eye(3), *([R] * (1 + len(distractors)))])
             out["normals"] = rotate_normals(self._normals, self._instances, world_to_camera)
         return out
 

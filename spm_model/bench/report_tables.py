@@ -6,7 +6,7 @@ bench/metrics.py's METRICS."""
 
 from __future__ import annotations
 
-from spm_model.bench.headline import coverage_note as _cov, declined_lines, fmt, name, plain_summary
+from spm_model.bench.headline import coverage_note as _cov, fmt, name, plain_summary
 from spm_model.bench.metrics import METRICS, RATES, metric_value
 from spm_model.methods.registry import SAVED_MODELS
 
@@ -20,7 +20,10 @@ SURFACE = (("frames", "Frames", 0), ("add_s_recall", "ADD(-S) <10% d %", 1), ("a
            ("mssd_median_mm", "MSSD median mm", 1), ("mspd_median_px", "MSPD median px", 1))
 FIG5_CELL = "sum<5° / sum<3° / ±5° %, each [95% interval] (geodesic median °)"
 # What a method returns decides which criterion can judge it: said under every table it is in.
-OWN_CRITERION = {"smm": ("pose_class_accuracy", "SMM returns the rotation of one training view (the nearest of its voted pose class) and a translation scaled from it: ±5° and sum < 5° are met only where a training view lies that close to the truth, so its own criterion is the pose class ({} azimuth classes of 45°)")}
+OWN_CRITERION = {"smm": ("pose_class_accuracy",
+                         "SMM returns the rotation of one training view (the nearest of its voted pose class) and a "
+                         "translation scaled from it: ±5° and sum < 5° are met only where a training view lies that "
+                         "close to the truth, so its own criterion is the pose class ({} azimuth classes of 45°)")}
 
 
 
@@ -137,7 +140,8 @@ def _fig5_tables(summary: dict, names: list) -> list:
                 for g, methods in groups.items() for m, entry_ in methods.items() if m in names]
         lines += ["### Every occlusion level together", ""]
         lines += table(["Instances", "Method", "Frames", "Coverage %", "sum<5° %", "sum<3° %", "±5° %", "±5° sym. %",
-                        "Geodesic median °", "tx mm", "ty mm", "tz mm"], rows) + ["", *own_criterion_lines(summary, names)]
+                        "Geodesic median °", "tx mm", "ty mm", "tz mm"], rows) + ["", *own_criterion_lines(summary,
+                                                                                                           names)]
     return lines
 
 
@@ -248,12 +252,14 @@ def summary_text(summary: dict) -> str:
         width = max(len(name(m)) for m in curves) + 1
         for m, rows in curves.items():
             est, frames = sum(r.get("estimated", r["frames"]) for r in rows), sum(r["frames"] for r in rows)
-            lines.append(f"  {name(m):<{width}}" + " ".join(f"{fmt(r['success_sum5'], 0):>4}" for r in rows if r["frames"])
+            lines.append(f"  {name(m):<{width}}"
+                         + " ".join(f"{fmt(r['success_sum5'], 0):>4}" for r in rows if r["frames"])
                          + (f"  ({100 * est / frames:.0f}% estimated)" if frames and est < frames else ""))
     return "\n".join(lines)
 
 
-SCHEMA_BEGIN = "<!-- metrics: made from spm_model/bench/metrics.py METRICS by `python -m spm_model.bench.report_tables` -->"
+SCHEMA_BEGIN = ("<!-- metrics: made from spm_model/bench/metrics.py METRICS by "
+                "`python -m spm_model.bench.report_tables` -->")
 SCHEMA_END = "<!-- end of metrics -->"
 
 

@@ -24,9 +24,10 @@ def load_model(path):
     header, arrays = load_model_file(path)  # read once
     kinds = {name: method.model_class() for name, method in SAVED_MODELS.items()}
     if header.get("kind") not in kinds:
+        *others, last = (m.model_file for m in SAVED_MODELS.values())
+        files = f"{', '.join(others)} or {last}"
         raise ModelError(f"{path}: not an spm model file (kind {header.get('kind')!r}, expected one of "
-                         f"{sorted(kinds)}); give the {' or '.join(m.model_file for m in SAVED_MODELS.values())} that spm "
-                         "train wrote")
+                         f"{sorted(kinds)}); give the {files} that spm train wrote")
     getattr(kinds[header["kind"]], "check_available", lambda: None)()   # cnn: torch, or one line naming the extra
     try:
         model = kinds[header["kind"]].from_model_file(header, arrays)

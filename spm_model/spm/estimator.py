@@ -3,7 +3,8 @@
 with the feature configuration, so ``spm predict`` can start from an image.
 
 Scaling: Eq. 5 is solved exactly (one l1 problem per vector, over all the
-others, all at once: spm_model.spm.sparse.l1_simplex) for at most ``projection_samples`` training vectors, a seeded random
+others, all at once: spm_model.spm.sparse.l1_simplex) for at most ``projection_samples`` training vectors, a seeded
+random
 subset: the projection is a (2 gamma x d) matrix, which the subset estimates as
 well as the whole set, at a cost that does not grow with n (about 1 s here).
 ``projection="knn"`` restricts each problem to the ``neighbours`` nearest

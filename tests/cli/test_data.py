@@ -100,7 +100,8 @@ def test_render_gpu_refusals_are_one_line_and_exit_1(small_specs_dir, tmp_path, 
     base = ["render", "--class", "cup", "--specs-dir", small_specs_dir, "--out", tmp_path / "o", "--limit", 2]
     monkeypatch.setattr(pyrender_backend, "visible_gpus", lambda: ((), "pyrender's EGL"))
     refusals = {
-        ("--gpus", "0"): "error: --gpus 0: no GPU here (pyrender's EGL lists none); leave --gpus out to render on the CPU",
+        ("--gpus", "0"): "error: --gpus 0: no GPU here (pyrender's EGL lists none); leave --gpus out to render on the "
+                         "CPU",
         ("--gpus", "0,x"): "error: --gpus '0,x': expected GPU indices separated by commas, such as 0 or 0,1,3",
         ("--task-gpus", "1"): "error: --task-gpus is for --executor ray; on this machine, pick GPUs with --gpus",
         ("--gpus", "1", "--executor", "ray"): "error: --gpus picks this machine's GPUs (--executor local); Ray tasks "

@@ -84,3 +84,11 @@ def test_the_ignored_threshold_is_gone_from_bop(tmp_path):
     r = CliRunner().invoke(data_cli, ["import", "bop", str(tmp_path), "--threshold", "5"])
     assert r.exit_code == 2 and "No such option '--threshold'" in r.stderr
     assert "--threshold" in flags(data_cli.commands["import"].commands["coil100"])
+
+
+def test_one_list_grammar_the_comma_lists_are_repeatable_too():
+    lists = [(name, p) for name, cmd in ALL for p in cmd.params if {"--methods", "--sources", "--rename"} & set(p.opts)]
+    assert sorted((name, p.opts[0]) for name, p in lists) == [("merge", "--rename"), ("merge", "--sources"),
+                                                             ("train", "--methods")]
+    assert [p.opts[0] for _, p in lists if not p.multiple] == []
+    assert [p.opts[0] for _, p in lists if "several as" not in p.help and "comma-separated" not in p.help] == []

@@ -3,7 +3,6 @@ and warnings, the summary and exit status of a run, progress labelled with the c
 tests/jobs/test_progress.py), the executor options, old spellings with a one-line notice, and groups
 that list whole command summaries."""
 
-import io
 import re
 import time
 import warnings
@@ -12,7 +11,8 @@ import click
 import pytest
 from click.testing import CliRunner
 
-from spm_cli.support import Group, Progress, executor_options, handle_errors, old_spelling, run_with_progress
+from spm_cli.support import (Group, Progress, comma_list, executor_options, handle_errors, old_spelling,
+                             run_with_progress)
 from spm_data.errors import ShardError, SpmWarning
 
 
@@ -216,3 +216,8 @@ def _counting(line, lines):
         return text
 
     return counted
+
+
+def test_a_list_option_is_repeated_and_each_value_may_be_a_comma_list():
+    assert comma_list(("a,b", " c ", "d,,")) == ["a", "b", "c", "d"]
+    assert comma_list(()) == [] and comma_list(("",)) == []

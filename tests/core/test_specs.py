@@ -59,9 +59,11 @@ def test_fingerprint_changes_with_what_changes_pixels():
     ('class = "cup"\n[mesh]\nsymmetries = ["z"]', "mesh.symmetries: built-in classes know their own"),
     ('class = "cup"\n[camera]\nsampler = "so3"', "camera.views: sampler 'so3' needs views = N >= 1"),
     ('class = "cup"\n[camera]\nsampler = "so3"\nviews = "ten"', "camera.views: expected int, got string"),
-    ('class = "cup"\n[camera]\nsampler = "sphere"\nviews = 3\nroll_range = [10]', "camera.roll_range: expected [low, high]"),
+    ('class = "cup"\n[camera]\nsampler = "sphere"\nviews = 3\nroll_range = [10]', "camera.roll_range: expected [low, "
+                                                                                  "high]"),
     ('class = "cup"\n[camera]\nroll_range = [0, 10]', "camera.roll_range: only for sampler"),
-    ('class = "cup"\n[render.blender]\ndevice = "tpu"', "render.blender.device: expected one of cpu, gpu, auto, got 'tpu'"),
+    ('class = "cup"\n[render.blender]\ndevice = "tpu"', "render.blender.device: expected one of cpu, gpu, auto, got "
+                                                        "'tpu'"),
     ('class = "u"\n[mesh]\nsource = "files"\nfiles = ["a.ply"]\nsymmetries = ["q/90"]',
      "mesh.symmetries[0]: symmetry 'q/90': expected an axis x, y or z"),
     ('class = "u"\n[mesh]\nsource = "files"\nfiles = ["a.ply"]\nsymmetries = ["z", "z/7"]',

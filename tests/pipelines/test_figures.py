@@ -103,7 +103,8 @@ def test_a_sheet_of_an_outputs_field_in_false_colour(tmp_path):
     a["instances"] = np.zeros((2, 16, 20), np.uint8)
     a["instances"][:, 10:14, 5:9] = 2
     path = write_shard(tmp_path / "x.h5", a, {"renderer": "test", "seed": 0})
-    sheet = cv2.cvtColor(cv2.imread(str(contact_sheet(path, tmp_path / "ids.png", field="instances", tile=40))), cv2.COLOR_BGR2RGB)
+    sheet = cv2.cvtColor(cv2.imread(str(contact_sheet(path, tmp_path / "ids.png", field="instances", tile=40))),
+                         cv2.COLOR_BGR2RGB)
     assert (sheet[21:27, 11:17] == INSTANCE_COLOURS[2]).all() and (sheet[20:32, 0:8] == 0).all()
     with pytest.raises(ShardError, match="has no normals field; render it with \\[outputs\\] normals = true"):
         contact_sheet(path, tmp_path / "n.png", field="normals")

@@ -199,7 +199,8 @@ def test_merge_of_datasets_with_different_distractor_pools_makes_one_pool(tmp_pa
     merged = read_shard(list_shards(tmp_path / "merged")[0])
     assert merged["distractor_R"].shape[:2] == (8, 2) and merged["distractor_mesh"].shape == (8, 2)
     # Each frame's distractors still name the meshes they were drawn from, now in one pool.
-    assert _frame_pool_names(tmp_path / "merged") == _frame_pool_names(tmp_path / "a") + _frame_pool_names(tmp_path / "b")
+    both = _frame_pool_names(tmp_path / "a") + _frame_pool_names(tmp_path / "b")
+    assert _frame_pool_names(tmp_path / "merged") == both
     digests = json.loads(read_attrs(list_shards(tmp_path / "merged")[0])["distractor_mesh_digests"])
     assert all(has_mesh(tmp_path / "merged", d) for d in digests if d)
 

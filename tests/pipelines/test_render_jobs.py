@@ -100,7 +100,8 @@ def test_a_refusal_names_the_key_that_differs_and_both_values(small_specs_dir, t
     tail = f"; write into a new --out folder or delete {out}"
     assert refusal(edit=("azimuth = [0, 25, 5]", "azimuth = [0, 20, 10]")) == (
         f"{shard} was made with camera.azimuth = [0, 25, 5], not camera.azimuth = [0, 20, 10]{tail}")
-    assert refusal(edit=("width = 64", "width = 32")) == f"{shard} was made with image.width = 64, not image.width = 32{tail}"
+    assert refusal(edit=("width = 64",
+                         "width = 32")) == f"{shard} was made with image.width = 64, not image.width = 32{tail}"
     assert refusal(seed=4) == f"{shard} was made with seed = 3, not seed = 4{tail}"
     assert refusal(limit=6) == f"{shard} was made with --limit 8, not --limit 6{tail}"
     assert render_dataset(load_run_specs(["cup"], specs_dir=small_specs_dir), out, limit=8).skipped == [shard.name]
@@ -369,7 +370,8 @@ class SerialPipeline:
         self.frames.append({f: self.writer.check_frame(f, images[f]) for f in self.writer.images})
         self.labels.append(labels)
         if len(self.frames) == self.block or self.start + len(self.frames) == self.writer.frames:
-            self.writer.write_images(self.start, {f: np.stack([fr[f] for fr in self.frames]) for f in self.writer.images})
+            self.writer.write_images(self.start,
+                                     {f: np.stack([fr[f] for fr in self.frames]) for f in self.writer.images})
             self.start, self.frames = self.start + len(self.frames), []
 
     def close(self):

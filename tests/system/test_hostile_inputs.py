@@ -117,7 +117,8 @@ def test_a_shard_listed_twice_or_copied_is_refused_by_every_reader(folder, tmp_p
     out = tmp_path / "out"
     args = {"validate": [data_cli, "validate", folder], "info": [data_cli, "info", folder],
             "occlude": [data_cli, "occlude", "--in", folder, "--out", out],
-            "merge": [data_cli, "merge", folder, "--out", out], "export": [data_cli, "export", "bop", folder, "--out", out],
+            "merge": [data_cli, "merge", folder, "--out", out],
+            "export": [data_cli, "export", "bop", folder, "--out", out],
             "train": [model_cli, "train", folder, "--out", out]}[command]
     r = run(*args)
     if command == "validate":  # validate lists problems
@@ -137,7 +138,8 @@ def template_model(tmp_path_factory):
 
 def reader_commands(folder, out, model):
     return {"info": [data_cli, "info", folder], "occlude": [data_cli, "occlude", "--in", folder, "--out", out],
-            "merge": [data_cli, "merge", folder, "--out", out], "export": [data_cli, "export", "bop", folder, "--out", out],
+            "merge": [data_cli, "merge", folder, "--out", out],
+            "export": [data_cli, "export", "bop", folder, "--out", out],
             "train": [model_cli, "train", folder, "--out", out],
             "hist": [data_cli, "hist", folder, "--out", out.with_suffix(".png")],
             "evaluate": [model_cli, "evaluate", "--model", model, "--shards", folder]}

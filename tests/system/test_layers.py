@@ -13,8 +13,9 @@ ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("spm_data", "spm_model", "spm_cli", "cli.py")
 # Lowest first; a module may import its own layer and those below it, never above.
 LAYERS = ("spm_data.errors", "spm_data.version", "spm_data.io", "renderer registry", "spm_data.core",
-          "spm_data.render", "spm_data.jobs", "spm_data.formats", "spm_data.pipelines", "spm_model.errors", "spm_model.base", "spm_model.spm",
-          "spm_model.methods", "spm_model.bench", "spm_model.pipelines", "spm_cli", "cli")
+          "spm_data.render", "spm_data.jobs", "spm_data.formats", "spm_data.pipelines", "spm_model.errors",
+          "spm_model.base", "spm_model.spm", "spm_model.methods", "spm_model.bench", "spm_model.pipelines", "spm_cli",
+          "cli")
 # The registry (spm_data/render/__init__.py) and the backends' settings modules sit below core,
 # which reads them for the specs; the Renderer base and the backends sit above it.
 REGISTRY = {"spm_data.render"} | {b.settings.__module__ for b in RENDERERS.values() if b.settings}

@@ -19,7 +19,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 TESTS = ROOT / "tests"
-PACKAGES = {"spm_data": (), "spm_model": ("model",), "spm_cli": ("cli",), "cli.py": ()}  # package (or module) -> its folder under tests/
+# package (or module) -> its folder under tests/
+PACKAGES = {"spm_data": (), "spm_model": ("model",), "spm_cli": ("cli",), "cli.py": ()}
 
 # Modules with logic that have no test file of their own, each with the reason. Keep it
 # short: a module without any def or class (re-exports, constants) needs no entry.

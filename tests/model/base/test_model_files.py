@@ -1,7 +1,6 @@
 """spm_model.base.model_files: model files that restore state through the classes' public
 ``from_state`` (byte-identical when saved again), and a damaged one named in one line."""
 
-import json
 import zipfile
 
 import numpy as np

@@ -156,5 +156,5 @@ def test_a_bop_results_folder_that_cannot_be_written_is_refused_before_any_work(
                         ["evaluate", str(tiny / "render"), "--model", str(tmp_path / "none.npz")]):
             r = CliRunner().invoke(model_cli, command + ["--bop-results", str(where)])
             assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1, r.output
-            assert r.output.startswith(f"error: --bop-results") and said in r.output, r.output
+            assert r.output.startswith("error: --bop-results") and said in r.output, r.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]   # no report, no features, nothing

@@ -33,7 +33,8 @@ def test_train_loco_writes_the_report_and_model(model_shards, loco_report, tmp_p
                                        "cnn", "MeanPose"}
     assert set(summary["classes"]) == {"box", "car", "cup"}
     for entry in [*summary["methods"].values(), summary["chance"]]:
-        assert 0 <= entry["success_tol5"] <= 100 and entry["success_sum3"] <= entry["success_sum5"] <= entry["success_tol5"]
+        assert 0 <= entry["success_tol5"] <= 100
+        assert entry["success_sum3"] <= entry["success_sum5"] <= entry["success_tol5"]
         # No pose, no median: N3M's markers never pass on a class it did not train on (loco).
         assert 0 <= entry["auc_45"] <= 100 and (entry["geodesic_median_deg"] is None) == (entry["estimated"] == 0)
         assert entry["estimated"] == 0 or entry["geodesic_median_deg"] >= 0
@@ -206,7 +207,8 @@ def test_a_plug_in_with_a_wrong_needs_is_refused_before_any_work(tmp_path, monke
                                           "    def fit(self, f, p):\n        return self\n"
                                           "    def predict(self, f):\n        return None\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    with pytest.raises(ModelError, match=r"^--estimator odd_pose:Odd: Odd.NEEDS must be a spm_model.base.estimator.Needs"):
+    with pytest.raises(ModelError, match=r"^--estimator odd_pose:Odd: Odd.NEEDS must be a "
+                                         r"spm_model.base.estimator.Needs"):
         load_estimators(["odd_pose:Odd"])
 
 
@@ -260,7 +262,8 @@ def test_train_reports_each_step_features_first(tmp_path):
     train(tmp_path / "out", runs=1, features=FeatureConfig(ellipse="direct"), builtins=["knn1", "template"],
           progress=progress)
     assert progress.steps == [["checking cached features", 2, "shard", 2], ["features", 48, "frame", 48],
-                              ["reading features", 2, "shard", 2], ["fitting", 2, "split", 2],   # loco: 2 (the final models uncounted)
+                              # loco: 2 (the final models uncounted)
+                              ["reading features", 2, "shard", 2], ["fitting", 2, "split", 2],
                               ["scoring", 1, "run", 1], ["report", None, None, 0]]
     progress = Steps()   # again: every feature cached
     train(tmp_path / "out", runs=1, features=FeatureConfig(ellipse="direct"), builtins=["knn1"], progress=progress)
