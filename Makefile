@@ -30,9 +30,11 @@ demo: install
 	$(BIN)/python benchmarks/fig5.py --quick --out $(DEMO)-fig5
 	@echo "demo output: $(DEMO)/ (shards in render/ and occluded/, contact sheets, the occlusion histogram, report/ with results.md, accuracy.png, model.npz and reference-model.npz; and $(DEMO)-fig5/report: the paper's Fig. 5 off the grid)"
 
+# ruff first (pyproject.toml [tool.ruff]: pyflakes' checks, lines of at most 120 characters), then
 # -n auto: one pytest worker per core (pytest-xdist); the tests share no files and each
 # worker builds its own session fixtures.
 test: install
+	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q -n auto
 
 # The edit loop: everything but the tests marked slow (Blender, killed or raced processes, Ray,

@@ -91,7 +91,7 @@ def _register(export: Path, copy: Path, splits: list[str]) -> None:
 
 
 def _run(python, toolkit: Path, work: Path, script: str, overrides: dict, argv=(), what="") -> None:
-    from spm_data.commands.cli_support import stage
+    from spm_data.jobs.progress import stage
 
     env = dict(os.environ, PYTHONPATH=str(toolkit), BOP_PATH=str(work / "datasets"), PYOPENGL_PLATFORM="egl")
     env.setdefault("EGL_PLATFORM", "surfaceless")

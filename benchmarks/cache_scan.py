@@ -28,7 +28,7 @@ import numpy as np
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from spm_data.commands.render_jobs import load_run_specs, render_dataset  # noqa: E402
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset  # noqa: E402
 from spm_data.io.shards import list_shards, shard_digest  # noqa: E402
 from spm_model.base import feature_memo  # noqa: E402
 from spm_model.bench import feature_cache  # noqa: E402

@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from spm_data.commands.cli_support import stage  # noqa: E402
+from spm_data.jobs.progress import stage  # noqa: E402
 from spm_model.spm import manifold as new_manifold  # noqa: E402
 from spm_model.spm.ellipse import EllipseError  # noqa: E402
 

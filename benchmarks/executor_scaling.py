@@ -25,11 +25,11 @@ from pathlib import Path
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from spm_data.commands.cli_support import stage  # noqa: E402
+from spm_data.jobs.progress import stage  # noqa: E402
 from spm_data.jobs import make_executor  # noqa: E402
 from spm_data.jobs.outcome import probe_job  # noqa: E402
 from spm_data.core.paths import AngleRange  # noqa: E402
-from spm_data.commands.render_jobs import load_run_specs, plan_shards, render_dataset, render_shard  # noqa: E402
+from spm_data.pipelines.render_jobs import load_run_specs, plan_shards, render_dataset, render_shard  # noqa: E402
 
 
 def spec_for(renderer: str, frames: int, per_shard: int):

@@ -1,4 +1,5 @@
-"""Our reading of the paper's Fig. 5 (it does not describe its test views): every method trained on a camera grid, tested on views
+"""Our reading of the paper's Fig. 5 (it does not describe its test views): every method trained on a camera grid,
+tested on views
 at random poses within the grid's range (off the grid), occluded 5-95% by rectangles
 (spm-data occlude) and by 3-D distractors ([distractors]); seen instances and, as a second
 table, unseen instances of the same classes. Runs every method 3 times (--runs) and prints
@@ -36,10 +37,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from out_options import claim  # noqa: E402
-from spm_data.commands.occlude_jobs import occlude_dataset  # noqa: E402
-from spm_data.commands.render_jobs import load_run_specs, render_dataset  # noqa: E402
+from spm_data.pipelines.occlude_jobs import occlude_dataset  # noqa: E402
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset  # noqa: E402
 from spm_data.jobs import make_executor  # noqa: E402
-from spm_model.commands.train import train  # noqa: E402
+from spm_model.pipelines.train import train  # noqa: E402
 from spm_model.spm.features import FeatureConfig  # noqa: E402
 
 CLASSES = ("box", "car", "motorcycle", "ball", "animal4", "cup")
@@ -104,7 +105,7 @@ def write_specs(folder: Path, classes, *, size, step, views, instances, kind) ->
 def progress(what: str):
     """cli_support's Progress on stdout: a bar on a terminal, else a line at most every ~10 s
     ($SPM_PROGRESS_EVERY): done/total, rate, time left."""
-    from spm_data.commands.cli_support import Progress
+    from spm_data.jobs.progress import Progress
 
     return Progress(label=what, stream=sys.stdout)
 
@@ -284,7 +285,8 @@ def main(argv=None) -> int:
             out / "train", out / "report-noise", test=out / "test", runs=args.runs, executor=executor,
             builtins=methods, train_occluded=True, command=command, progress=bar))
         report_curves(noisy["summary"], "Fig. 5, trained with noise (occluded copies)")
-    print(f"\nrender and occlude {timing['rendered_s']:.0f} s, train and test {trained:.0f} s; report: {out / 'report'}")
+    print(f"\nrender and occlude {timing['rendered_s']:.0f} s, train and test {trained:.0f} s; "
+          f"report: {out / 'report'}")
     return 0
 
 

@@ -23,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from spm_data.commands.cli_support import tracked  # noqa: E402
+from spm_data.jobs.progress import tracked  # noqa: E402
 from spm_data.errors import ShardError  # noqa: E402
 from spm_data.io.shards import read_shard, write_shard  # noqa: E402
 from tests.helpers import make_arrays, payload_positions  # noqa: E402

@@ -29,8 +29,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from spm_data.commands.cli_support import Progress  # noqa: E402
-from spm_data.commands.validate import validate_folder  # noqa: E402
+from spm_data.jobs.progress import Progress  # noqa: E402
+from spm_data.pipelines.validate import validate_folder  # noqa: E402
 from spm_data.core.poses import K_to_corner_origin, camera_pose, cv_to_gl_camera_to_world, project_points  # noqa: E402
 from spm_data.errors import SpmWarning  # noqa: E402
 from spm_data.formats.nerf import import_nerf  # noqa: E402

@@ -33,7 +33,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from spm_data.commands.cli_support import stage  # noqa: E402
+from spm_data.jobs.progress import stage  # noqa: E402
 from spm_data.core.poses import label_to_pose, wrap_degrees  # noqa: E402
 from spm_data.io.shards import read_shard  # noqa: E402
 from spm_model.methods.n3m import N3MPose  # noqa: E402

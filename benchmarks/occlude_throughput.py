@@ -32,8 +32,8 @@ def main(frames: int = 1024) -> None:
     # __mp_main__), and the renderer's imports (trimesh, scipy) would cost each worker ~1 s.
     import numpy as np
 
-    from spm_data.commands.cli_support import stage
-    from spm_data.commands.occlude_jobs import occlude_dataset
+    from spm_data.jobs.progress import stage
+    from spm_data.pipelines.occlude_jobs import occlude_dataset
     from spm_data.core.occlusion import apply_occlusion, occlude_mask
     from spm_data.io.shards import forget_checks, list_shards, read_shard, verify_shard
     from spm_data.jobs.executor import LocalExecutor
@@ -46,7 +46,7 @@ def main(frames: int = 1024) -> None:
         tmp = Path(tmp)
         source = args.source or args.keep or tmp / "in"
         if args.source is None:
-            from spm_data.commands.render_jobs import load_run_specs, render_dataset
+            from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 
             with stage(f"occlude_throughput: rendering {frames} frames", unit="frame") as progress:
                 render_dataset(load_run_specs(["cup"], renderer="pyrender"), source, limit=frames, progress=progress)

@@ -26,10 +26,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from spm_data.commands.cli_support import stage  # noqa: E402
+from spm_data.jobs.progress import stage  # noqa: E402
 from spm_data.io.shards import read_shard  # noqa: E402
 from spm_model.bench.feature_cache import find_shards  # noqa: E402
-from spm_model.commands.evaluate import load_model  # noqa: E402
+from spm_model.pipelines.evaluate import load_model  # noqa: E402
 
 TARGET_HZ = 100
 

@@ -26,9 +26,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from spm_data.commands.cli_support import stage  # noqa: E402
+from spm_data.jobs.progress import stage  # noqa: E402
 from spm_data.jobs.executor import LocalExecutor  # noqa: E402
-from spm_model.commands.train import train  # noqa: E402
+from spm_model.pipelines.train import train  # noqa: E402
 
 TARGETS = {"total": 600.0, "loco": 300.0}
 

@@ -8,7 +8,8 @@ method, 3 runs each:
 
 Prints one table per protocol (coverage, features found, ±5° with σ and its range over runs,
 the declined methods with their reasons) beside the paper's Table 2 (KNN on SPM's vectors:
-82.6-95.5% within ±5°, on COIL-100, CVL and renders together), and writes the same as markdown to OUT/real_coil.md with the date, machine and
+82.6-95.5% within ±5°, on COIL-100, CVL and renders together), and writes the same as markdown to OUT/real_coil.md with
+the date, machine and
 commands; the reports are in OUT/report-views and OUT/report-interleaved.
 
     python benchmarks/real_coil.py coil-20-proc/ --out out/real-coil20
@@ -36,13 +37,13 @@ from pathlib import Path
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from spm_data.commands.cli_support import Progress  # noqa: E402
+from spm_data.jobs.progress import Progress  # noqa: E402
 from spm_data.errors import SpmError  # noqa: E402
 from spm_data.formats.coil100 import NAME, import_coil20, import_coil100, list_members  # noqa: E402
 from spm_data.io.files import atomic_file  # noqa: E402
 from spm_data.io.shards import list_shards, read_attrs  # noqa: E402
 from spm_data.jobs import make_executor  # noqa: E402
-from spm_model.commands.train import train  # noqa: E402
+from spm_model.pipelines.train import train  # noqa: E402
 from spm_model.methods.registry import METHOD_NAMES  # noqa: E402
 
 PAPER_TABLE2 = ("The paper's Table 2, KNN on SPM's vectors: 82.6-94.7% within ±5° per class (K=1), 82.8-95.5% (K=3), "

@@ -21,7 +21,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from spm_data.commands.cli_support import stage  # noqa: E402
+from spm_data.jobs.progress import stage  # noqa: E402
 from spm_model.bench.feature_cache import load_features  # noqa: E402
 from spm_model.bench.protocols import evaluate  # noqa: E402
 from spm_model.spm.features import FeatureConfig  # noqa: E402
@@ -64,7 +64,8 @@ def main(argv=None) -> int:
             got = figure(ref, key)
             met = got >= target if op == ">=" else got <= target
             rows.append((protocol, key, f"{got:.1f}", f"{figure(chance, key):.1f}", f"{op} {target:g}",
-                         "met" if met else "missed", f"{ref['std'].get(key, ref['std']['median_error'].get(key)) or 0:.1f}"))
+                         "met" if met else "missed",
+                         f"{ref['std'].get(key, ref['std']['median_error'].get(key)) or 0:.1f}"))
         rows.append((protocol, "geodesic median / AUC 45 / ADD(-S) recall",
                      f"{ref['geodesic_median_deg']:.1f} / {ref['auc_45']:.1f} / "
                      f"{(ref['surface'] or {}).get('add_s_recall') or float('nan'):.1f}",

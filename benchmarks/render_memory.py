@@ -12,7 +12,7 @@ resident memory (VmHWM, /proc/self/status) and wall time:
   the whole shard).
 * plan: ``plan_shards(limit=4)`` on a spec with 0.01-degree azimuth and
   elevation steps (216 million views x 4 instances), and, for reference, a
-  process that only imports spm_data.commands.render_jobs.
+  process that only imports spm_data.pipelines.render_jobs.
 
     python benchmarks/render_memory.py [--sizes 1024 2048 4096] [--frames 16] [--no-buffered]
 
@@ -57,8 +57,8 @@ def peak_mb() -> float:
 
 def child(mode: str, size: int, frames: int) -> dict:
     """Runs in the measured process; returns what it measured."""
-    from spm_data.commands import render_jobs
-    from spm_data.commands.render_jobs import load_run_specs, plan_shards, render_dataset
+    from spm_data.pipelines import render_jobs
+    from spm_data.pipelines.render_jobs import load_run_specs, plan_shards, render_dataset
 
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
@@ -89,7 +89,7 @@ def child(mode: str, size: int, frames: int) -> dict:
 
 
 def measure(mode: str, size: int = 0, frames: int = 0) -> dict:
-    from spm_data.commands.cli_support import stage
+    from spm_data.jobs.progress import stage
 
     env = {**os.environ, "PYOPENGL_PLATFORM": os.environ.get("PYOPENGL_PLATFORM", "egl")}
     what = f"{mode}, {frames} frames of {size}x{size}" if size else mode
@@ -125,7 +125,7 @@ def main() -> None:
         print(f"| {size}x{size} | {streamed.get('block', '-')} | {cell(streamed)} | {cell(buffered)} |", flush=True)
     imports, plan = measure("import"), measure("plan")
     print("\n| process | peak RSS | time |\n|---|---|---|")
-    print(f"| imports only (spm_data.commands.render_jobs) | {cell(imports, 3)} |")
+    print(f"| imports only (spm_data.pipelines.render_jobs) | {cell(imports, 3)} |")
     print(f"| load the spec + plan --limit 4, 0.01-degree grid (4 x 216,036,000 frames) | {cell(plan, 3)} |")
     if "traced_mb" in plan:
         print(f"\nPython allocations while loading and planning (tracemalloc peak): {plan['traced_mb']:.2f} MB")

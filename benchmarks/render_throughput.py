@@ -1,4 +1,5 @@
-"""Render throughput: frames per second of a bare render loop and of the whole path, their ratio, and where the time goes.
+"""Render throughput: frames per second of a bare render loop and of the whole path, their ratio, and where the time
+goes.
 
 pyrender (per image size and worker count, best of --rounds interleaved runs): (1) a bare
 loop of renderer.render over the frames, with the frames' own draws and distractors (made
@@ -34,14 +35,14 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from spm_data.commands.cli_support import stage  # noqa: E402
+from spm_data.jobs.progress import stage  # noqa: E402
 from spm_data.core.paths import camera_path  # noqa: E402
 from spm_data.render import make_renderer  # noqa: E402
 from spm_data.core.instances import load_instance  # noqa: E402
-from spm_data.commands.render_frames import FrameMaker  # noqa: E402
-from spm_data.commands.render_jobs import RECYCLE_AFTER, plan_shards, render_dataset  # noqa: E402
+from spm_data.pipelines.render_frames import FrameMaker  # noqa: E402
+from spm_data.pipelines.render_jobs import RECYCLE_AFTER, plan_shards, render_dataset  # noqa: E402
 from spm_data.core.specs import all_spec_paths, find_spec, load_spec  # noqa: E402
-from spm_data.commands.render_gpus import use_gpus  # noqa: E402
+from spm_data.pipelines.render_gpus import use_gpus  # noqa: E402
 from spm_data.jobs.executor import LocalExecutor, run_jobs  # noqa: E402
 
 STAGES = ("render", "readback", "composite", "compress", "write")
@@ -88,7 +89,8 @@ def bench(spec, frames: int, workers: int, rounds: int = 3) -> dict:
                 best["whole_cpu"] = min(best["whole_cpu"], _cpu_seconds() - cpu)
             assert summary.frames == frames and not summary.failed, summary.report()
             ratios.append((ended - started) / bare)
-            best["warm"] = min(best["warm"], (ended - first.first) * frames / (frames - 1))  # the first frame's own time
+            # the first frame's own time
+            best["warm"] = min(best["warm"], (ended - first.first) * frames / (frames - 1))
             if ended - started < best["whole"]:
                 splits = [result.get("seconds", {}) for result in summary.results.values()]
                 best["whole"], best["split"] = ended - started, {k: sum(s.get(k, 0.0) for s in splits) for k in STAGES}
@@ -178,7 +180,8 @@ def bench_pyrender(base, cls: str, frames: int, sizes, workers_list, rounds: int
             n = frames * workers
             r = bench(spec, n, workers, rounds)
             split = " | ".join(f"{1e3 * r['split'].get(k, 0.0) / n:.3f}" for k in STAGES)
-            print(f"| {size}x{size} | {workers} | {r['processes']} | {n / r['bare']:.0f} | {n / r['whole']:.0f} | {n / r['warm']:.0f} | "
+            print(f"| {size}x{size} | {workers} | {r['processes']} | {n / r['bare']:.0f} | {n / r['whole']:.0f} | "
+                  f"{n / r['warm']:.0f} | "
                   f"{r['whole'] / r['bare']:.3f} | {r['paired']:.3f} | {1e3 * r['bare_cpu'] / n:.2f} | "
                   f"{1e3 * r['whole_cpu'] / n:.2f} | {split} | {os.getloadavg()[0]:.2f} |", flush=True)
 

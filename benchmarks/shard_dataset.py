@@ -36,7 +36,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from spm_data.commands.cli_support import stage  # noqa: E402
+from spm_data.jobs.progress import stage  # noqa: E402
 from spm_data.io.folders import open_folder  # noqa: E402
 from spm_data.io.loaders import ShardDataset  # noqa: E402
 from spm_data.io.shards import FIELDS as SCHEMA, forget_checks, read_manifest, write_manifest, write_shard  # noqa: E402

@@ -26,9 +26,9 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from spm_data.commands.cli_support import stage  # noqa: E402
+from spm_data.jobs.progress import stage  # noqa: E402
 from out_options import claim  # noqa: E402
-from spm_data.commands.render_jobs import load_run_specs, render_dataset  # noqa: E402
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset  # noqa: E402
 from spm_data.io.shards import read_shard  # noqa: E402
 from spm_model.methods.smm import SMMPose, pose_bins  # noqa: E402
 
@@ -53,7 +53,8 @@ RANDOM = GRID.replace('[camera]', '[camera]\nsampler = "sphere"\nviews = {views}
 def render(out: Path, classes, instances: int, views: int) -> None:
     """Render (or resume) into ``out``; a folder made with other --classes, --instances or --views
     is refused (out_options.py), and its specs are never rewritten under their shards."""
-    claim(out, {"--classes": list(classes), "--instances": instances, "--views": views}, record="smm-probe-options.json",
+    claim(out, {"--classes": list(classes), "--instances": instances, "--views": views},
+          record="smm-probe-options.json",
           data=("grid", "random", "specs-grid", "specs-random"), script="smm_probe.py")
     for name, text in (("grid", GRID), ("random", RANDOM)):
         specs = out / f"specs-{name}"
@@ -71,7 +72,8 @@ def load(folder: Path, fields=("rgb", "mask", "K", "pose", "path_index", "instan
         data = read_shard(shard, fields)
         for i in range(len(data["rgb"])):
             frames.append({"rgb": data["rgb"][i], "mask": data["mask"][i] > 0, "K": data["K"][i],
-                           "sequence": s * 1000 + int(data["instance_id"][i]), "path_index": int(data["path_index"][i])})
+                           "sequence": s * 1000 + int(data["instance_id"][i]),
+                           "path_index": int(data["path_index"][i])})
             poses.append(data["pose"][i])
     return frames, np.array(poses)
 

@@ -61,7 +61,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from spm_data.commands.cli_support import Progress  # noqa: E402
+from spm_data.jobs.progress import Progress  # noqa: E402
 from spm_data.io.shards import list_shards, read_shard  # noqa: E402
 from spm_model.spm.bunches import BunchError, fit_bunches  # noqa: E402
 from spm_model.spm.ellipse import EllipseError, fit_ellipse  # noqa: E402
@@ -115,7 +115,7 @@ def subset_masks(labels: dict, instances: int, az_step: int, el_step: int, keys=
 # ----------------------------------------------------------------------------- render (512 px)
 
 def cmd_render(args) -> None:
-    from spm_data.commands.render_jobs import ShardJob, effective_spec, plan_shards, render_shard
+    from spm_data.pipelines.render_jobs import ShardJob, effective_spec, plan_shards, render_shard
     from spm_data.core.specs import parse_spec
 
     labels = read_labels(list_shards(args.shards))

@@ -30,8 +30,8 @@ import numpy as np
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from spm_data.commands.cli_support import stage, tracked  # noqa: E402
-from spm_data.commands.render_jobs import load_run_specs, render_dataset  # noqa: E402
+from spm_data.jobs.progress import stage, tracked  # noqa: E402
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset  # noqa: E402
 from spm_data.io.shards import read_shard  # noqa: E402
 from spm_model.bench.feature_cache import find_shards, load_features  # noqa: E402
 from spm_model.spm.ellipse import fit_ellipse  # noqa: E402

@@ -19,8 +19,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from spm_data.commands.cli_support import stage  # noqa: E402
-from spm_data.commands.render_jobs import load_run_specs, render_dataset  # noqa: E402
+from spm_data.jobs.progress import stage  # noqa: E402
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset  # noqa: E402
 from spm_data.io.loaders import ShardDataset  # noqa: E402
 from spm_data.io.shards import list_shards, read_shard, reader, seal  # noqa: E402
 
@@ -81,7 +81,8 @@ def main(frames: int) -> None:
     for name in unchecked:
         w, wo = frames / checked[name], frames / unchecked[name]
         print(f"| {name} | {w:,.0f} | {wo:,.0f} | {100 * (checked[name] / unchecked[name] - 1):.0f}% |")
-    print(f"| SHA-256 of every byte alone | {frames / checked['hash']:,.0f} ({size / 1e6 / checked['hash']:,.0f} MB/s) | | |")
+    print(f"| SHA-256 of every byte alone | {frames / checked['hash']:,.0f} ({size / 1e6 / checked['hash']:,.0f} MB/s) "
+          f"| | |")
 
 
 if __name__ == "__main__":

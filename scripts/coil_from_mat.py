@@ -93,7 +93,8 @@ def main(argv=None) -> int:
             raise SystemExit(f"error: object {obj} has {len(views)} views, expected {VIEWS}")
         ratio = neighbour_ratio(views)
         if ratio > 0.75:
-            raise SystemExit(f"error: object {obj}: turntable neighbours are {ratio:.2f} as far apart as any two views; "
+            raise SystemExit(f"error: object {obj}: turntable neighbours are {ratio:.2f} as far apart as any two "
+                             f"views; "
                              "the rows are not in turntable order")
         for view, image in enumerate(views):
             if args.size:

@@ -111,14 +111,16 @@ def trim(results: dict, made: dict) -> dict:
     summary = {"protocol": s["protocol"], "runs": s["runs"],
                "methods": {m: _entry(e) for m, e in s["methods"].items()},
                "chance": _entry(s.get("chance")), "best": s.get("best"), "declined": s.get("declined") or {},
-               "classes": {c: {m: _entry(e, CLASS_KEYS, ("success_tol5",)) for m, e in row.items()} for c, row in s["classes"].items()}}
+               "classes": {c: {m: _entry(e, CLASS_KEYS, ("success_tol5",)) for m, e in row.items()} for c,
+                           row in s["classes"].items()}}
     if s.get("fig5"):
         summary["fig5"] = {}
         for group, kind in FIG5_CURVES:
             curves = (s["fig5"].get(group) or {}).get(kind)
             if curves:
                 summary["fig5"].setdefault(group, {})[kind] = {
-                    m: [_entry(b, BIN_KEYS, ("success_tol5", "success_sum5")) for b in rows] for m, rows in curves.items()}
+                    m: [_entry(b, BIN_KEYS, ("success_tol5",
+                                             "success_sum5")) for b in rows] for m, rows in curves.items()}
     if s.get("instances"):
         summary["instances"] = {g: {m: _entry(e, INSTANCE_KEYS, ("success_tol5", "pose_class_accuracy"))
                                      for m, e in row.items()} for g, row in s["instances"].items()}
@@ -518,7 +520,8 @@ def table_classes(snaps, snap):
     for c, row in classes.items():
         frames = next(iter(row.values()))["frames"]
         rows.append([f"{c} ({frames:,})"] + [DASH if m not in row else
-                                             f"{_f(row[m].get('success_tol5'))} ({_f(row[m].get('geodesic_median_deg'), 0)})"
+                                             f"{_f(row[m].get('success_tol5'))} "
+                                             f"({_f(row[m].get('geodesic_median_deg'), 0)})"
                                              for m in methods])
     return _table(header, rows)
 

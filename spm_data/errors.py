@@ -40,25 +40,5 @@ class SpmWarning(UserWarning):
     prints ``warning: <message>`` on one line)."""
 
 
-class ModelError(SpmError):
-    """A model cannot be trained, loaded or applied to this input."""
-
-
-class FeatureError(SpmError):
-    """No feature for this image (too few keypoints, or no ellipse fits)."""
-
-
 class ImageError(SpmError):
     """An image file cannot be read or decoded (the message is the reason alone)."""
-
-
-class SparseError(ModelError):
-    """An l1 problem of the sparse re-projection had no solution (too few or degenerate samples)."""
-
-
-class BunchError(FeatureError):
-    """Too few keypoints to cluster into bunches."""
-
-
-class EllipseError(FeatureError):
-    """No ellipse fits the bunch centres (too few, coincident or collinear)."""

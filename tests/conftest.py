@@ -42,9 +42,9 @@ def _signal_handlers_as_found():
 def _every_import_passes_validate(monkeypatch):
     """Importers write only what validate accepts (issue 47 item 3): every import any test makes in
     this process (each importer's own tests, the CLI's, the hostile inputs') is validated as it
-    completes, with spm_data.commands.validate.validate_folder, the library call behind
+    completes, with spm_data.pipelines.validate.validate_folder, the library call behind
     ``spm-data validate``; a problem fails the test that imported."""
-    from spm_data.commands.validate import validate_folder
+    from spm_data.pipelines.validate import validate_folder
     from spm_data.formats import importing
 
     run = importing.run_shard_jobs
@@ -69,7 +69,7 @@ def small_specs_dir(tmp_path):
 def model_shards(tmp_path_factory):
     """Three classes (box, car, cup), 48 views each at 128x128 (pyrender): enough
     keypoints for the SPM pipeline. Read-only for tests: copy before writing."""
-    from spm_data.commands.render_jobs import load_run_specs, render_dataset
+    from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 
     root = tmp_path_factory.mktemp("model")
     specs = root / "specs"
@@ -84,7 +84,7 @@ def model_shards(tmp_path_factory):
 def instance_shards(tmp_path_factory):
     """Two classes (car, cup), 2 instances each, 48 views per instance (azimuth 0-115
     at elevations 20 and 25) at 128x128 (pyrender). Read-only for tests."""
-    from spm_data.commands.render_jobs import load_run_specs, render_dataset
+    from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 
     root = tmp_path_factory.mktemp("instances")
     specs = root / "specs"
@@ -115,7 +115,7 @@ def loco_report(model_shards, plugin_module, tmp_path_factory):
     """The full benchmark, run once for the tests that check it (test_train, the plug-in test in
     test_protocols): train() on model_shards, loco protocol, 2 runs, every built-in method and
     the plug-in my_pose:MeanPose. Returns (train's result, the report folder). Read-only."""
-    from spm_model.commands.train import train
+    from spm_model.pipelines.train import train
     from spm_model.spm.features import FeatureConfig
 
     report = tmp_path_factory.mktemp("loco") / "report"

@@ -91,9 +91,9 @@ def shard_mesh(attrs: dict, instance_id: int, spec_dir=None):
     content differs from what was rendered."""
     if attrs.get("source") != "synthetic" or not attrs.get("spec"):
         return None
-    from spm_data.core.specs import parse_spec
+    from spm_data.core.specs import shard_spec
 
-    spec = parse_spec(attrs["spec"]).replace(seed=int(attrs.get("seed", 0)))
+    spec = shard_spec(attrs)
     if spec.mesh.source == "procedural":
         return load_instance(spec, instance_id)
     record = json.loads(attrs.get("mesh_files") or "{}").get(str(instance_id))

@@ -29,7 +29,8 @@ def load_mesh_file(path, size: float = 0.25, seed: int = 0, instance: int = 0,
     by poses.GLTF_TO_OBJECT; so are other files with ``up = "y"`` (the spec's
     mesh.up), which are otherwise taken as they are (+z up, front +x).
     texture: ``"auto"`` keeps the file's own image texture when it has one (trimesh's
-    2x2 placeholder of one colour, for a file with UVs and no image, is none), ``"procedural"`` always paints a seeded procedural
+    2x2 placeholder of one colour, for a file with UVs and no image, is none), ``"procedural"`` always paints a seeded
+    procedural
     one. symmetries: the shape's, as the spec declares them (declared_symmetries).
     """
     path = Path(path)

@@ -71,7 +71,8 @@ def _check_distances(grid: CameraGrid) -> None:
     if distances.size == 0:
         raise SpecError("camera.distances: empty list; give at least one distance in metres")
     if np.any(~np.isfinite(distances)) or np.any(distances <= 0):
-        raise SpecError(f"camera.distances: every distance must be a finite number > 0 metres, got {list(grid.distances)}")
+        raise SpecError(f"camera.distances: every distance must be a finite number > 0 metres, got "
+                        f"{list(grid.distances)}")
     if grid.sampler == "grid" and len(set(distances.tolist())) < len(distances):
         raise SpecError(f"camera.distances: {list(grid.distances)} lists a distance twice, so views would repeat; "
                         "list each distance once")

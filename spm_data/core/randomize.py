@@ -109,10 +109,21 @@ def fixed_light_rotations(count: int) -> np.ndarray:
     return cone_rotations([0.0] + [np.radians(40.0)] * (count - 1), phis[:count]) if count else np.zeros((0, 3, 3))
 
 
+# A frame's named random streams. Each number is part of every shard's bytes (the same seed gives
+# the same pixels), so a stream keeps its number for good; a new stream takes a new one.
+STREAMS = {"background": 1, "draws": 2}
+
+
+def frame_rng(spec, instance: int, path_index: int, stream: str, key: str | None = None) -> np.random.Generator:
+    """The generator of one frame's ``stream`` (STREAMS; "draws": one per ``key`` of [randomize] and
+    the distractors): independent of shard layout, worker and every other frame and stream."""
+    entropy = [int(spec.seed), zlib.crc32(spec.class_name.encode()), int(instance), int(path_index), STREAMS[stream]]
+    return np.random.default_rng(entropy + ([zlib.crc32(key.encode())] if key is not None else []))
+
+
 def frame_stream(spec, instance: int, path_index: int, key: str) -> np.random.Generator:
     """The generator of one frame's draws of one key."""
-    return np.random.default_rng([int(spec.seed), zlib.crc32(spec.class_name.encode()), int(instance),
-                                  int(path_index), 2, zlib.crc32(key.encode())])
+    return frame_rng(spec, instance, path_index, "draws", key)
 
 
 def _uniform(spec, rz, instance, path_index, key, size=None):

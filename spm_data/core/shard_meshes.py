@@ -3,7 +3,8 @@
 A shard written since the store exists names its target's digest per frame (field ``mesh``) and
 its distractors' (attribute ``distractor_mesh_digests``); the meshes are in its folder's
 ``meshes/`` (for a synthetic shard copied without them, rebuilt from its spec: used only when the
-rebuilt mesh has the digest the frame names). An older synthetic shard names none: its meshes are rebuilt from the spec and seed
+rebuilt mesh has the digest the frame names). An older synthetic shard names none: its meshes are rebuilt from the spec
+and seed
 it recorded (instances.shard_mesh, distractors.pool_mesh), digested, and kept in memory, so
 merge and export treat both alike. Imported frames have no mesh: digest "".
 """
@@ -27,12 +28,6 @@ def store_pool(spec, folder, used: np.ndarray) -> list[str]:
     indices = {int(k) for k in np.ravel(used) if k >= 0}
     size = max(indices, default=-1) + 1
     return [save_mesh(folder, pool_mesh(spec, k)) if k in indices else "" for k in range(size)]
-
-
-def _spec(attrs: dict):
-    from spm_data.core.specs import parse_spec
-
-    return parse_spec(attrs["spec"]).replace(seed=int(attrs.get("seed", 0)))
 
 
 class FrameMeshes:
@@ -71,7 +66,9 @@ class FrameMeshes:
             return [str(d) for d in json.loads(attrs["distractor_mesh_digests"])]
         if not attrs.get("distractor_meshes") or attrs.get("source") != "synthetic":
             return []
-        spec = _spec(attrs)
+        from spm_data.core.specs import shard_spec
+
+        spec = shard_spec(attrs)
         return [self._remember(pool_mesh(spec, k)) for k in range(len(json.loads(attrs["distractor_meshes"])))]
 
     def _remember(self, mesh) -> str:

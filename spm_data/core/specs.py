@@ -182,6 +182,12 @@ _SECTIONS = {"mesh": MeshSpec, "camera": CameraGrid, "image": ImageSpec, "lighti
              "distractors": DistractorSpec, "outputs": OutputsSpec}
 
 
+def shard_spec(attrs: dict, name: str = "<spec>", base_dir: str = ".") -> RenderSpec:
+    """The spec a synthetic shard was rendered from, rebuilt from its attributes (its spec text and
+    the seed the run used, which --seed may have changed)."""
+    return parse_spec(str(attrs["spec"]), name, base_dir).replace(seed=int(attrs.get("seed", 0)))
+
+
 def parse_spec(text: str, name: str = "<spec>", base_dir: str = ".") -> RenderSpec:
     """Parse and validate TOML ``text``; ``name`` prefixes every error message."""
     try:

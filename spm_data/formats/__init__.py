@@ -3,7 +3,7 @@ transforms.json captures (instant-ngp, nerfstudio), BOP (with PLY models and COC
 
 The importers, one registration each: :data:`IMPORTERS` maps ``spm-data import NAME`` to the
 function that imports it and the options it takes. The command line
-(spm_data/commands/cli_import.py builds one command per entry), its help and the layers test
+(spm_data/pipelines/cli_import.py builds one command per entry), its help and the layers test
 read this one table.
 
 To add an importer ``xyz``: write ``spm_data/formats/xyz.py`` whose ``import_xyz(path, out_dir,
@@ -76,7 +76,7 @@ IMPORTERS: dict[str, Importer] = {
                        "Images in PATH plus a table of per-image poses (docs/datasets.md).",
                        (Option("--poses", "poses_csv", "path", None, "Pose table [default: PATH/poses.csv]."),
                         THRESHOLD,
-                        Option("--unit", "unit", UNITS, "m", "Translation unit."),
+                        Option("--unit", "unit", UNITS, "m", "Translation unit (m, the toolkit's own)."),
                         Option("--euler", "euler", "str", "XYZ", "Euler order of rx ry rz columns (scipy notation)."),
                         Option("--fov", "fov", "float", None, "Vertical field of view, degrees, if the table has no "
                                                               "fx fy cx cy."),
@@ -91,7 +91,8 @@ IMPORTERS: dict[str, Importer] = {
     "cvl": Importer("spm_data.formats.posed_folder", "import_cvl",
                     "CVL at PATH in the assumed layout PATH/<object>/poses.csv (docs/datasets.md).",
                     (THRESHOLD,
-                     Option("--unit", "unit", UNITS, "mm", "Translation unit."),
+                     Option("--unit", "unit", UNITS, "mm", "Translation unit (mm: the assumed CVL layout's, "
+                                                           "docs/datasets.md; import folder's is m)."),
                      Option("--fov", "fov", "float", None, "Vertical field of view, degrees, if tables have no "
                                                            "fx fy cx cy."))),
     "bop": Importer("spm_data.formats.bop", "import_bop",

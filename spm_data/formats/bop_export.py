@@ -107,7 +107,8 @@ class _Export:
                 entry["ground_truth"] = "image-only"   # no model: px_count_all etc. from the image alone
                 self.no_model.add(f"{entry['class']}/{entry['instance']}")
             else:
-                unit, size = (self.meshes.mesh(identity[1]), identity[2]) if identity[0] == "distractor" else (None, 1.0)
+                unit, size = (self.meshes.mesh(identity[1]), identity[2]) if identity[0] == "distractor" else (None,
+                                                                                                               1.0)
                 self.models_info[obj_id] = save_bop_model(self.root, obj_id, mesh, unit, size)
             self.names[obj_id] = entry
         return obj_id

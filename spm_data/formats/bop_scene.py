@@ -4,7 +4,8 @@ The export's driver (bop_export.py) hands :meth:`SceneWriter.add_frame` a frame 
 objects, ``[(obj_id, mesh or None, R (3, 3), t (3,) metres), ...]``, the target first (its
 obj_id names the scene, ``scene_id = obj_id - 1``), then the frame's other objects (its 3-D
 distractors). The writer does the rest: ``rgb/`` (JPEG in ``*_pbr`` splits), ``depth/``
-(the render's depth, each frame's own 2-D occluders as a flat stand-in: :func:`scene_depth`), per object ``k`` of image ``im``
+(the render's depth, each frame's own 2-D occluders as a flat stand-in: :func:`scene_depth`), per object ``k`` of image
+``im``
 ``mask/{im:06d}_{k:06d}.png`` and ``mask_visib/``, and per scene ``scene_camera.json``,
 ``scene_gt.json``, ``scene_gt_info.json`` and ``scene_gt_coco.json``.
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spm_data import __version__
+from spm_data.version import __version__
 from spm_data.core.poses import pose_to_label, scale_K
 from spm_data.errors import SpmError
 from spm_data.formats.capture_images import capture_mask, undistort

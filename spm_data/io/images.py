@@ -13,7 +13,6 @@ import re
 import tarfile
 import zipfile
 from contextlib import contextmanager
-from pathlib import Path
 
 import numpy as np
 

@@ -16,12 +16,11 @@ import multiprocessing as mp
 import os
 import signal
 import sys
-import warnings
 from dataclasses import dataclass, field
 from contextlib import contextmanager
 from multiprocessing.connection import wait
 
-from spm_data.errors import SpmError, SpmWarning
+from spm_data.errors import SpmError
 from spm_data.jobs.outcome import (JobOutcome, deferred_interrupt, error_text, is_blender_script_dir,
                                    warnings_as_lines)
 

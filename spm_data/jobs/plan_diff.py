@@ -3,7 +3,8 @@ differs from this run's plan, named with both values, in one line.
 
 A job may offer ``plan_difference(attrs)``: given the attributes of the shard on disk, the
 difference as ``(key, old, new)`` (a spec key such as ``camera.azimuth``, ``seed``, or an option
-such as ``--max``), a phrase ("was made from ..."), or None if it cannot tell. Without one, or when it cannot tell, the refusal
+such as ``--max``), a phrase ("was made from ..."), or None if it cannot tell. Without one, or when it cannot tell, the
+refusal
 says what kinds of thing may differ.
 """
 

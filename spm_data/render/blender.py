@@ -10,7 +10,7 @@ frames (persistent data) and, with a transparent film, renders only a border
 around the objects (blender_scene.border_box); Blender 5.0.1 headless offers no
 way to read a render without a file.
 
-Blender runs in worker processes only (spm_data.commands.render_jobs): a crash or a
+Blender runs in worker processes only (spm_data.pipelines.render_jobs): a crash or a
 leak in Blender takes down a worker, never the run.
 """
 
@@ -273,7 +273,8 @@ class BlenderRenderer(Renderer):
         if distractors or self.outputs.instances or self.outputs.normals:
             out["instances"] = self._instances
         if self.outputs.normals:
-            world_to_camera = np.stack([np.eye(3), *([R] * (1 + len(distractors)))])  # Blender's normals are in the world
+            # Blender's normals are in the world
+            world_to_camera = np.stack([np.eye(3), *([R] * (1 + len(distractors)))])
             out["normals"] = rotate_normals(self._normals, self._instances, world_to_camera)
         return out
 

@@ -240,8 +240,8 @@ class PyrenderRenderer(Renderer):
         texture = pr.Texture(source=mesh.texture, source_channels="RGB")
         material = pr.MetallicRoughnessMaterial(baseColorTexture=texture, metallicFactor=0.0,
                                                 roughnessFactor=0.9, doubleSided=True)
-        lit = pr.Mesh(primitives=[pr.Primitive(positions=positions, normals=normals, texcoord_0=mesh.uv.astype(np.float32),
-                                               indices=indices, material=material)])
+        lit = pr.Mesh(primitives=[pr.Primitive(positions=positions, normals=normals, indices=indices, material=material,
+                                               texcoord_0=mesh.uv.astype(np.float32))])
         if not self.outputs.normals:
             return (lit,)
         plain = pr.MetallicRoughnessMaterial(baseColorFactor=[1.0, 1.0, 1.0, 1.0], doubleSided=True)
@@ -263,7 +263,7 @@ class PyrenderRenderer(Renderer):
         self._target_nodes = [scene.add(m) for m in self._target]
         self._material = self._target[0].primitives[0].material
         K = K_to_corner_origin(self.K)  # pyrender counts the principal point from the pixel corner
-        self._camera = pr.IntrinsicsCamera(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2], znear=CLIP_NEAR, zfar=CLIP_FAR)
+        self._camera = pr.IntrinsicsCamera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], znear=CLIP_NEAR, zfar=CLIP_FAR)
         self._camera_node = scene.add(self._camera, pose=np.eye(4))
         self._light_nodes = [scene.add(pr.DirectionalLight(color=np.ones(3), intensity=self.lighting.strength),
                                        name=f"spm-light-{i}", pose=np.eye(4)) for i in range(self.max_lights)]
@@ -338,7 +338,8 @@ class PyrenderRenderer(Renderer):
         for lit, coded in pairs:
             lit.is_visible, coded.is_visible = False, True
         try:
-            coded_rgb, _ = self._renderer.render(self._scene, flags=pr.RenderFlags.SKIP_CULL_FACES | pr.RenderFlags.FLAT)
+            coded_rgb, _ = self._renderer.render(self._scene,
+                                                 flags=pr.RenderFlags.SKIP_CULL_FACES | pr.RenderFlags.FLAT)
         finally:
             for lit, coded in pairs:
                 lit.is_visible, coded.is_visible = True, False

@@ -35,7 +35,7 @@ import inspect
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, fields
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 
 
 @dataclass(frozen=True)

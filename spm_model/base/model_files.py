@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spm_data import __version__
+from spm_data.version import __version__
 from spm_data.errors import one_line
 from spm_data.io.files import read_regular_file, write_npz_atomic
 from spm_model.base.estimator import ModelError

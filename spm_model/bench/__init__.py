@@ -1,1 +1,2 @@
-"""The benchmark: feature cache and extraction, protocols, scoring, metrics (pose, up to symmetry, surface) and the report."""
+"""The benchmark: feature cache and extraction, protocols, scoring, metrics (pose, up to symmetry, surface) and
+the report."""

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from spm_data.errors import FeatureError
+from spm_model.errors import FeatureError
 from spm_model.base.images import raw_vector
 from spm_model.methods.descriptors import hog_descriptor, template_descriptor
 from spm_model.spm.features import FeatureConfig, manifold_from_keypoints, working_image

@@ -292,7 +292,7 @@ def _removing_empty_caches(shards):
 
 def progress_phase(progress, label: str, total=None, unit: str | None = "frame") -> None:
     """Start the next step of ``progress`` (None: nothing): its ``phase(label, total, unit)``
-    (spm_data.commands.cli_support.Progress), else a new ``total`` (a callable with one)."""
+    (spm_data.jobs.progress.Progress), else a new ``total`` (a callable with one)."""
     if progress is not None:
         if hasattr(progress, "phase"):
             progress.phase(label, total, unit)

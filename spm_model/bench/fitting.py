@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from spm_data.errors import ModelError, SpmError, one_line
+from spm_data.errors import SpmError, one_line
+from spm_model.errors import ModelError
 from spm_model.base.estimator import needs_of
 from spm_model.base.frames import Frames, camera_chunks, camera_paths, read_camera_frames
 from spm_model.bench.feature_cache import FeatureTable

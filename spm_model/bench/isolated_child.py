@@ -14,7 +14,7 @@ import time
 from dataclasses import asdict
 from multiprocessing.connection import Connection
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.bench.fitting import call_failure, construct, found_flags, make_methods
 from spm_model.bench.isolation import encode
 from spm_model.bench.plugin_refs import resolve

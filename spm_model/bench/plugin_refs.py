@@ -10,7 +10,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.base.estimator import Needs
 
 SPEC = re.compile(r"([A-Za-z_][\w.]*):([A-Za-z_]\w*)")

@@ -40,11 +40,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.base.feature_memo import use_folder
 from spm_model.base.frames import Frames
 from spm_model.bench.fitting import builtin_classes, failure, fit_predict, unmet_needs
 from spm_model.bench.isolation import DEFAULT_TIMEOUT
+from spm_model.bench.jobs import FinalJob, SplitJob
 from spm_model.bench.feature_cache import FeatureTable, load_features, memo_folder, offgrid_table, progress_phase
 from spm_model.bench.scoring import eccentricity, frame_errors, run_summary
 from spm_model.bench.split_lines import SplitLines
@@ -156,13 +157,14 @@ def _meshes(source) -> tuple:
 def split_job(job, report=lambda n: None):
     """One (run, split) on any worker: every method fitted and asked in a fresh process of its own
     (fitting.fit_predict), which gets the training frames and poses and the test frames only; the
-    labels stay here. job = (source, protocol, run, split index, model_params, builtins, estimators,
-    train_occluded, timeout: seconds per plug-in call, or None). Returns (what
+    labels stay here. job: a SplitJob (spm_model/bench/jobs.py). Returns (what
     was tested, training frames, test index, {method: per-frame errors}, notes): the errors
     (scoring.frame_errors) are scored here, so the splits' scoring runs on the workers too, and only
     the errors travel back; a declined method's errors are those of no estimate. notes =
     {"declined": {method: why}, "featured": {method: test frames with its features, or None}}."""
-    source, protocol, run, index, model_params, builtins, estimators, train_occluded, timeout = job
+    source, protocol, run, index = job.source, job.protocol, job.run, job.index
+    model_params, builtins, estimators, timeout = job.model_params, job.builtins, job.estimators, job.timeout
+    train_occluded = job.train_occluded
     table = _table(source)
     tested, train, test = splits(table, protocol, seed=run)[index]
     train = training_rows(table, train, train_occluded)
@@ -213,21 +215,22 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
     _MEMO[0] = memo_folder(table.shard[0], source[2]) if source is not None and len(table) else None
     reused = _reused_methods(protocol, runs, model_params, builtins, estimators)
     later = _without(builtins, estimators, model_params, reused)   # the methods of runs after the first
-    jobs = [(key, protocol, run, i, dict(model_params or {}), *(later if run else (builtins, estimators)),
-             train_occluded, timeout) for run in range(runs) for i in range(len(splits(table, protocol, seed=run)))]
+    jobs = [SplitJob(key, protocol, run, i, dict(model_params or {}), *(later if run else (builtins, estimators)),
+                     train_occluded, timeout)
+            for run in range(runs) for i in range(len(splits(table, protocol, seed=run)))]
     wanted = tuple(m for m in FINAL_MODELS if builtins is None or m in builtins)   # only what was asked for
-    finals = [("final", key, dict(model_params or {}), train_occluded, wanted)] if final else []
+    finals = [FinalJob(key, dict(model_params or {}), train_occluded, wanted)] if final else []
     progress = progress or (lambda n: None)
     progress_phase(progress, "fitting", len(jobs), "split")
     outputs = _run_jobs(finals + jobs, executor if source is not None else None, report, progress)
     models, outputs = (outputs[0], outputs[1:]) if final else (None, outputs)
     if reused:
-        first = {job[3]: outputs[i] for i, job in enumerate(jobs) if job[2] == 0}
-        outputs = [_with_first_run(out, first[job[3]]) if job[2] else out for job, out in zip(jobs, outputs)]
+        first = {job.index: outputs[i] for i, job in enumerate(jobs) if job.run == 0}
+        outputs = [_with_first_run(out, first[job.index]) if job.run else out for job, out in zip(jobs, outputs)]
     results = []
     progress_phase(progress, "scoring", runs, "run")
     for run in range(runs):
-        parts = [outputs[i] for i, job in enumerate(jobs) if job[2] == run and len(outputs[i][2])]
+        parts = [outputs[i] for i, job in enumerate(jobs) if job.run == run and len(outputs[i][2])]
         if not parts:
             raise ModelError(f"{protocol} protocol, run {run + 1}: no frame was held out for testing "
                              f"({len(table)} frames); add views or instances, or use another protocol")
@@ -302,7 +305,7 @@ def final_models(table: FeatureTable, model_params: dict, train_occluded: bool, 
 
 
 def bench_job(job, report=lambda n: None):
-    """A split_job, or ("final", source, model_params, train_occluded, wanted): final_models of the table.
+    """A SplitJob (split_job), or a FinalJob: final_models of the table.
     Runs on one BLAS thread wherever it runs: LAPACK's threaded solvers round differently
     with 2 threads than with 1, and SPM's RBF system amplifies that (0.003 degrees), so the
     BLAS threads of a worker (cores / --workers) would otherwise change results.json and
@@ -310,9 +313,9 @@ def bench_job(job, report=lambda n: None):
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1, user_api="blas"):
-        if job[0] == "final":
+        if isinstance(job, FinalJob):
             try:
-                return final_models(_table(job[1]), *job[2:])
+                return final_models(_table(job.source), job.model_params, job.train_occluded, job.wanted)
             except ModelError as exc:
                 raise ModelError(f"final models (on every training frame): {exc}") from None
         return split_job(job, report)
@@ -325,7 +328,7 @@ def _run_jobs(jobs: list, executor, report, progress) -> list:
     lines = SplitLines(jobs, report)
 
     def said(job, output):
-        if job[0] != "final":
+        if isinstance(job, SplitJob):
             progress(1)
         lines(job, output)
 

@@ -6,8 +6,9 @@ bench/metrics.py's METRICS."""
 
 from __future__ import annotations
 
-from spm_model.bench.headline import coverage_note as _cov, declined_lines, fmt, name, plain_summary
+from spm_model.bench.headline import coverage_note as _cov, fmt, name, plain_summary
 from spm_model.bench.metrics import METRICS, RATES, metric_value
+from spm_model.methods.registry import SAVED_MODELS
 
 PAPER_TABLE1 = {"box": (97.2, 0.9, 0.31, 0.09), "car": (95.6, 1.1, 0.44, 0.12), "motorcycle": (92.8, 1.6, 0.61, 0.11),
                 "ball": (88.4, 2.5, 0.76, 0.08), "animal4": (87.9, 2.9, 0.84, 0.09), "cup": (86.6, 3.3, 0.87, 0.07)}
@@ -19,7 +20,10 @@ SURFACE = (("frames", "Frames", 0), ("add_s_recall", "ADD(-S) <10% d %", 1), ("a
            ("mssd_median_mm", "MSSD median mm", 1), ("mspd_median_px", "MSPD median px", 1))
 FIG5_CELL = "sum<5° / sum<3° / ±5° %, each [95% interval] (geodesic median °)"
 # What a method returns decides which criterion can judge it: said under every table it is in.
-OWN_CRITERION = {"smm": ("pose_class_accuracy", "SMM returns the rotation of one training view (the nearest of its voted pose class) and a translation scaled from it: ±5° and sum < 5° are met only where a training view lies that close to the truth, so its own criterion is the pose class ({} azimuth classes of 45°)")}
+OWN_CRITERION = {"smm": ("pose_class_accuracy",
+                         "SMM returns the rotation of one training view (the nearest of its voted pose class) and a "
+                         "translation scaled from it: ±5° and sum < 5° are met only where a training view lies that "
+                         "close to the truth, so its own criterion is the pose class ({} azimuth classes of 45°)")}
 
 
 
@@ -60,8 +64,7 @@ def markdown(evaluation: dict, summary: dict, context: dict) -> str:
         f"occlusion). {models_sentence(context)}", ""])
 
 
-MODEL_FILES = {"spm": ("model.npz", "SPM"), "template": ("reference-model.npz", "HOG templates"),
-               "cnn": ("cnn-model.npz", "CNN")}
+MODEL_FILES = {name: (m.model_file, m.model_title) for name, m in SAVED_MODELS.items()}
 
 
 def models_sentence(context: dict) -> str:
@@ -137,7 +140,8 @@ def _fig5_tables(summary: dict, names: list) -> list:
                 for g, methods in groups.items() for m, entry_ in methods.items() if m in names]
         lines += ["### Every occlusion level together", ""]
         lines += table(["Instances", "Method", "Frames", "Coverage %", "sum<5° %", "sum<3° %", "±5° %", "±5° sym. %",
-                        "Geodesic median °", "tx mm", "ty mm", "tz mm"], rows) + ["", *own_criterion_lines(summary, names)]
+                        "Geodesic median °", "tx mm", "ty mm", "tz mm"], rows) + ["", *own_criterion_lines(summary,
+                                                                                                           names)]
     return lines
 
 
@@ -248,12 +252,14 @@ def summary_text(summary: dict) -> str:
         width = max(len(name(m)) for m in curves) + 1
         for m, rows in curves.items():
             est, frames = sum(r.get("estimated", r["frames"]) for r in rows), sum(r["frames"] for r in rows)
-            lines.append(f"  {name(m):<{width}}" + " ".join(f"{fmt(r['success_sum5'], 0):>4}" for r in rows if r["frames"])
+            lines.append(f"  {name(m):<{width}}"
+                         + " ".join(f"{fmt(r['success_sum5'], 0):>4}" for r in rows if r["frames"])
                          + (f"  ({100 * est / frames:.0f}% estimated)" if frames and est < frames else ""))
     return "\n".join(lines)
 
 
-SCHEMA_BEGIN = "<!-- metrics: made from spm_model/bench/metrics.py METRICS by `python -m spm_model.bench.report_tables` -->"
+SCHEMA_BEGIN = ("<!-- metrics: made from spm_model/bench/metrics.py METRICS by "
+                "`python -m spm_model.bench.report_tables` -->")
 SCHEMA_END = "<!-- end of metrics -->"
 
 

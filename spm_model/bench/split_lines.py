@@ -9,6 +9,8 @@ when it declined in run 1, and the line says so.
 
 from __future__ import annotations
 
+from spm_model.bench.jobs import SplitJob
+
 
 class SplitLines:
     """Fed (job, output) as jobs finish, in any order (output None: the job failed, no line);
@@ -31,16 +33,16 @@ class SplitLines:
         self.finished[self._position(job)] = output
         while self.next in self.finished:
             job, output = self.jobs[self.next], self.finished[self.next]
-            if output is not None and job[0] != "final" and len(output[2]):
+            if output is not None and isinstance(job, SplitJob) and len(output[2]):
                 self.report(split_line(job, output, self._first_run(job)))
             self.next += 1
 
     def _first_run(self, job):
         """Run 1's output of ``job``'s split (said before it: run 1's jobs come first), or None."""
-        if not job[2]:
+        if not job.run:
             return None
         for i, known in enumerate(self.jobs[:self.next]):
-            if known[0] != "final" and known[2] == 0 and known[3] == job[3]:
+            if isinstance(known, SplitJob) and known.run == 0 and known.index == job.index:
                 return self.finished.get(i)
         return None
 
@@ -53,8 +55,8 @@ def split_line(job, output, first=None) -> str:
     ran = notes["featured"]
     reused = [m for m in (first[4]["declined"] if first is not None else {}) if m not in ran]
     declined = [m for m in notes["declined"] if m not in reused]
-    text = f"run {job[2] + 1}: {job[1]} test {tested} ({n_train} train / {len(test)} test frames)"
-    if job[2] and not errors:   # nothing ran: every method is reused
+    text = f"run {job.run + 1}: {job.protocol} test {tested} ({n_train} train / {len(test)} test frames)"
+    if job.run and not errors:   # nothing ran: every method is reused
         return text + "; every method's predictions reused from run 1" + (
             f" (declined there: {', '.join(reused)})" if reused else "")
     names = [f"{m} (reused from run 1)" for m in reused] + declined

@@ -20,7 +20,7 @@ import numpy as np
 from scipy.linalg import eigh
 from scipy.spatial import cKDTree
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.base.estimator import Estimator, PoseEstimator, check_fitted
 from spm_model.base.frames import column
 from spm_model.base.images import raw_vector

@@ -38,7 +38,7 @@ import numpy as np
 
 from spm_data.core.occlusion import black_out, occlude_mask
 from spm_data.core.poses import label_to_pose
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.base.estimator import PoseEstimator, check_fitted
 from spm_model.base.model_files import load_model_file, need, need_finite, save_model_file
 from spm_model.methods import cnn_net

@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 
 INSTALL_HINT = "pip install 'spm[learn]' (make install includes it)"
 
@@ -57,7 +57,7 @@ def make_net(torch, side: int, width: int, embed: int, bins: int):
                           "embed": nn.Linear(channels * (side // 16) ** 2, embed), "head": nn.Linear(embed, bins)})
 
 
-def embeddings(torch, net, x: torch.Tensor):
+def embeddings(torch, net, x):
     """Unit-length embeddings of a batch (n, 2, s, s) float tensor."""
     z = net["embed"](net["features"](x))
     return torch.nn.functional.normalize(z, dim=1)

@@ -28,7 +28,8 @@ def box_of(mask: np.ndarray) -> tuple[float, float, float] | None:
     rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
     if not len(rows):
         return None
-    return (cols[0] + cols[-1]) / 2.0, (rows[0] + rows[-1]) / 2.0, float(max(rows[-1] - rows[0], cols[-1] - cols[0]) + 1)
+    return (cols[0] + cols[-1]) / 2.0, (rows[0] + rows[-1]) / 2.0, float(max(rows[-1] - rows[0],
+                                                                             cols[-1] - cols[0]) + 1)
 
 
 def template_descriptor(rgb: np.ndarray, mask: np.ndarray, K: np.ndarray, hog=None) -> np.ndarray:

@@ -19,7 +19,7 @@ from abc import abstractmethod
 import numpy as np
 
 from spm_data.core.poses import label_to_pose, pose_to_label
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.base.estimator import Needs, PoseEstimator
 from spm_model.methods import n3m_points as pts
 from spm_model.methods.n3m_pose import estimate, match

@@ -54,7 +54,8 @@ def remembered_sift_features(rgb, mask, *, side: int, max_keypoints: int, sift) 
     """sift_features of a ``make_sift(max_keypoints)`` detector, remembered per image
     (spm_model/base/feature_memo.py: a benchmark shows N3M each frame in several folds and
     runs). The key names no method: SIFT + PnP (sift_pnp.py) with the same ``side`` and
-    ``max_keypoints`` is served what N3M extracted, and the other way round. Descriptors are kept as uint8 when exact (OpenCV's SIFT values are whole
+    ``max_keypoints`` is served what N3M extracted, and the other way round. Descriptors are kept as uint8 when exact
+    (OpenCV's SIFT values are whole
     numbers 0..255) and returned float32 (n, 128), a new array each call."""
     def compute():
         uv, desc = sift_features(rgb, mask, side=side, sift=sift)

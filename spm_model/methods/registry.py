@@ -21,10 +21,12 @@ from __future__ import annotations
 
 import importlib
 import re
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.methods.baselines import ChancePose, RawImagePose
 from spm_model.methods.cnn import CNNPose
 from spm_model.methods.n3m import N3MPose
@@ -34,21 +36,67 @@ from spm_model.methods.spm_pose import SPMNeighbours, SPMPose
 from spm_model.methods.template import TemplatePose
 from spm_model.spm.features import FeatureConfig
 
-METHOD_NAMES = {"spm": "SPM", "knn1": "KNN K=1", "knn3": "KNN K=3", "pca": "PCA-based", "ls": "LS-based",
-                "n3m": "N3M (Hinterstoisser et al. 2007; marker levels only)",
-                "sift-pnp": "SIFT + PnP (all matches; not in a paper)", "smm": "SMM (Mei et al. 2011)",
-                "template": "HOG templates (reference)",
-                "cnn": "CNN embedding + retrieval (ours)",
-                "chance": "chance (random training pose)"}
+@dataclass(frozen=True)
+class Method:
+    """One built-in method: its ``--methods`` name, its report title, how to make a fresh unfitted
+    instance (``make(seed, features, params, spm)``; ``spm``: the run's SPMPose, which KNN shares),
+    and, for a method whose model ``spm train`` saves, the model file, its title in the report and
+    the class that reads it back (``from_model_file``; the file's header ``kind`` is ``name``)."""
+
+    name: str
+    title: str
+    make: Callable
+    model_file: str | None = None
+    model_title: str | None = None
+    model_class: Callable | None = None
+
+
+def _spm_model_class():
+    from spm_model.spm.estimator import SPMEstimator   # the model file holds the estimator on vectors
+
+    return SPMEstimator
+
+
+# The built-in methods in report order: every list of methods (names, titles, model files,
+# what evaluate reads) is read from these rows.
+METHODS = (
+    Method("spm", "SPM", lambda seed, features, params, spm: spm, "model.npz", "SPM", _spm_model_class),
+    Method("knn1", "KNN K=1", lambda seed, features, params, spm: SPMNeighbours(k=1, spm=spm)),
+    Method("knn3", "KNN K=3", lambda seed, features, params, spm: SPMNeighbours(k=3, spm=spm)),
+    Method("pca", "PCA-based", lambda seed, features, params, spm: RawImagePose(kind="pca")),
+    Method("ls", "LS-based", lambda seed, features, params, spm: RawImagePose(kind="ls")),
+    Method("n3m", "N3M (Hinterstoisser et al. 2007; marker levels only)", lambda seed, features, params,
+           spm: N3MPose()),
+    Method("sift-pnp", "SIFT + PnP (all matches; not in a paper)", lambda seed, features, params, spm: SiftPnPPose()),
+    Method("smm", "SMM (Mei et al. 2011)", lambda seed, features, params, spm: SMMPose(seed=seed)),
+    Method("template", "HOG templates (reference)", lambda seed, features, params, spm: TemplatePose(),
+           "reference-model.npz", "HOG templates", lambda: TemplatePose),
+    Method("cnn", "CNN embedding + retrieval (ours)", lambda seed, features, params, spm: CNNPose(seed=seed),
+           "cnn-model.npz", "CNN", lambda: CNNPose),
+    Method("chance", "chance (random training pose)", lambda seed, features, params, spm: ChancePose(seed=seed)),
+)
+BY_NAME = {m.name: m for m in METHODS}
+METHOD_NAMES = {m.name: m.title for m in METHODS}
+SAVED_MODELS = {m.name: m for m in METHODS if m.model_file}   # the methods whose model spm train writes
+
+
+def check_method_names(names, what: str = "builtins") -> list | None:
+    """``names`` (built-in method names; None: all) as a list; ModelError naming ``what`` (the
+    argument, or the CLI's option), the unknown names (or an empty list) and the names to choose from."""
+    if names is None:
+        return None
+    names = [names] if isinstance(names, str) else list(names)
+    unknown = [n for n in names if n not in BY_NAME]
+    if unknown or not names:
+        raise ModelError(f"{what}: unknown {', '.join(map(str, unknown)) or 'empty list'}; choose from "
+                         f"{', '.join(BY_NAME)}")
+    return names
 
 
 def builtin_methods(seed: int, features: FeatureConfig, model_params: dict | None = None) -> dict:
     """Fresh, unfitted instances of every built-in method, in report order."""
     spm = SPMPose(seed=seed, features=features, params=model_params)
-    return {"spm": spm, "knn1": SPMNeighbours(k=1, spm=spm), "knn3": SPMNeighbours(k=3, spm=spm),
-            "pca": RawImagePose(kind="pca"), "ls": RawImagePose(kind="ls"), "n3m": N3MPose(),
-            "sift-pnp": SiftPnPPose(), "smm": SMMPose(seed=seed),
-            "template": TemplatePose(), "cnn": CNNPose(seed=seed), "chance": ChancePose(seed=seed)}
+    return {m.name: m.make(seed, features, model_params, spm) for m in METHODS}
 
 
 def load_estimator_class(spec: str):

@@ -23,7 +23,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from spm_data.core.poses import label_to_pose, label_to_view, wrap_degrees
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.base.estimator import Needs, PoseEstimator
 from spm_model.base.ranking import smallest_k
 from spm_model.methods.smm_graph import manifold_distances, select_parts, selection_weights, training_pairs
@@ -119,7 +119,8 @@ class SMMPose(PoseEstimator):
             raise ModelError(f"SMMPose.fit: expected finite poses of shape ({len(frames)}, 6), one row per frame, "
                              f"got {poses.shape}; pass the frames' labels (rx, ry, rz degrees, t metres)")
         if not 2 <= self.n_bins <= 360 or not 1 <= self.parts <= self.candidate_parts or self.neighbours < 1:
-            raise ModelError(f"SMMPose: expected 2 <= n_bins <= 360, 1 <= parts <= candidate_parts and neighbours >= 1, "
+            raise ModelError(f"SMMPose: expected 2 <= n_bins <= 360, 1 <= parts <= candidate_parts and neighbours >= "
+                             f"1, "
                              f"got n_bins={self.n_bins}, parts={self.parts}, candidate_parts={self.candidate_parts}, "
                              f"neighbours={self.neighbours}; fix the parameters")
         feats, centroids, scales, Ks, extra = self._features(frames, "fit", ("rgb", "mask", "K", "sequence"))

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.cluster.vq import kmeans2
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.base.feature_memo import memoized
 
 UPSAMPLE_BELOW = 200   # images whose longest side is shorter are upsampled before SIFT (upsample_factor)

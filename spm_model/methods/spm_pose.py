@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from spm_data.errors import FeatureError, ModelError
+from spm_model.errors import FeatureError, ModelError
 from spm_model.base.estimator import Needs, PoseEstimator, check_fitted, is_fitted
 from spm_model.base.frames import column
 from spm_model.methods.baselines import KNNPose

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spm_data.errors import BunchError
+from spm_model.errors import BunchError
 
 
 GAMMA = 8

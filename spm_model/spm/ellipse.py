@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import lapack
 
-from spm_data.errors import EllipseError
+from spm_model.errors import EllipseError
 
 
 LAMBDA = 0.1

@@ -3,7 +3,8 @@
 with the feature configuration, so ``spm predict`` can start from an image.
 
 Scaling: Eq. 5 is solved exactly (one l1 problem per vector, over all the
-others, all at once: spm_model.spm.sparse.l1_simplex) for at most ``projection_samples`` training vectors, a seeded random
+others, all at once: spm_model.spm.sparse.l1_simplex) for at most ``projection_samples`` training vectors, a seeded
+random
 subset: the projection is a (2 gamma x d) matrix, which the subset estimates as
 well as the whole set, at a cost that does not grow with n (about 1 s here).
 ``projection="knn"`` restricts each problem to the ``neighbours`` nearest
@@ -19,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from spm_model.spm.features import FeatureConfig, image_features
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.base.estimator import Estimator, check_fitted
 from spm_model.base.model_files import check_xy, load_model_file, need, need_finite, save_model_file
 from spm_model.spm.regressor import RBFPoseRegressor

@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from spm_data.errors import FeatureError
+from spm_model.errors import FeatureError
 from spm_model.base.images import raw_vector
 from spm_model.spm.bunches import BunchError, fit_bunches
 from spm_model.spm.ellipse import EllipseError

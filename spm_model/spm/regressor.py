@@ -8,7 +8,8 @@ read back with atan2, so 359 and 1 degrees are neighbours; translation is
 regressed as is. Exact kernel ridge costs O(n^3); above ``landmarks`` training
 vectors (after the noise copies) it becomes the Nystrom / subset-of-regressors
 solution on ``landmarks`` random centres, ``min ||K_nm c - Z||^2 + alpha c^T K_mm c``,
-which equals exact kernel ridge when the centres are all the vectors. Follows scikit-learn's estimator contract (keyword-only
+which equals exact kernel ridge when the centres are all the vectors. Follows scikit-learn's estimator contract
+(keyword-only
 parameters stored as given, ``fit`` returns self, learned state ends in ``_``; an unfitted
 regressor raises ModelError, spm_model/base/estimator.py). ``from_state`` rebuilds a fitted
 regressor from its learned attributes (how a model file is read).

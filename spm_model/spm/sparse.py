@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linprog
 
-from spm_data.errors import SparseError
+from spm_model.errors import SparseError
 
 
 BATCH = 64  # samples per neighbour search (knn solver)

@@ -74,7 +74,8 @@ def test_procedural_backgrounds_are_seeded_patterns():
         np.testing.assert_array_equal(a, procedural_background(kind, np.random.default_rng(3), 32, 48))
         assert not np.array_equal(a, procedural_background(kind, np.random.default_rng(4), 32, 48))
     assert len(np.unique(procedural_background("color", np.random.default_rng(1), 8, 8).reshape(-1, 3), axis=0)) == 1
-    assert len(np.unique(procedural_background("checker", np.random.default_rng(1), 64, 64).reshape(-1, 3), axis=0)) == 2
+    assert len(np.unique(procedural_background("checker", np.random.default_rng(1), 64, 64).reshape(-1, 3),
+                         axis=0)) == 2
     noise = procedural_background("noise", np.random.default_rng(1), 64, 64).astype(int)
     assert np.abs(np.diff(noise, axis=1)).mean() < 20 < noise.std()  # smooth, yet varied
     with pytest.raises(SpecError, match="unknown background kind"):

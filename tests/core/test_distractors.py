@@ -116,7 +116,7 @@ def test_workbench_cannot_tell_distractors_apart():
 
 
 def test_a_renderer_override_is_checked_too(tmp_path):
-    from spm_data.commands.render_jobs import load_run_specs
+    from spm_data.pipelines.render_jobs import load_run_specs
 
     (tmp_path / "c.toml").write_text('class = "cup"\n[render]\nrenderer = "pyrender"\n[render.blender]\n'
                                      'engine = "workbench"\n[distractors]\ncount = 1\n')

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from spm_data.core.randomize import fixed_light_rotations, frame_draws, max_lights
+from spm_data.core.randomize import STREAMS, fixed_light_rotations, frame_draws, frame_rng, frame_stream, max_lights
 from spm_data.core.specs import parse_spec
 from spm_data.errors import SpecError
 from spm_data.render.base import spec_intrinsics
@@ -117,3 +117,20 @@ def test_a_spec_without_lights_still_has_a_lights_field():
 def test_workbench_cannot_honour_a_base_colour():
     with pytest.raises(SpecError, match="randomize.base_color: Workbench"):
         parse_spec('class = "cup"\n[render.blender]\nengine = "workbench"\n[randomize]\nbase_color = [0.5, 1]\n')
+
+
+def test_the_named_streams_keep_the_numbers_every_shard_was_made_with():
+    """frame_rng's entropy is [seed, crc32(class), instance, view, stream number(, crc32(key))]: the
+    numbers below are those of the shards made before the streams had names (same seed, same bytes)."""
+    import zlib
+
+    spec = parse_spec('class = "cup"\nseed = 7\n[mesh]\ngenerator = "cup"\n')
+    assert STREAMS == {"background": 1, "draws": 2}
+    crc = zlib.crc32(b"cup")
+    expect = np.random.default_rng([7, crc, 2, 5, 1]).random(4)
+    assert np.array_equal(frame_rng(spec, 2, 5, "background").random(4), expect)
+    keyed = np.random.default_rng([7, crc, 2, 5, 2, zlib.crc32(b"lights")]).random(4)
+    assert np.array_equal(frame_stream(spec, 2, 5, "lights").random(4), keyed)
+    assert np.array_equal(frame_rng(spec, 2, 5, "draws", "lights").random(4), keyed)
+    with pytest.raises(KeyError):
+        frame_rng(spec, 2, 5, "noise")

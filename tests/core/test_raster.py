@@ -97,7 +97,8 @@ def test_a_cup_cut_by_the_border_is_drawn_as_vispy_draws_it(canvas, pixels, box,
     mesh = procedural_mesh("cup", 0, seed=3)
     w, h = 64, 48
     off = (w, h) if canvas == 3 else (0, 0)
-    depth = render_depth(np.float32(mesh.vertices * 1000.0), mesh.faces, np.array(CUT_K), np.array(CUT_R), np.array(CUT_T),
+    depth = render_depth(np.float32(mesh.vertices * 1000.0), mesh.faces, np.array(CUT_K), np.array(CUT_R),
+                         np.array(CUT_T),
                          canvas * w, canvas * h, offset=off)
     assert (depth > 0).sum() == pixels and bbox(depth > 0, offset=off) == box
     assert zlib.crc32(np.packbits(depth > 0).tobytes()) == crc

@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 
-from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 from spm_data.core.mesh_store import has_mesh, load_mesh, mesh_digest
 from spm_data.core.shard_meshes import FrameMeshes
 from spm_data.io.folders import open_folder

@@ -2,7 +2,7 @@ import pytest
 
 from spm_data.errors import SpecError
 from spm_data.core.shapes import CLASSES
-from spm_data.core.specs import all_spec_paths, load_spec, parse_spec
+from spm_data.core.specs import all_spec_paths, load_spec, parse_spec, shard_spec
 
 
 def test_builtin_specs_cover_the_six_classes_and_load():
@@ -59,9 +59,11 @@ def test_fingerprint_changes_with_what_changes_pixels():
     ('class = "cup"\n[mesh]\nsymmetries = ["z"]', "mesh.symmetries: built-in classes know their own"),
     ('class = "cup"\n[camera]\nsampler = "so3"', "camera.views: sampler 'so3' needs views = N >= 1"),
     ('class = "cup"\n[camera]\nsampler = "so3"\nviews = "ten"', "camera.views: expected int, got string"),
-    ('class = "cup"\n[camera]\nsampler = "sphere"\nviews = 3\nroll_range = [10]', "camera.roll_range: expected [low, high]"),
+    ('class = "cup"\n[camera]\nsampler = "sphere"\nviews = 3\nroll_range = [10]', "camera.roll_range: expected [low, "
+                                                                                  "high]"),
     ('class = "cup"\n[camera]\nroll_range = [0, 10]', "camera.roll_range: only for sampler"),
-    ('class = "cup"\n[render.blender]\ndevice = "tpu"', "render.blender.device: expected one of cpu, gpu, auto, got 'tpu'"),
+    ('class = "cup"\n[render.blender]\ndevice = "tpu"', "render.blender.device: expected one of cpu, gpu, auto, got "
+                                                        "'tpu'"),
     ('class = "u"\n[mesh]\nsource = "files"\nfiles = ["a.ply"]\nsymmetries = ["q/90"]',
      "mesh.symmetries[0]: symmetry 'q/90': expected an axis x, y or z"),
     ('class = "u"\n[mesh]\nsource = "files"\nfiles = ["a.ply"]\nsymmetries = ["z", "z/7"]',
@@ -90,3 +92,11 @@ def test_the_example_specs_load():
     for path in examples:
         spec = load_spec(path)
         assert spec.randomize.enabled and spec.distractors.count == 2 and spec.outputs.coords
+
+
+def test_a_shards_spec_is_its_text_with_the_runs_seed():
+    text = 'class = "cup"\nseed = 7\n[mesh]\ngenerator = "cup"\n'
+    spec = shard_spec({"spec": text, "seed": 11})
+    assert spec.seed == 11 and spec.class_name == "cup"
+    assert spec.fingerprint() == parse_spec(text).replace(seed=11).fingerprint()
+    assert shard_spec({"spec": text}).seed == 0   # a shard without the attribute: the default seed

@@ -30,7 +30,8 @@ def test_declared_turns_are_completed_to_their_group_each_once():
 def test_a_continuous_axis_absorbs_the_turns_about_it():
     s = declared_symmetries(["z", "z/180", "x/180", "z"])
     assert len(s.continuous) == 1
-    assert len(s.discrete) == 2 and in_(rotation([1, 0, 0], 180), s.discrete) and in_(rotation([0, 1, 0], 180), s.discrete)
+    assert len(s.discrete) == 2 and in_(rotation([1, 0, 0], 180), s.discrete) and in_(rotation([0, 1, 0], 180),
+                                                                                      s.discrete)
 
 
 def test_turns_that_make_no_finite_group_are_refused():

@@ -9,7 +9,7 @@ import numpy as np
 from spm_data.formats.bop import import_bop
 from spm_data.formats.bop_export import export_bop
 from spm_data.core.poses import camera_pose
-from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 from spm_data.io.shards import list_shards, read_shard
 
 
@@ -62,8 +62,10 @@ def test_render_export_import_round_trip(small_specs_dir, tmp_path):
     gt_info = json.loads((tmp_path / "bop" / "train" / "000000" / "scene_gt_info.json").read_text())
     assert gt_info["0"][0]["visib_fract"] == 1.0
     import_bop(tmp_path / "bop", tmp_path / "back", split="train")
-    src = {k: np.concatenate([read_shard(p)[k] for p in list_shards(tmp_path / "r")]) for k in ("R", "t", "mask", "depth", "K")}
-    back = {k: np.concatenate([read_shard(p)[k] for p in list_shards(tmp_path / "back")]) for k in ("R", "t", "mask", "depth", "K")}
+    src = {k: np.concatenate([read_shard(p)[k] for p in list_shards(tmp_path / "r")]) for k in ("R", "t", "mask",
+                                                                                                "depth", "K")}
+    back = {k: np.concatenate([read_shard(p)[k] for p in list_shards(tmp_path / "back")]) for k in ("R", "t", "mask",
+                                                                                                    "depth", "K")}
     # Export groups frames by object instance; the render is already in that order.
     np.testing.assert_allclose(back["R"], src["R"], atol=1e-12)
     np.testing.assert_allclose(back["t"], src["t"], atol=1e-12)
@@ -73,11 +75,13 @@ def test_render_export_import_round_trip(small_specs_dir, tmp_path):
     assert not (tmp_path / "bop.partial").exists()
     # objects.json gives the names back, not bop-objN.
     names = [{k: [str(v) for p in list_shards(folder) for v in read_shard(p)[k]]
-              for k in ("class_name", "instance_name", "instance_id")} for folder in (tmp_path / "r", tmp_path / "back")]
+              for k in ("class_name", "instance_name", "instance_id")} for folder in (tmp_path / "r",
+                                                                                      tmp_path / "back")]
     assert names[1] == names[0] and names[1]["class_name"][0] == "cup"
     import_bop(tmp_path / "bop", tmp_path / "renamed", split="train", classes_csv=_csv(tmp_path, "2,mug\n"))
     renamed = read_shard(list_shards(tmp_path / "renamed")[0], ["class_name", "instance_name"])
-    assert set(map(str, renamed["class_name"])) == {"cup", "mug"} and "bop-obj2" not in set(map(str, renamed["instance_name"]))
+    assert set(map(str, renamed["class_name"])) == {"cup", "mug"}
+    assert "bop-obj2" not in set(map(str, renamed["instance_name"]))
 
 
 def _csv(folder, text):

@@ -18,7 +18,7 @@ from spm_data.errors import MeshError, SpmError
 from spm_data.formats.ply import load_ply
 from spm_data.core.poses import cv_to_gl_camera_to_world
 from spm_data.render.pyrender_backend import _offscreen
-from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 from spm_data.io.folders import open_folder
 from spm_data.io.shards import list_shards, read_attrs, read_shard, write_shard
 from tests.helpers import write_small_specs
@@ -138,7 +138,8 @@ def test_scene_gt_coco_decodes_to_our_visible_masks(small_specs_dir, tmp_path):
     for scene in sorted((tmp_path / "bop" / "train").iterdir()):
         coco = load_scene_gt_coco(scene / "scene_gt_coco.json")
         info = json.loads((scene / "scene_gt_info.json").read_text())
-        assert [c["id"] for c in coco["categories"]] == [1, 2]   # every object of the dataset, as bop_toolkit lists them
+        # every object of the dataset, as bop_toolkit lists them
+        assert [c["id"] for c in coco["categories"]] == [1, 2]
         for ann in coco["annotations"]:
             image = next(i for i in coco["images"] if i["id"] == ann["image_id"])
             assert (scene / image["file_name"]).is_file()
@@ -244,7 +245,8 @@ def test_older_shards_find_meshes_by_the_spec_folder_and_refuse_changed_ones(tmp
     glb_box(tmp_path / "project" / "meshes" / "a.glb", [0.2, 0.3, 0.25])   # edited after the render
     r = CliRunner().invoke(data_cli, ["export", "bop", str(old), "--out", str(tmp_path / "bop2")])
     assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1
-    assert str(tmp_path / "project" / "meshes" / "a.glb") in r.output and "has changed since it was rendered" in r.output
+    assert str(tmp_path / "project" / "meshes" / "a.glb") in r.output
+    assert "has changed since it was rendered" in r.output
     assert str(tmp_path / "project") in r.output and "'meshes/a.glb'" in r.output
     assert not (tmp_path / "bop2").exists() and not (tmp_path / "bop2.partial").exists()
 
@@ -280,7 +282,7 @@ def test_split_must_be_one_folder_name_and_meshes_from_a_folder(small_specs_dir,
 
 def test_a_cluttered_export_keeps_the_rendered_depth_and_visible_masks(tmp_path):
     DEPTH_SCALE = 0.1  # every depth here is within 6.5 m: the finest scale (bop_gt.DEPTH_SCALES)
-    from tests.commands.test_render_frames import CLUTTERED
+    from tests.pipelines.test_render_frames import CLUTTERED
 
     folder = tmp_path / "specs"
     folder.mkdir()
@@ -310,7 +312,8 @@ def test_object_ids_are_stable_across_exports_and_named_in_objects_json(small_sp
     export_bop(tmp_path / "all", tmp_path / "bop_all")
     objects = json.loads((tmp_path / "bop_all" / "objects.json").read_text())
     # Sorted by class, then instance: box first although the cup was rendered first.
-    assert [(v["class"], v["instance_id"]) for v in objects.values()] == [("box", 0), ("box", 1), ("cup", 0), ("cup", 1)]
+    assert [(v["class"], v["instance_id"]) for v in objects.values()] == [("box", 0), ("box", 1), ("cup", 0), ("cup",
+                                                                                                               1)]
     assert list(objects) == ["1", "2", "3", "4"] and objects["3"]["instance"] == "cup-000"
     export_bop(tmp_path / "cup", tmp_path / "bop_cup_alone")
     export_bop(tmp_path / "cup", tmp_path / "bop_cup", ids_from=tmp_path / "bop_all")

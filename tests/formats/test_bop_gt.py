@@ -19,7 +19,7 @@ from spm_data.formats.bop_gt import (bbox, depth_scale_for, depth_units, distanc
                                      png_depth_mm, visible_mask)
 from spm_data.formats.coco import load_scene_gt_coco
 from spm_data.formats.ply import load_ply
-from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 
 SIZE = 64
 TRUNCATED = """
@@ -113,7 +113,8 @@ def reference_gt_info(model, K, gt, depth_mm):
     R = np.reshape(gt["cam_R_m2c"], (3, 3))
     t = np.asarray(gt["cam_t_m2c"]) / 1000.0
     prim = pr.Primitive(positions=(model["vertices"] / 1000.0).astype(np.float32),
-                        indices=model["faces"].astype(np.uint32), material=pr.MetallicRoughnessMaterial(doubleSided=True))
+                        indices=model["faces"].astype(np.uint32),
+                        material=pr.MetallicRoughnessMaterial(doubleSided=True))
     scene = pr.Scene()
     scene.add(pr.Mesh([prim]))
     scene.add(pr.IntrinsicsCamera(K[0, 0], K[1, 1], K[0, 2] + w, K[1, 2] + h, znear=0.01, zfar=100.0),

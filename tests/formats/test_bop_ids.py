@@ -7,8 +7,8 @@ import warnings
 from click.testing import CliRunner
 
 from cli import data_cli
-from spm_data.commands.merge import merge_folders
-from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.pipelines.merge import merge_folders
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 from spm_data.errors import SpmWarning
 from spm_data.formats.bop_export import export_bop
 from spm_data.formats.bop_ids import frame_ids, read_objects

@@ -12,7 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from cli import data_cli
-from spm_data.commands.merge import merge_folders
+from spm_data.pipelines.merge import merge_folders
 from spm_data.core.poses import K_to_corner_origin, intrinsics_from_fov
 from spm_data.errors import SpmError
 from spm_data.formats.bop import import_bop
@@ -22,8 +22,8 @@ from spm_data.formats.bop_scene import SceneWriter
 from spm_data.formats.coco import load_scene_gt_coco, rle_to_mask
 from spm_data.io.folders import open_folder
 from spm_data.io.shards import list_shards, read_shard, shard_layout
-from spm_data.commands.render_jobs import load_run_specs, render_dataset
-from tests.commands.test_render_frames import CLUTTERED
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
+from tests.pipelines.test_render_frames import CLUTTERED
 from tests.helpers import write_small_specs
 
 FRAMES = 6

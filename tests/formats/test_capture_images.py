@@ -28,7 +28,7 @@ def textured_background(h, w, rng):
 def photographed(tmp_path_factory):
     """A pyrender cup, 24 views (azimuth 0-330 by 30, elevation 10 and 30) at 480 x 480, composited on
     a textured background: rgb (no alpha), the true mask, K, R, t."""
-    from spm_data.commands.render_jobs import load_run_specs, render_dataset
+    from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 
     root = tmp_path_factory.mktemp("photographed")
     (root / "specs").mkdir()

@@ -7,7 +7,7 @@ import inspect
 from click.testing import CliRunner
 
 from cli import data_cli
-from spm_data.commands.cli_import import import_group
+from spm_cli.importers import import_group
 from spm_data.formats import IMPORTERS, Importer, Option, importer_names
 
 
@@ -27,7 +27,7 @@ def test_one_command_per_registered_importer_with_exactly_its_options():
 
 def test_a_new_entry_is_a_new_command(monkeypatch, tmp_path):
     """Adding an importer touches the one table: the command, its options and its help follow."""
-    import spm_data.commands.cli_import as cli_import
+    import spm_cli.importers as cli_import
 
     module = tmp_path / "toy_format.py"
     module.write_text("def import_toy(path, out_dir, *, answer=1, progress=None, executor=None):\n"

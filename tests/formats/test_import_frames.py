@@ -74,8 +74,8 @@ def test_a_capture_without_depth_has_no_depth_field_and_reads_as_zero_depth(tmp_
     """No depth array is written for a capture without depth; validate accepts the shard, a read of
     depth gives zeros (no surface measured: N3M and SIFT + PnP decline it as before), and a merge
     with renders keeps their depth."""
-    from spm_data.commands.merge import merge_folders
-    from spm_data.commands.validate import validate_folder
+    from spm_data.pipelines.merge import merge_folders
+    from spm_data.pipelines.validate import validate_folder
     from spm_data.io.shards import shard_layout
 
     import_nerf(_capture(tmp_path / "c", n=3), tmp_path / "out", scale=SCALE, center=CENTER)

@@ -39,7 +39,8 @@ def test_pose_problem_says_what_cannot_be_imported():
     R, t = camera_pose(30, 20, 0, 0.5)
     K = np.array([[100.0, 0, 63.5], [0, 100.0, 63.5], [0, 0, 1]])
     assert pose_problem(R, t, K) is None and pose_problem(R, t) is None
-    assert pose_problem(2 * np.eye(3), t) == ("R = [2, 0, 0, 0, 2, 0, 0, 0, 2] is not a rotation matrix (orthonormal within 0.0001, "
+    assert pose_problem(2 * np.eye(3), t) == ("R = [2, 0, 0, 0, 2, 0, 0, 0, 2] is not a rotation matrix (orthonormal "
+                                              "within 0.0001, "
                                               "determinant +1)")
     assert pose_problem(np.full((3, 3), np.nan), t).startswith("the rotation has a non-finite value (R = [nan, nan")
     assert pose_problem(R, [0, 0, np.inf]) == ("the translation has a non-finite value (t = [0, 0, inf]); expected "

@@ -19,7 +19,7 @@ from tests.helpers import CENTER, SCALE, write_capture
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory):
     """A pyrender render of one cup instance (18 views at 64 x 64): rgb, mask, depth, K, R, t."""
-    from spm_data.commands.render_jobs import load_run_specs, render_dataset
+    from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
     from tests.helpers import SMALL_SPEC
 
     root = tmp_path_factory.mktemp("nerf-render")
@@ -230,7 +230,7 @@ def test_rotations_within_the_tolerance_are_stored_as_the_nearest_rotation(rende
     R = _imported(tmp_path / "out")["R"]
     assert np.abs(R @ R.transpose(0, 2, 1) - np.eye(3)).max() < 1e-14
     assert 1e-5 < np.abs(R - d["R"][:3]).max() < 1e-4
-    from spm_data.commands.validate import validate_folder
+    from spm_data.pipelines.validate import validate_folder
 
     assert validate_folder(tmp_path / "out") == []
 

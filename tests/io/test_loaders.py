@@ -171,7 +171,8 @@ def test_running_out_of_file_descriptors_says_so(folder):
     os.close(lowest_free)
     try:   # no descriptor left: the first read cannot open its shard
         resource.setrlimit(resource.RLIMIT_NOFILE, (lowest_free, hard))
-        with pytest.raises(ShardError, match="cannot open, too many open files in this process .the limit is ulimit -n"):
+        with pytest.raises(ShardError,
+                           match="cannot open, too many open files in this process .the limit is ulimit -n"):
             ds[0]
     finally:
         resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
@@ -181,7 +182,8 @@ def test_running_out_of_file_descriptors_says_so(folder):
 
 # Pool workers: top-level functions, so spawn can import them.
 _DATASET = None
-POOL_SECONDS = 240   # a worker that dies or hangs fails the test (BrokenProcessPool, TimeoutError), never hangs the suite
+# a worker that dies or hangs fails the test (BrokenProcessPool, TimeoutError), never hangs the suite
+POOL_SECONDS = 240
 
 
 def _pool_read(method: str, ds, n: int) -> list:

@@ -119,7 +119,8 @@ def test_workers_take_the_gpus_in_turn_and_in_process_jobs_the_first(monkeypatch
 
 def sigint_state(job, report):
     report(1)
-    return signal.getsignal(signal.SIGINT) == signal.SIG_IGN, signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    return signal.getsignal(signal.SIGINT) == signal.SIG_IGN, signal.SIGINT in blocked
 
 
 SPAWN_WHILE_HELD = """

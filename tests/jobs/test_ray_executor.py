@@ -16,8 +16,8 @@ ray = pytest.importorskip("ray")
 
 from tests.helpers import write_pyrender_128_spec  # noqa: E402
 from spm_data.jobs import make_executor  # noqa: E402
-from spm_data.commands.occlude_jobs import occlude_dataset  # noqa: E402
-from spm_data.commands.render_jobs import load_run_specs, render_dataset  # noqa: E402
+from spm_data.pipelines.occlude_jobs import occlude_dataset  # noqa: E402
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset  # noqa: E402
 from spm_data.io.shards import list_shards, read_manifest, read_shard  # noqa: E402
 
 pytestmark = pytest.mark.slow  # starts a local Ray cluster
@@ -149,7 +149,7 @@ def test_cli_occlude_with_the_ray_executor(specs, tmp_path):
 
 
 def test_ray_renders_a_randomised_cluttered_spec_to_the_same_bytes(tmp_path):
-    from tests.commands.test_render_frames import CLUTTERED
+    from tests.pipelines.test_render_frames import CLUTTERED
 
     folder = tmp_path / "specs"
     folder.mkdir()

@@ -7,7 +7,7 @@ from click.testing import CliRunner
 from cli import data_cli
 from spm_data.errors import ShardError, SpmWarning
 from tests.helpers import flip_stored_byte
-from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 from spm_data.io.shards import list_shards, read_manifest, read_shard, verify_shard
 
 SPEC = ('class = "cup"\nseed = 2\n[mesh]\ninstances = 1\n[camera]\nazimuth = [0, 55, 5]\n'

@@ -100,7 +100,8 @@ def test_gpus_are_parsed_and_bad_syntax_is_one_line():
 
     assert parse_gpus(None) is None and parse_gpus("0") == (0,) and parse_gpus(" 0, 1,3 ") == (0, 1, 3)
     for text in ("", "a", "0,,1", "-1", "1.5", "0;1", "²"):
-        with pytest.raises(RenderError, match=r"^--gpus .*: expected GPU indices separated by commas, such as 0 or 0,1,3$"):
+        with pytest.raises(RenderError, match=r"^--gpus .*: expected GPU indices separated by commas, such as 0 or "
+                                              r"0,1,3$"):
             parse_gpus(text)
     with pytest.raises(RenderError, match=r"^--gpus '1,0,1': GPU 1 is named twice$"):
         parse_gpus("1,0,1")
@@ -131,7 +132,8 @@ def test_gl_processes_are_one_per_worker_on_the_cpu_and_few_per_gpu(workers, gpu
 def test_a_worker_reads_its_gpu_and_blender_lists_its_gpus_only_in_its_workers():
     from spm_data.render.base import GPU_VARIABLE, assigned_gpu, visible_gpus
 
-    assert assigned_gpu({}) is None and assigned_gpu({GPU_VARIABLE: "3"}) == 3 and assigned_gpu({GPU_VARIABLE: ""}) is None
+    assert assigned_gpu({}) is None and assigned_gpu({GPU_VARIABLE: "3"}) == 3
+    assert assigned_gpu({GPU_VARIABLE: ""}) is None
     assert visible_gpus("blender") is None
     gpus, lister = visible_gpus("pyrender")
     assert lister == "pyrender's EGL" and all(isinstance(g, int) for g in gpus)

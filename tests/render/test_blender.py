@@ -15,7 +15,7 @@ from spm_data.core.mesh_files import load_mesh_file
 from spm_data.core.shapes import procedural_mesh
 from spm_data.core.paths import AngleRange, CameraGrid, camera_path
 from spm_data.render import make_renderer
-from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 from spm_data.io.shards import list_shards, read_attrs, read_manifest, read_shard
 from spm_data.core.specs import parse_spec
 
@@ -214,7 +214,7 @@ def test_device_auto_falls_back_to_the_cpu_and_gpu_without_one_is_one_line(tmp_p
 def test_blender_and_pyrender_agree_on_a_randomised_cluttered_spec(tmp_path):
     """Same draws, same distractor poses: visible masks (IoU >= 0.97), normals (median
     angle <= 5 degrees) and each visible fraction within 2% of its draw, in both."""
-    from tests.commands.test_render_frames import CLUTTERED
+    from tests.pipelines.test_render_frames import CLUTTERED
 
     folder = tmp_path / "specs"
     folder.mkdir()

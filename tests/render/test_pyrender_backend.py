@@ -9,7 +9,7 @@ from spm_data.core.poses import project_points
 from spm_data.render import make_renderer
 from spm_data.render.base import spec_intrinsics
 from spm_data.core.specs import parse_spec
-from spm_data.commands.render_jobs import load_run_specs
+from spm_data.pipelines.render_jobs import load_run_specs
 
 
 def ray_depths(mesh, K, R, t, pixels):

@@ -9,7 +9,7 @@ import textwrap
 
 import numpy as np
 
-from spm_data.commands.occlude_jobs import occlude_dataset
+from spm_data.pipelines.occlude_jobs import occlude_dataset
 from spm_data.io.shards import read_shard
 from spm_model.bench.feature_cache import load_features
 from spm_model.bench.protocols import evaluate

@@ -117,7 +117,8 @@ def test_a_shard_listed_twice_or_copied_is_refused_by_every_reader(folder, tmp_p
     out = tmp_path / "out"
     args = {"validate": [data_cli, "validate", folder], "info": [data_cli, "info", folder],
             "occlude": [data_cli, "occlude", "--in", folder, "--out", out],
-            "merge": [data_cli, "merge", folder, "--out", out], "export": [data_cli, "export", "bop", folder, "--out", out],
+            "merge": [data_cli, "merge", folder, "--out", out],
+            "export": [data_cli, "export", "bop", folder, "--out", out],
             "train": [model_cli, "train", folder, "--out", out]}[command]
     r = run(*args)
     if command == "validate":  # validate lists problems
@@ -137,7 +138,8 @@ def template_model(tmp_path_factory):
 
 def reader_commands(folder, out, model):
     return {"info": [data_cli, "info", folder], "occlude": [data_cli, "occlude", "--in", folder, "--out", out],
-            "merge": [data_cli, "merge", folder, "--out", out], "export": [data_cli, "export", "bop", folder, "--out", out],
+            "merge": [data_cli, "merge", folder, "--out", out],
+            "export": [data_cli, "export", "bop", folder, "--out", out],
             "train": [model_cli, "train", folder, "--out", out],
             "hist": [data_cli, "hist", folder, "--out", out.with_suffix(".png")],
             "evaluate": [model_cli, "evaluate", "--model", model, "--shards", folder]}
@@ -228,9 +230,9 @@ def test_a_full_disk_leaves_no_mesh_store_behind(small_specs_dir, tmp_path, monk
     full disk failed every shard and left OUT/meshes/*.npz, though the folder it made is removed."""
     import h5py
 
-    from spm_data.commands import merge as merge_module
+    from spm_data.pipelines import merge as merge_module
     from spm_data.errors import ShardError
-    from spm_data.commands.render_jobs import load_run_specs, render_dataset
+    from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 
     render_dataset(load_run_specs(["cup"], specs_dir=small_specs_dir), tmp_path / "r", limit=4)
     error = ("Unable to synchronously copy object (file write failed: errno = 28, error message = 'No space left "
@@ -282,7 +284,7 @@ def test_a_corrupt_shard_with_its_mtime_put_back_is_refused_by_train_and_evaluat
 def test_an_unreadable_or_looping_shard_is_one_problem_in_validate_and_info_is_not_whole(folder, monkeypatch):
     """validate: PermissionError from hashing (simulated: tests run as root) and a symlink loop
     each one problem line, never a traceback; info describes a folder with a cut shard but exits 1."""
-    from spm_data.commands import validate
+    from spm_data.pipelines import validate
 
     real = validate.file_sha256
 

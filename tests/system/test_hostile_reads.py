@@ -14,7 +14,7 @@ from cli import data_cli, model_cli
 from tests.helpers import flip_stored_byte, reaped, wait_for
 from spm_data.errors import ShardError
 from spm_data.io.locking import lock_owner
-from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 from spm_data.io.shards import FIELDS, list_shards, read_manifest, read_shard, write_shard
 
 SPEC = ('class = "{cls}"\nseed = 4\n[mesh]\ninstances = 2\n[camera]\nazimuth = [0, 35, 5]\n'

@@ -115,7 +115,8 @@ def test_folder_matrix_that_is_not_a_rotation(tmp_path):
     csv = posed_folder(tmp_path / "in", header, [["a.png", *R.ravel(), 0, 0, 0.5],
                                                  ["b.png", *(2 * R).ravel(), 0, 0, 0.5]])
     refused(["import", "folder", tmp_path / "in", "--out", tmp_path / "out", "--fov", "40"],
-            f"{csv}:3 (b.png): r11..r33 is not a rotation matrix (orthonormal within 0.0001, determinant +1); fix that row",
+            f"{csv}:3 (b.png): r11..r33 is not a rotation matrix (orthonormal within 0.0001, determinant +1); fix that "
+            f"row",
             tmp_path / "out")
 
 
@@ -212,7 +213,8 @@ def gt_with(**changes):
     (gt_with(cam_R_m2c=None), "no 'cam_R_m2c'; expected 9 numbers, fix the file"),
     (gt_with(cam_t_m2c=[1.0, 2.0]), "cam_t_m2c has 2 values, expected 3; fix the file"),
     (gt_with(cam_R_m2c=[2, 0, 0, 0, 2, 0, 0, 0, 2]),
-     "R = [2, 0, 0, 0, 2, 0, 0, 0, 2] is not a rotation matrix (orthonormal within 0.0001, determinant +1); fix the file"),
+     "R = [2, 0, 0, 0, 2, 0, 0, 0, 2] is not a rotation matrix (orthonormal within 0.0001, determinant +1); fix the "
+     "file"),
 ])
 def test_bop_bad_pose_in_the_second_scene_writes_nothing(tmp_path, gt, message):
     root = bop_split(tmp_path / "bop", [GOOD_GT, gt])

@@ -1,4 +1,5 @@
-"""Ctrl-C or SIGTERM during `spm-data render`: finished shards kept, nothing partial, a resume hint, then a clean resume."""
+"""Ctrl-C or SIGTERM during `spm-data render`: finished shards kept, nothing partial, a resume hint, then a clean
+resume."""
 
 import json
 import shutil

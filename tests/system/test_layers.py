@@ -10,11 +10,12 @@ from pathlib import Path
 from spm_data.render import RENDERERS
 
 ROOT = Path(__file__).resolve().parents[2]
-PACKAGES = ("spm_data", "spm_model", "cli.py")
+PACKAGES = ("spm_data", "spm_model", "spm_cli", "cli.py")
 # Lowest first; a module may import its own layer and those below it, never above.
-LAYERS = ("spm_data.errors", "spm_data.io", "renderer registry", "spm_data.core", "spm_data.render", "spm_data.jobs",
-          "spm_data.formats", "spm_data.commands", "spm_model.base", "spm_model.spm", "spm_model.methods",
-          "spm_model.bench", "spm_model.commands", "cli")
+LAYERS = ("spm_data.errors", "spm_data.version", "spm_data.io", "renderer registry", "spm_data.core",
+          "spm_data.render", "spm_data.jobs", "spm_data.formats", "spm_data.pipelines", "spm_model.errors",
+          "spm_model.base", "spm_model.spm", "spm_model.methods", "spm_model.bench", "spm_model.pipelines", "spm_cli",
+          "cli")
 # The registry (spm_data/render/__init__.py) and the backends' settings modules sit below core,
 # which reads them for the specs; the Renderer base and the backends sit above it.
 REGISTRY = {"spm_data.render"} | {b.settings.__module__ for b in RENDERERS.values() if b.settings}
@@ -52,8 +53,8 @@ def imports_of(path: Path, known) -> set:
 def layer(module: str) -> int:
     if module in REGISTRY:
         return LAYERS.index("renderer registry")
-    if module == "spm_data":   # the package itself: its version and docstring
-        return 0
+    if module == "spm_data":   # the package itself: its errors and version (the rest of its face is lazy)
+        return LAYERS.index("spm_data.version")
     if module == "spm_model":  # likewise, at the bottom of its own layers
         return LAYERS.index("spm_model.base")
     return max(i for i, prefix in enumerate(LAYERS) if module == prefix or module.startswith(prefix + "."))
@@ -95,16 +96,29 @@ def test_no_import_cycles():
     assert import_cycles(graph()) == []
 
 
+def imports_click(path: Path) -> bool:
+    tree = ast.parse(path.read_text())
+    return any(isinstance(n, ast.Import) and any(a.name.split(".")[0] == "click" for a in n.names)
+               or isinstance(n, ast.ImportFrom) and n.level == 0 and (n.module or "").split(".")[0] == "click"
+               for n in ast.walk(tree))
+
+
+def test_only_the_command_line_imports_click():
+    """spm_cli/ is the face: the library (and so the benchmarks, which import the library) never needs click."""
+    clicky = sorted(m for m, p in module_files().items() if imports_click(p))
+    assert clicky and [m for m in clicky if m.split(".")[0] != "spm_cli"] == []
+
+
 def test_no_module_over_max_lines():
     long = {m: n for m, p in module_files().items() if (n := len(p.read_text().splitlines())) > MAX_LINES}
     assert long == {}
 
 
 def test_the_checks_find_what_they_look_for():
-    planted = {"spm_data.io.a": {"spm_data.commands.b"}, "spm_data.commands.b": {"spm_data.io.a"}}
-    assert upward_imports(planted) == ["spm_data.io.a (layer spm_data.io) imports spm_data.commands.b "
-                                       "(layer spm_data.commands)"]
-    assert import_cycles(planted) == ["spm_data.commands.b -> spm_data.io.a -> spm_data.commands.b"]
+    planted = {"spm_data.io.a": {"spm_data.pipelines.b"}, "spm_data.pipelines.b": {"spm_data.io.a"}}
+    assert upward_imports(planted) == ["spm_data.io.a (layer spm_data.io) imports spm_data.pipelines.b "
+                                       "(layer spm_data.pipelines)"]
+    assert import_cycles(planted) == ["spm_data.io.a -> spm_data.pipelines.b -> spm_data.io.a"]
     assert len(modules()) > 60 and "spm_data.io.shards.reader" in modules() and "cli" in modules()
     assert BACKENDS == {"spm_data.render.pyrender_backend", "spm_data.render.blender"}
     assert REGISTRY == {"spm_data.render", "spm_data.render.blender_settings"}

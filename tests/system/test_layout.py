@@ -6,10 +6,10 @@ its mirrored path, and every test file outside tests/system/ names a module that
     spm_data/<layer>/__init__.py      -> tests/<layer>/test_<layer>.py    (a package's own logic)
     spm_data/__init__.py              -> tests/test_spm_data.py           (once it has logic of its own)
     spm_model/<layer>/<module>.py     -> tests/model/<layer>/test_<module>.py
+    spm_cli/<module>.py               -> tests/cli/test_<module>.py       (the command line)
     cli.py                            -> tests/test_cli.py                (a top-level module, like errors.py)
 
-The commands themselves are modules of their layer and mirror like any other
-(spm_data/commands/cli_data.py -> tests/commands/test_cli_data.py).
+The click commands are spm_cli/ and mirror like any other (spm_cli/data.py -> tests/cli/test_data.py).
 
 Tests that exercise many modules at once (hostile reads, interruptions, layers, ...) live in
 tests/system/ under names that say what they check."""
@@ -19,7 +19,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 TESTS = ROOT / "tests"
-PACKAGES = {"spm_data": (), "spm_model": ("model",), "cli.py": ()}  # package (or module) -> its folder under tests/
+# package (or module) -> its folder under tests/
+PACKAGES = {"spm_data": (), "spm_model": ("model",), "spm_cli": ("cli",), "cli.py": ()}
 
 # Modules with logic that have no test file of their own, each with the reason. Keep it
 # short: a module without any def or class (re-exports, constants) needs no entry.
@@ -75,9 +76,9 @@ def test_the_mirror_maps_as_documented():
     assert mirror(Path("spm_data/errors.py")) == Path("tests/test_errors.py")
     assert mirror(Path("spm_data/io/shards/reader.py")) == Path("tests/io/shards/test_reader.py")
     assert mirror(Path("spm_data/render/__init__.py")) == Path("tests/render/test_render.py")
-    assert mirror(Path("spm_model/commands/train.py")) == Path("tests/model/commands/test_train.py")
+    assert mirror(Path("spm_model/pipelines/train.py")) == Path("tests/model/pipelines/test_train.py")
     assert mirror(Path("cli.py")) == Path("tests/test_cli.py") and Path("cli.py") in library_modules()
-    assert mirror(Path("spm_data/commands/cli_support.py")) == Path("tests/commands/test_cli_support.py")
+    assert mirror(Path("spm_cli/support.py")) == Path("tests/cli/test_support.py")
     assert mirror(Path("spm_data/__init__.py")) == Path("tests/test_spm_data.py")
     assert mirror(Path("spm_model/__init__.py")) == Path("tests/model/test_model.py")
     assert has_logic(ROOT / "spm_data/errors.py") and not has_logic(ROOT / "spm_data/io/shards/__init__.py")

@@ -336,7 +336,8 @@ def test_user_cache_root(monkeypatch, tmp_path):
     monkeypatch.delenv("XDG_CACHE_HOME")
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
     assert feature_cache.user_cache_root() == tmp_path / "home" / ".cache" / "spm" / "features"
-    assert feature_cache.user_cache_folder(tmp_path / "s") == feature_cache.user_cache_root() / cache_hash(tmp_path / "s")
+    folder = feature_cache.user_cache_folder(tmp_path / "s")
+    assert folder == feature_cache.user_cache_root() / cache_hash(tmp_path / "s")
 
 
 def test_feature_cache_on_a_full_disk_leaves_nothing(shards, tmp_path):

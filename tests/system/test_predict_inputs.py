@@ -97,7 +97,8 @@ def test_roi_against_each_image_and_its_syntax(models, tmp_path):
     assert r.exit_code == 1
     assert r.stdout.startswith(f"{big}: rx ") and r.stdout.count("\n") == 1          # the box fits big.png
     assert r.stderr == (f"error: {small}: --roi 40,0,50,50 reaches outside the image (x + width = 90, "
-                        "y + height = 50); the image is 64x64 pixels: give a box inside it (x, y >= 0, width, height >= 1, "
+                        "y + height = 50); the image is 64x64 pixels: give a box inside it (x, y >= 0, width, height "
+                        ">= 1, "
                         "x + width <= 64, y + height <= 64)\n")
     assert predict(models["spm"], big, "--roi", "0,0,96,96").exit_code == 0           # the whole image is fine
     refused(predict(models["spm"], big, "--roi", "1,2,3"),

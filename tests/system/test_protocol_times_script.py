@@ -10,7 +10,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.mark.parametrize("content", ["\x00garbage\xff", '{"summary": {"meth', '{"schema": 1}', '{"summary": {"methods": 3}}'])
+@pytest.mark.parametrize("content", ["\x00garbage\xff", '{"summary": {"meth', '{"schema": 1}', '{"summary": '
+                                                                                               '{"methods": 3}}'])
 def test_compare_of_a_garbage_results_json_is_one_error_line(tmp_path, content):
     for side in ("a", "b"):
         (tmp_path / side / "loco").mkdir(parents=True)

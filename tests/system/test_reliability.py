@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from tests.helpers import reaped, wait_for
 from spm_data.errors import SpmError
 from spm_data.io.locking import LOCK_NAME, lock_owner
-from spm_data.commands.render_jobs import load_run_specs, render_dataset
+from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 from spm_data.io.shards import list_shards, read_manifest, read_shard, write_shard
 from spm_data.core.specs import parse_spec
 
@@ -249,7 +249,7 @@ def test_fuzzed_shard_bytes_raise_only_shard_errors(tmp_path, data):
         raw = raw[: data.draw(st.integers(0, len(raw)))]
     path = tmp_path / f"f{data.draw(st.integers(0, 10**9))}.h5"
     path.write_bytes(bytes(raw))
-    from spm_data.commands.validate import validate_shard
+    from spm_data.pipelines.validate import validate_shard
 
     try:
         read_shard(path)

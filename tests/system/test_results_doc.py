@@ -120,11 +120,13 @@ def test_best_names_a_method_only_where_summary_best_does():
 def test_placeholders_read_paths_ranges_and_the_papers_tables():
     snaps = {"s": {"summary": {"methods": {"a": {"v": 1.25}, "b": {"v": 3.5}}, "classes": {"box": {"a": {"v": 2.0}}}},
                    "made": {"wall_s": 150.0, "date": "2026-11-26"}}}
-    assert results_doc.render("{{s:methods.a.v:.1f}} {{s:made.wall_s:min}} {{s:made.date}}", snaps) == "1.2 2.5 2026-11-26"
+    assert results_doc.render("{{s:methods.a.v:.1f}} {{s:made.wall_s:min}} {{s:made.date}}",
+                              snaps) == "1.2 2.5 2026-11-26"
     assert results_doc.render("{{range:s:methods.*.v:.1f}} {{max:s:methods.*.v:.2f}} {{count:s:methods}}",
                               snaps) == "1.2–3.5 3.50 2"
     assert results_doc.render("{{paper:table1:ecc:box}} {{paper:table2:k1}}", snaps) == "0.31 82.6–94.7"
-    with pytest.raises(results_doc.PlaceholderError, match=r"line 2: \{\{s:methods.c.v:.1f\}\}: s:methods.c.v: no key 'c'"):
+    with pytest.raises(results_doc.PlaceholderError,
+                       match=r"line 2: \{\{s:methods.c.v:.1f\}\}: s:methods.c.v: no key 'c'"):
         results_doc.render("ok\n{{s:methods.c.v:.1f}}", snaps)
     with pytest.raises(results_doc.PlaceholderError, match="a float"):
         results_doc.render("{{s:methods.a.v}}", snaps)

@@ -114,7 +114,8 @@ def checksum_mismatch(f) -> str | None:
                     return f"{label} {name!r} is missing"
                 if name not in stored[kind]:
                     return f"{label} {name!r} was added after writing"
-                return f"{label} {name!r} fails its checksum" + (" (dtype, shape or filters)" if kind == "layout" else "")
+                what = " (dtype, shape or filters)" if kind == "layout" else ""
+                return f"{label} {name!r} fails its checksum{what}"
     if any(value is not None and FLETCHER32 not in value[3] for value in layouts.values()):
         return "a field without a Fletcher-32 checksum"
     return None

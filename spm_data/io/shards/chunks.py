@@ -6,7 +6,7 @@ parallel where HDF5's filter pipeline (h5py holds its lock) runs on one; each th
 takes a run of ``RUN`` consecutive frames (one task per frame cost more than a small
 frame's codec work). The bytes are exactly HDF5's (tests/io/shards/test_chunks.py),
 whichever thread computes them. While rendering, a FramePipeline
-(spm_data/commands/render_frames.py) compresses each frame on its threads as the renderer
+(spm_data/pipelines/render_frames.py) compresses each frame on its threads as the renderer
 draws the next.
 """
 

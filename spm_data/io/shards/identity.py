@@ -80,7 +80,8 @@ def read_twice(shards, name=str) -> str | None:
         except ShardError:
             continue
         if digest in by_digest:
-            return (f"{name(by_digest[digest])} and {name(path)} have the same content (SHA-256 {digest[:12]}…), so its "
+            return (f"{name(by_digest[digest])} and {name(path)} have the same content (SHA-256 {digest[:12]}…), so "
+                    f"its "
                     "frames would be read twice")
         by_digest[digest] = path
         readable.append(path)

@@ -60,7 +60,8 @@ def write_manifest(folder, known: dict | None = None, extra: dict | None = None,
         try:
             previous = read_manifest(folder)
             old = {e["file"]: e for e in previous["shards"] if isinstance(e, dict) and "file" in e}
-            old_extra = {k: v for k, v in previous.items() if k not in ("schema_version", "shards", "frames", "classes")}
+            old_extra = {k: v for k, v in previous.items() if k not in ("schema_version", "shards", "frames",
+                                                                        "classes")}
         except (ShardError, TypeError):
             old = {}
     known = dict(known or {})

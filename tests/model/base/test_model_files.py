@@ -1,7 +1,6 @@
 """spm_model.base.model_files: model files that restore state through the classes' public
 ``from_state`` (byte-identical when saved again), and a damaged one named in one line."""
 
-import json
 import zipfile
 
 import numpy as np
@@ -10,7 +9,7 @@ import pytest
 from spm_model.spm.estimator import ModelError, SPMEstimator
 from spm_model.base.model_files import load_model_file
 from spm_model.methods.template import TemplatePose
-from spm_model.commands.evaluate import load_model
+from spm_model.pipelines.evaluate import load_model
 from tests.helpers import FAST_SPM, N, frames, labels, sealed_model, vectors
 
 

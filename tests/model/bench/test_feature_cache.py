@@ -177,7 +177,7 @@ def test_a_damaged_swapped_or_cut_cache_file_is_extracted_again_never_read(model
 
 
 def test_progress_phase_starts_a_step_or_sets_a_plain_callables_total():
-    """A Progress (spm_data.commands.cli_support) starts a labelled step; a callable with only a
+    """A Progress (spm_cli.support) starts a labelled step; a callable with only a
     ``total`` (benchmarks/fig5.py's log lines, a tqdm bar) gets a new total; None is nothing."""
     from spm_model.bench.feature_cache import progress_phase
 

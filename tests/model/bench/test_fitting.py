@@ -57,14 +57,14 @@ def test_needs_are_checked_when_declared():
     class Wrong:
         NEEDS = {"depth": True}
 
-    from spm_data.errors import ModelError
+    from spm_model.errors import ModelError
 
     with pytest.raises(ModelError, match=r"Wrong.NEEDS must be a spm_model.base.estimator.Needs, got dict"):
         unmet_needs(Wrong, table(), np.arange(3))
 
 
 def test_failure_is_one_line_with_the_type_of_what_was_not_ours():
-    from spm_data.errors import ModelError
+    from spm_model.errors import ModelError
 
     assert failure(ModelError("only 3 training frames\n have features")) == "only 3 training frames have features"
     assert failure(ZeroDivisionError("division by zero"), "predict: ") == "predict: ZeroDivisionError: division by zero"

@@ -127,7 +127,7 @@ def test_the_cheats_score_at_chance_across_instances(instance_shards):
 
 def test_the_cheats_score_at_chance_off_the_grid(model_shards, tmp_path):
     """offgrid: trained on a folder, tested on occluded copies of its views (the same poses)."""
-    from spm_data.commands.occlude_jobs import occlude_dataset
+    from spm_data.pipelines.occlude_jobs import occlude_dataset
     from spm_model.bench.feature_cache import offgrid_table
 
     shutil.copytree(model_shards, tmp_path / "clean")
@@ -227,7 +227,7 @@ def test_a_method_that_exits_or_runs_too_long_is_declined_and_the_others_are_sco
 
 def test_the_commands_default_time_limit_is_the_librarys():
     from spm_model.bench.isolation import DEFAULT_TIMEOUT
-    from spm_model.commands.cli_model import PLUGIN_TIMEOUT_S
+    from spm_cli.model import PLUGIN_TIMEOUT_S
 
     assert PLUGIN_TIMEOUT_S == DEFAULT_TIMEOUT
 
@@ -246,7 +246,7 @@ FINGERPRINTS = {"pca": "3848a8e968df", "ls": "d99f7b05640e", "n3m": "98b408523a4
 def test_each_deterministic_method_gives_the_same_estimates_frame_for_frame(tmp_path, monkeypatch):
     from spm_model.base.frames import read_camera_frames
     from spm_model.bench.fitting import fit_predict
-    from spm_model.commands.check_estimator import built_in_set
+    from spm_model.pipelines.check_estimator import built_in_set
 
     monkeypatch.setenv("SPM_FEATURE_MEMO_MB", "0")   # computed here, not served from an earlier run
     table = built_in_set(tmp_path / "set")

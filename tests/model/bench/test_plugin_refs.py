@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.base.estimator import Needs
 from spm_model.bench.plugin_refs import PluginRef, check_spec, describe, resolve
 

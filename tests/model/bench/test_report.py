@@ -85,7 +85,8 @@ def test_write_report_writes_four_files_whole(tmp_path):
     assert (payload["schema"], payload["schema_version"]) == (SCHEMA, SCHEMA_VERSION) == ("spm-results", 5)
     assert list(payload) == ["schema", "schema_version", "context", "summary", "evaluation"]
     assert payload["summary"]["methods"]["spm"]["std"]["success_tol5"] is None          # one run: no sigma
-    assert payload["summary"]["best"] == "knn1" and list(payload["summary"])[:5] == ["protocol", "runs", "methods", "chance", "best"]
+    assert payload["summary"]["best"] == "knn1" and list(payload["summary"])[:5] == ["protocol", "runs", "methods",
+                                                                                     "chance", "best"]
     assert payload["summary"] == json.loads(json.dumps(summary)) and payload["context"] == CONTEXT
     assert (tmp_path / "report" / "accuracy.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     text = summary_text(summary).splitlines()

@@ -38,7 +38,8 @@ def test_the_schema_doc_lists_every_metric_as_made_from_the_list(tmp_path):
     copy = tmp_path / "schema.md"
     copy.write_text(doc.read_text())
     assert update_schema_doc(copy) is False, "run: python -m spm_model.bench.report_tables"
-    assert all(f"| `{m.key}` |" in doc.read_text() for m in METRICS) and len(schema_rows()) == len(METRICS) + 7   # 2 header, frames, estimated, surface, ci95, std
+    # 2 header, frames, estimated, surface, ci95, std
+    assert all(f"| `{m.key}` |" in doc.read_text() for m in METRICS) and len(schema_rows()) == len(METRICS) + 7
 
 
 def test_paper_columns_of_dashes_alone_are_not_printed():

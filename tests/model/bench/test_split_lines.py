@@ -3,11 +3,12 @@ names the declines the summary counts, those reused from run 1 marked."""
 
 import numpy as np
 
+from spm_model.bench.jobs import FinalJob, SplitJob
 from spm_model.bench.split_lines import SplitLines, split_line
 
 
 def _job(run, split):
-    return ("source", "loco", run, split, {}, None, None, True, None)
+    return SplitJob("source", "loco", run, split, {}, None, None, True, None)
 
 
 def _output(tested, ran, declined, frames=3):
@@ -17,7 +18,7 @@ def _output(tested, ran, declined, frames=3):
 
 
 def test_lines_come_in_job_order_whatever_order_the_jobs_end_in():
-    jobs = [("final", "source", {}, True, ("spm",))] + [_job(r, s) for r in (0, 1) for s in (0, 1)]
+    jobs = [FinalJob("source", {}, True, ("spm",))] + [_job(r, s) for r in (0, 1) for s in (0, 1)]
     said = []
     lines = SplitLines(jobs, said.append)
     outputs = {1: _output("box", ["pca"], []), 2: _output("cup", ["pca"], []),

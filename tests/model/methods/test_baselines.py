@@ -4,7 +4,7 @@ chance is a seeded training pose."""
 import numpy as np
 import pytest
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.methods.baselines import ChancePose, KNNPose, LSPose, PCAPose, RawImagePose
 from tests.helpers import N, frames, labels
 

@@ -4,7 +4,7 @@ import sys
 import numpy as np
 import pytest
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.base.safetensors_file import read_safetensors
 from spm_model.bench.metrics import wilson_interval
 from spm_model.methods.baselines import ChancePose
@@ -46,7 +46,7 @@ def test_two_fits_with_one_seed_give_the_same_predictions(split, fitted):
 
 
 def test_the_model_file_round_trips_and_its_safetensors_hold_the_same_weights(split, fitted, tmp_path):
-    from spm_model.commands.evaluate import load_model
+    from spm_model.pipelines.evaluate import load_model
 
     train, poses, test, truth = split
     path = fitted.save(tmp_path / "cnn-model.npz")
@@ -74,7 +74,7 @@ def test_an_empty_mask_gives_no_estimate_and_an_unfitted_model_one_error(split, 
 
 
 def test_without_torch_fit_and_load_fail_with_one_line_naming_the_extra(split, fitted, monkeypatch, tmp_path):
-    from spm_model.commands.evaluate import load_model
+    from spm_model.pipelines.evaluate import load_model
 
     train, poses, test, truth = split
     path = fitted.save(tmp_path / "cnn-model.npz")
@@ -104,8 +104,8 @@ def test_spm_train_writes_the_cnn_model_with_its_cost_and_spm_predict_runs_it(mo
     from PIL import Image
 
     from spm_data.io.shards import list_shards, read_shard
-    from spm_model.commands.predict import predict_images
-    from spm_model.commands.train import train
+    from spm_model.pipelines.predict import predict_images
+    from spm_model.pipelines.train import train
     from spm_model.spm.features import FeatureConfig
 
     result = train(model_shards, tmp_path / "report", protocol="views", runs=1,

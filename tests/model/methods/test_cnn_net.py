@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.methods import cnn_net
 
 torch = cnn_net.torch_module()   # the suite runs with the extra learn installed (make install)

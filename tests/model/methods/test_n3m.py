@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from spm_data.core.poses import label_to_pose, wrap_degrees
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.methods.n3m import N3MPose
 from tests.helpers import grid_split as split
 

@@ -6,9 +6,10 @@ import textwrap
 import numpy as np
 import pytest
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.base.estimator import Needs, needs_of
-from spm_model.methods.registry import METHOD_NAMES, builtin_methods, check_predictions, load_estimator_class
+from spm_model.methods.registry import (METHOD_NAMES, METHODS, SAVED_MODELS, builtin_methods, check_method_names,
+                                        check_predictions, load_estimator_class)
 from spm_model.spm.features import FeatureConfig
 
 
@@ -79,3 +80,26 @@ def test_check_predictions():
             check_predictions("mine", pred, 2)
         assert str(info.value) == ("estimator mine: predict(frames) must return (2, 6) labels (rx, ry, rz degrees, "
                                    f"t metres; NaN rows for no estimate), got {got}")
+
+
+def test_every_list_of_methods_is_read_from_the_rows():
+    assert list(METHOD_NAMES) == [m.name for m in METHODS] == list(builtin_methods(0, FeatureConfig()))
+    assert {n: m.model_file for n, m in SAVED_MODELS.items()} == {
+        "spm": "model.npz", "template": "reference-model.npz", "cnn": "cnn-model.npz"}
+    assert [m.model_class().__name__ for m in SAVED_MODELS.values()] == ["SPMEstimator", "TemplatePose", "CNNPose"]
+
+
+def test_unknown_method_names_are_one_line_errors_with_the_choices():
+    assert check_method_names(None) is None and check_method_names(["knn1", "chance"]) == ["knn1", "chance"]
+    with pytest.raises(ModelError, match=r"^builtins: unknown spn; choose from spm, knn1, .*, chance$"):
+        check_method_names(["spn"])
+    with pytest.raises(ModelError, match="^--methods: unknown empty list; "):
+        check_method_names([], "--methods")
+
+
+def test_train_refuses_an_unknown_builtin_before_any_work(tmp_path):
+    from spm_model.pipelines.train import train
+
+    with pytest.raises(ModelError, match="^builtins: unknown spn; choose from "):
+        train(tmp_path, tmp_path / "report", builtins=["spn"])
+    assert not (tmp_path / "report").exists()

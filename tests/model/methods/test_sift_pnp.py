@@ -4,7 +4,7 @@ training grid, N3M's fallback poses reproduced, SIFT shared with N3M, the estima
 import numpy as np
 import pytest
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.base.estimator import Needs
 from spm_model.methods.n3m import N3MPose
 from spm_model.methods.sift_pnp import SiftPnPPose

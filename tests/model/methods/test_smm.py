@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from spm_data.core.poses import camera_poses, pose_to_label, project_points
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_data.io.shards import read_shard
 from spm_model.methods.smm import SMMPose, bin_centres, pose_bins, scaled_translation, vote
 

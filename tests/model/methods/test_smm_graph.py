@@ -6,7 +6,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from spm_data.core.poses import camera_poses
-from spm_model.methods.smm_graph import (_rotation_angles, exact_subgraph, local_subgraph, manifold_distances, pair_terms,
+from spm_model.methods.smm_graph import (_rotation_angles, exact_subgraph, local_subgraph, manifold_distances,
+                                         pair_terms,
                                          select_parts, selection_weights, subgraph_value, training_pairs)
 
 

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.methods.smm_parts import fit_codebook, local_features, mask_frame, root_sift
 
 

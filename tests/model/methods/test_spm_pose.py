@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from spm_data.errors import ModelError
+from spm_model.errors import ModelError
 from spm_model.methods.spm_pose import SPMNeighbours, SPMPose
 from tests.helpers import FAST_SPM, N, frames, labels
 

@@ -47,7 +47,8 @@ def textbook_em(x, gamma, seed, tol=1e-2, max_iter=100, ridge=0.25):
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_em_equals_the_textbook_em(seed):
     rng = np.random.default_rng(seed)
-    pts = np.concatenate([rng.normal(c, s, (30, 2)) for c, s in zip(rng.uniform(20, 230, (8, 2)), rng.uniform(2, 12, 8))])
+    pts = np.concatenate([rng.normal(c, s, (30, 2)) for c, s in zip(rng.uniform(20, 230, (8, 2)), rng.uniform(2, 12,
+                                                                                                              8))])
     b = fit_bunches(pts, gamma=8, seed=seed)
     means, covs, weights, iterations = textbook_em(pts, 8, seed)
     assert b.iterations == iterations

@@ -64,7 +64,8 @@ def test_width_scale_divides_the_median_heuristic_kernel_coef():
     assert base.kernel_coef_ == 1.0 / np.median(d2[d2 > 0])                 # the default: today's heuristic
     wide = RBFPoseRegressor(width_scale=10.0).fit(X, y)
     assert wide.kernel_coef_ == pytest.approx(base.kernel_coef_ / 10.0, rel=1e-12)
-    assert RBFPoseRegressor(kernel_coef=2.0, width_scale=10.0).fit(X, y).kernel_coef_ == 2.0  # an explicit coefficient wins
+    # an explicit coefficient wins
+    assert RBFPoseRegressor(kernel_coef=2.0, width_scale=10.0).fit(X, y).kernel_coef_ == 2.0
     with pytest.raises(ValueError, match="width_scale"):
         RBFPoseRegressor(width_scale=0.0).fit(X, y)
 

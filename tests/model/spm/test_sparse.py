@@ -108,7 +108,8 @@ def test_batched_simplex_flags_what_it_cannot_solve_and_sparse_weights_falls_bac
     assert ok.tolist() == [True, False]
     np.testing.assert_allclose(r[0], [0.5, 0.5, 0.0], atol=1e-12)
     assert (r[1] == 0).all()
-    M = np.array([[0.0, 1.0, 0.0, 1.0], [0.0, 0.0, 1.0, 1.0], [0.0, 0.0, 0.0, 1.0]])  # sample 3 is off the others' plane
+    # sample 3 is off the others' plane
+    M = np.array([[0.0, 1.0, 0.0, 1.0], [0.0, 0.0, 1.0, 1.0], [0.0, 0.0, 0.0, 1.0]])
     S = sparse_weights(M)
     np.testing.assert_allclose(S[:3, 3], l1_weights(M[:, 3], M[:, :3]), atol=1e-9)
     assert np.abs(S[:3, 3]).sum() > 0 and S[3, 3] == 0.0

@@ -1,1 +1,0 @@
-"""What spm train, spm evaluate and spm predict call: one library function each."""
