@@ -15,8 +15,8 @@ import numpy as np
 from spm_data.errors import RenderError
 from spm_data.core.poses import K_to_corner_origin, cv_to_gl_camera_to_world
 from spm_data.core.raster import CLIP_FAR, CLIP_NEAR
-from spm_data.render.base import (Renderer, assigned_gpu, decode_normals, labels_agreeing_with_depth, light_rotations,
-                                  mask_from_depth)
+from spm_data.render import base
+from spm_data.render.base import Renderer, assigned_gpu, decode_normals, light_rotations, mask_from_depth
 
 # EGL needs no display; it must be chosen before OpenGL is first imported.
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
@@ -321,9 +321,8 @@ class PyrenderRenderer(Renderer):
             ids = {node: k + 1 for k, nodes in enumerate([self._target_nodes, *added]) for node in nodes}
             seg, seg_depth = self._renderer.render(self._scene, flags=flags | pr.RenderFlags.SEG,
                                                    seg_node_map={node: [k, k, k] for node, k in ids.items()})
-            instances = labels_agreeing_with_depth(seg[..., 0], depth, np.asarray(seg_depth, dtype=np.float32))
-            out["instances"] = instances
-            mask = (instances == 1).astype(np.uint8)
+            out["instances"] = base.labels_agreeing_with_depth(seg[..., 0], depth, np.asarray(seg_depth, np.float32))
+            mask = (out["instances"] == 1).astype(np.uint8)
         else:
             mask = mask_from_depth(depth)
         out["alpha"], out["mask"] = (depth > 0).astype(np.float32), mask

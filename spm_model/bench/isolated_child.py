@@ -16,7 +16,7 @@ from multiprocessing.connection import Connection
 
 from spm_model.errors import ModelError
 from spm_model.bench.fitting import call_failure, construct, found_flags, make_methods
-from spm_model.bench.isolation import encode
+from spm_model.bench.isolation import READY, encode
 from spm_model.bench.plugin_refs import resolve
 
 WATCH_EVERY = 0.5   # seconds between the child's looks at whether its parent is alive
@@ -41,6 +41,7 @@ def child_main(read_fd: int, write_fd: int, parent: int, work: str = "spm_model.
     module, function = work.split(":")
     serve_work = getattr(importlib.import_module(module), function)
     try:
+        up.send_bytes(READY)
         with threadpool_limits(limits=1, user_api="blas"):   # as bench_job: results independent of the cores
             serve_work(down, up)
         up.close()

@@ -29,6 +29,7 @@ import numpy as np
 
 DEFAULT_TIMEOUT = 3600.0   # seconds a plug-in's call (construct + fit, or one predict) may take
 MAX_MESSAGE = 1 << 30      # bytes of one message from the child, at most (predictions are far smaller)
+READY = b"ready"            # the child's first message, before any plug-in code runs
 MESSAGE_SECONDS = 600.0    # seconds a message begun may take to arrive whole, where no time limit is set
 
 
@@ -100,6 +101,7 @@ class EstimatorProcess:
         os.close(up_w)
         self.down = Connection(down_w, readable=False)
         self.up = Connection(up_r, writable=False)
+        self.ready = False   # the child says READY once started: its start is not the plug-in's time
 
     def send(self, message) -> None:
         try:
@@ -111,7 +113,13 @@ class EstimatorProcess:
         """(header, arrays) of the child's next reply, about ``name``; Lost when it does not come:
         the child exited, sent something else, or took longer than ``limit`` seconds (it is then
         killed). ``tick()`` is called about once a second while waiting (the caller's chance to
-        stop on Ctrl-C)."""
+        stop on Ctrl-C). The clock starts once the child has started (Python and our modules
+        loaded: seconds on a busy machine, and no plug-in code)."""
+        if not self.ready:
+            if self._next(name, stage, time.monotonic(), None, tick) != READY:
+                self.close()
+                raise Lost(name, f"{stage}the method's process sent something that is not its reply")
+            self.ready = True
         start = time.monotonic()
         try:
             header = json.loads(self._next(name, stage, start, limit, tick))

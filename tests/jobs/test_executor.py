@@ -172,7 +172,9 @@ def test_a_spawned_worker_of_the_programs_does_not_take_their_early_signal_handl
     import subprocess
     import sys
 
-    code = ("import sys, signal; sys.argv = ['/usr/bin/spm-data']; import cli; "
+    # Python's own SIGINT handler first: a suite started in the background (`cmd &`) inherits SIG_IGN.
+    code = ("import sys, signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
+            "sys.argv = ['/usr/bin/spm-data']; import cli; "
             "print(signal.getsignal(signal.SIGINT) is signal.default_int_handler)")
     for extra, want in (([], "False"), (["--multiprocessing-fork"], "True")):
         done = subprocess.run([sys.executable, "-c", code, *extra], capture_output=True, text=True, timeout=120,

@@ -122,8 +122,9 @@ def test_a_plug_in_that_ends_its_process_or_runs_too_long_fails_and_the_list_end
     done, _ = _checks(Exits, check_set)
     assert [c.line() for c in failed(done)] == [
         "FAIL  fit(frames, poses) on 48 frames: it raised SystemExit (exit code 0); a method cannot end the run"]
-    done, _ = _checks(Sleeps, check_set, timeout=2.0)
-    assert [c.line() for c in failed(done)] == ["FAIL  fit: took longer than the time limit (--timeout 2 s)"]
+    # 10 s: importing this test module in the method's process counts (plug-in code), busy machines too
+    done, _ = _checks(Sleeps, check_set, timeout=10.0)
+    assert [c.line() for c in failed(done)] == ["FAIL  fit: took longer than the time limit (--timeout 10 s)"]
 
 
 def test_each_broken_promise_is_a_failed_check_naming_the_fix(check_set):

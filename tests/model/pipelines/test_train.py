@@ -376,7 +376,7 @@ def test_plug_in_code_cannot_end_the_run_each_way_is_a_declined_method(model_sha
     monkeypatch.syspath_prepend(str(tmp_path))
     report = tmp_path / "report"
     args = ["train", str(model_shards), "--out", str(report), "--runs", "1", "--protocol", "views", "--methods",
-            "chance", "--timeout", "2", "--workers", workers]
+            "chance", "--timeout", "5", "--workers", workers]
     for name in ("Fine", "EndsRun", "ExitsInPredict", "Interrupts", "Sleeps"):
         args += ["--estimator", f"bad_pose:{name}"]
     r = CliRunner().invoke(model_cli, args)
@@ -386,7 +386,7 @@ def test_plug_in_code_cannot_end_the_run_each_way_is_a_declined_method(model_sha
         "EndsRun": "it raised SystemExit (exit code 0); a method cannot end the run",
         "ExitsInPredict": "predict: the method's process ended (exit code 0) without a result",
         "Interrupts": "it raised KeyboardInterrupt itself (not the user's Ctrl-C)",
-        "Sleeps": "fit: took longer than the time limit (--timeout 2 s)"}
+        "Sleeps": "fit: took longer than the time limit (--timeout 5 s)"}
     assert summary["methods"]["Fine"]["estimated"] == summary["methods"]["Fine"]["frames"] > 0
     assert not list(report.glob(".spm.lock*")) and "interrupted" not in r.output
 
