@@ -30,6 +30,9 @@ the snapshot is read under ``summary``):
     {{paper:TABLE:COLUMN[:CLASS]}} the paper's Table 1 or 2 (spm_model/bench/report_tables.py):
                                    one class's figure, or the range over the classes
     {{table:KIND:ARGS}}            a generated table (TABLES below)
+    {{measure:NAME:PATH[:FMT]}}    a figure of a measurement that is not a report: the JSON a
+                                   benchmark script wrote to docs/results/measures/NAME.json (its
+                                   ``summary`` and a ``made`` block; e.g. benchmarks/spm_vector_distance.py)
 """
 
 from __future__ import annotations
@@ -55,6 +58,7 @@ from spm_model.methods.registry import METHOD_NAMES  # noqa: E402
 SNAPSHOTS = ROOT / "docs" / "results"
 TEMPLATE = SNAPSHOTS / "results.md.in"
 DOC = ROOT / "docs" / "results.md"
+MEASURES = SNAPSHOTS / "measures"
 TOP = ("schema", "schema_version", "context", "summary", "evaluation", "made", "bop")
 PLACEHOLDER = re.compile(r"\{\{(.+?)\}\}")
 DASH = "–"
@@ -218,6 +222,16 @@ def write_snapshot(name: str, results_json: Path, command: str, wall_s: float, d
 
 def load_snapshots(folder: Path = SNAPSHOTS) -> dict:
     return {p.stem: json.loads(p.read_text()) for p in sorted(folder.glob("*.json"))}
+
+
+def load_measures(folder: Path = MEASURES) -> dict:
+    """{NAME: JSON} of docs/results/measures/NAME.json: benchmark scripts' figures ({{measure:...}})."""
+    return load_snapshots(folder) if folder.is_dir() else {}
+
+
+def used_measures(template: str) -> set[str]:
+    """The measures a template reads."""
+    return {expr.split(":")[1] for expr in PLACEHOLDER.findall(template) if expr.split(":")[0] == "measure"}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -582,6 +596,8 @@ def resolve(expr: str, snaps: dict) -> str:
         return str(len(value(snaps, args[0], args[1])))
     if head == "paper":
         return paper(*args)
+    if head == "measure":
+        return fmt(value(load_measures(), args[0], args[1]), args[2] if len(args) > 2 else "")
     if head == "table":
         if args[0] not in TABLES:
             raise PlaceholderError(f"no table {args[0]!r} (have: {', '.join(TABLES)})")
@@ -603,7 +619,7 @@ def used_snapshots(template: str) -> set[str]:
             used.add(args[0])
         elif head == "table":
             used.update(args[1].split(","))
-        elif head not in ("name", "paper"):
+        elif head not in ("name", "paper", "measure"):
             used.add(head)
     return used
 
