@@ -8,6 +8,7 @@ and compares it with docs/results.md byte for byte, and fails on a figure typed 
 
     python scripts/results_doc.py                  # rewrite docs/results.md
     python scripts/results_doc.py --check          # exit 1, naming the first difference
+    python scripts/results_doc.py blocks [--check] # the measure tables of other docs (BLOCK_DOCS)
     python scripts/results_doc.py snapshot views OUT/report-views/results.json \\
         --command "spm train ... --out OUT/report-views" --wall-s 254   # write docs/results/views.json
 
@@ -705,8 +706,67 @@ def first_difference(expected: str, actual: str) -> str | None:
             f"file has {'(end)' if i > len(b) else repr(b[i - 1].rstrip())}")
 
 
+# ---------------------------------------------------------------------------------------------
+# Tables in other docs, between <!-- measure-table:NAME --> and <!-- /measure-table --> lines,
+# rendered from docs/results/measures/NAME.json (`python scripts/results_doc.py blocks`).
+
+BLOCK_DOCS = (ROOT / "docs" / "method.md",)
+BLOCK = re.compile(r"(<!-- measure-table:([\w-]+) -->\n)(.*?)(<!-- /measure-table -->)", re.S)
+
+
+def _share(part: int, whole: int) -> str:
+    return f"{100.0 * part / whole:.1f}%" if whole else DASH
+
+
+def table_n3m_small_set(measure: dict) -> str:
+    """benchmarks/n3m_small_set.py's figures: per method, within ±5° of the clean and hidden test
+    frames (estimated frames in brackets) and the poses' sources."""
+    rows = []
+    for key, label in (("n3m", "`n3m` (marker levels only)"),
+                       ("n3m-fallback", "N3M with the fallback (the `n3m` row before issue 34)"),
+                       ("sift-pnp", "`sift-pnp`")):
+        sets = measure["summary"][key]
+        cells = [f"{_share(s['within_5'], s['frames'])} ({_share(s['estimated'], s['frames'])})"
+                 for s in (sets["clean"], sets["hidden"])]
+        sources = "; ".join(f"{s['from_markers']} / {s['from_ransac']}" for s in (sets["clean"], sets["hidden"]))
+        rows.append([label, *cells, sources])
+    return _table(["method", "clean", "40% hidden", "poses from markers / RANSAC (clean; hidden)"], rows)
+
+
+MEASURE_TABLES = {"n3m-small-set": table_n3m_small_set}
+
+
+def fill_blocks(text: str, measures: dict) -> str:
+    """``text`` with every measure-table block rendered from its measure."""
+    def one(m):
+        name = m.group(2)
+        if name not in MEASURE_TABLES or name not in measures:
+            raise PlaceholderError(f"no measure table {name!r} (tables: {', '.join(MEASURE_TABLES)}; "
+                                   f"measures: {', '.join(sorted(measures))})")
+        return m.group(1) + MEASURE_TABLES[name](measures[name]) + "\n" + m.group(4)
+    return BLOCK.sub(one, text)
+
+
+def _blocks_main(argv) -> int:
+    check = argv == ["--check"]
+    measures = load_measures()
+    for doc in BLOCK_DOCS:
+        text = doc.read_text()
+        filled = fill_blocks(text, measures)
+        if check and filled != text:
+            print(f"{doc}: its measure tables are not what docs/results/measures/ renders "
+                  f"({first_difference(filled, text)}); run python scripts/results_doc.py blocks", file=sys.stderr)
+            return 1
+        if not check:
+            doc.write_text(filled)
+        print(f"{doc}: {'up to date' if check else 'written'}")
+    return 0
+
+
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["blocks"]:
+        return _blocks_main(argv[1:])
     if argv[:1] == ["snapshot"]:
         p = argparse.ArgumentParser(prog="results_doc.py snapshot", description="Write docs/results/NAME.json.")
         p.add_argument("name")

@@ -1,5 +1,6 @@
-"""The measurements docs/results.md quotes that are not reports (docs/results/measures/*.json,
-{{measure:NAME:PATH}} in docs/results/results.md.in): each is quoted, says how it was made (date,
+"""The measurements the docs quote that are not reports (docs/results/measures/*.json:
+{{measure:NAME:PATH}} in docs/results/results.md.in, and measure-table blocks in docs/method.md,
+scripts/results_doc.py): each is quoted, says how it was made (date,
 the command of a script in the repository, wall time, machine), and its script computes what
 it says (benchmarks/spm_vector_distance.py on vectors with known distances)."""
 
@@ -29,7 +30,8 @@ MEASURES = results_doc.load_measures()
 
 def test_every_measure_is_quoted_and_every_quoted_one_exists():
     template = (ROOT / "docs" / "results" / "results.md.in").read_text()
-    assert results_doc.used_measures(template) == set(MEASURES) and MEASURES
+    in_blocks = {m.group(2) for doc in results_doc.BLOCK_DOCS for m in results_doc.BLOCK.finditer(doc.read_text())}
+    assert results_doc.used_measures(template) | in_blocks == set(MEASURES) and MEASURES
     assert "measure" not in results_doc.used_snapshots(template)
 
 
@@ -43,9 +45,10 @@ def test_a_measure_says_how_it_was_made(name):
 
 
 def test_a_measure_placeholder_reads_its_summary_and_made_block():
-    name = sorted(MEASURES)[0]
+    name = "spm-vectors"
     assert results_doc.resolve(f"measure:{name}:made.date", {}) == MEASURES[name]["made"]["date"]
     assert results_doc.resolve(f"measure:{name}:frames:,", {}) == f"{MEASURES[name]['summary']['frames']:,}"
+    assert results_doc.resolve(f"measure:{name}:own:.3f", {}) == f"{MEASURES[name]['summary']['own']:.3f}"
 
 
 def test_vector_distances_are_medians_over_frames_with_both_vectors():
@@ -60,3 +63,25 @@ def test_vector_distances_are_medians_over_frames_with_both_vectors():
     assert found["classes"]["a"]["own"] == pytest.approx(0.1)
     # every partner is another frame of class a: 1 or 2 apart, the query 0.1 off
     assert 0.9 - 1e-9 <= found["classes"]["a"]["other"] <= 2.1 + 1e-9 and found["train_other"] >= 1.0 - 1e-9
+
+
+def test_docs_measure_tables_are_rendered_from_their_measures():
+    for doc in results_doc.BLOCK_DOCS:
+        text = doc.read_text()
+        assert results_doc.fill_blocks(text, MEASURES) == text, f"{doc}: run python scripts/results_doc.py blocks"
+    method = (ROOT / "docs" / "method.md").read_text()
+    assert "<!-- measure-table:n3m-small-set -->" in method
+
+
+def test_a_measure_table_is_filled_from_the_figures():
+    measure = {"summary": {key: {"clean": {"frames": 8, "within_5": 6, "estimated": 7, "from_markers": 5,
+                                           "from_ransac": 2},
+                                 "hidden": {"frames": 8, "within_5": 0, "estimated": 0, "from_markers": 0,
+                                            "from_ransac": 0}}
+                           for key in ("n3m", "n3m-fallback", "sift-pnp")}}
+    text = "before\n<!-- measure-table:n3m-small-set -->\nstale\n<!-- /measure-table -->\nafter\n"
+    filled = results_doc.fill_blocks(text, {"n3m-small-set": measure})
+    assert "stale" not in filled and filled.startswith("before\n") and filled.endswith("after\n")
+    assert "| `sift-pnp` | 75.0% (87.5%) | 0.0% (0.0%) | 5 / 2; 0 / 0 |" in filled
+    with pytest.raises(results_doc.PlaceholderError, match="no measure table 'other'"):
+        results_doc.fill_blocks("<!-- measure-table:other -->\n<!-- /measure-table -->", {})
