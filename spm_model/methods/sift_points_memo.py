@@ -10,7 +10,9 @@ twice. Each is remembered under a content key (spm_model/base/feature_memo.conte
 its inputs and the parameters it depends on, so it is the method's own deterministic
 function, remembered: results are identical with or without it, and nothing is remembered
 that the inputs do not determine. Entries are kept in memory only, the oldest forgotten
-past a count, and none when ``SPM_FEATURE_MEMO_MB`` is 0 (the feature memo's switch).
+past a count, and none when ``SPM_FEATURE_MEMO_MB`` is 0 (the feature memo's switch). A point set
+keeps its observations' descriptors alive (128 bytes a keypoint: about 90 MB for 2,400 training
+frames of 300 keypoints); a benchmark's split process ends with its split.
 """
 
 from __future__ import annotations
