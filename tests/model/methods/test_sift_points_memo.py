@@ -16,6 +16,7 @@ from tests.helpers import grid_split
 def small_split(model_shards, monkeypatch):
     monkeypatch.setattr(feature_memo, "_folder", [None])   # in memory only, whatever an earlier test opened
     train, poses, test, _ = grid_split(model_shards)
+    memo.clear_memo()                                      # whatever earlier tests of this process left
     yield train[:30], poses[:30], test[:8]
     memo.clear_memo()
 
