@@ -103,7 +103,7 @@ def write_specs(folder: Path, classes, *, size, step, views, instances, kind) ->
 
 
 def progress(what: str):
-    """cli_support's Progress on stdout: a bar on a terminal, else a line at most every ~10 s
+    """spm_data.jobs.progress's Progress on stdout: a bar on a terminal, else a line at most every ~10 s
     ($SPM_PROGRESS_EVERY): done/total, rate, time left."""
     from spm_data.jobs.progress import Progress
 

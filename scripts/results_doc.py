@@ -8,6 +8,7 @@ and compares it with docs/results.md byte for byte, and fails on a figure typed 
 
     python scripts/results_doc.py                  # rewrite docs/results.md
     python scripts/results_doc.py --check          # exit 1, naming the first difference
+    python scripts/results_doc.py blocks [--check] # the measure tables of other docs (BLOCK_DOCS)
     python scripts/results_doc.py snapshot views OUT/report-views/results.json \\
         --command "spm train ... --out OUT/report-views" --wall-s 254   # write docs/results/views.json
 
@@ -30,6 +31,9 @@ the snapshot is read under ``summary``):
     {{paper:TABLE:COLUMN[:CLASS]}} the paper's Table 1 or 2 (spm_model/bench/report_tables.py):
                                    one class's figure, or the range over the classes
     {{table:KIND:ARGS}}            a generated table (TABLES below)
+    {{measure:NAME:PATH[:FMT]}}    a figure of a measurement that is not a report: the JSON a
+                                   benchmark script wrote to docs/results/measures/NAME.json (its
+                                   ``summary`` and a ``made`` block; e.g. benchmarks/spm_vector_distance.py)
 """
 
 from __future__ import annotations
@@ -55,6 +59,7 @@ from spm_model.methods.registry import METHOD_NAMES  # noqa: E402
 SNAPSHOTS = ROOT / "docs" / "results"
 TEMPLATE = SNAPSHOTS / "results.md.in"
 DOC = ROOT / "docs" / "results.md"
+MEASURES = SNAPSHOTS / "measures"
 TOP = ("schema", "schema_version", "context", "summary", "evaluation", "made", "bop")
 PLACEHOLDER = re.compile(r"\{\{(.+?)\}\}")
 DASH = "–"
@@ -220,6 +225,16 @@ def write_snapshot(name: str, results_json: Path, command: str, wall_s: float, d
 
 def load_snapshots(folder: Path = SNAPSHOTS) -> dict:
     return {p.stem: json.loads(p.read_text()) for p in sorted(folder.glob("*.json"))}
+
+
+def load_measures(folder: Path = MEASURES) -> dict:
+    """{NAME: JSON} of docs/results/measures/NAME.json: benchmark scripts' figures ({{measure:...}})."""
+    return load_snapshots(folder) if folder.is_dir() else {}
+
+
+def used_measures(template: str) -> set[str]:
+    """The measures a template reads."""
+    return {expr.split(":")[1] for expr in PLACEHOLDER.findall(template) if expr.split(":")[0] == "measure"}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -585,6 +600,8 @@ def resolve(expr: str, snaps: dict) -> str:
         return str(len(value(snaps, args[0], args[1])))
     if head == "paper":
         return paper(*args)
+    if head == "measure":
+        return fmt(value(load_measures(), args[0], args[1]), args[2] if len(args) > 2 else "")
     if head == "table":
         if args[0] not in TABLES:
             raise PlaceholderError(f"no table {args[0]!r} (have: {', '.join(TABLES)})")
@@ -606,7 +623,7 @@ def used_snapshots(template: str) -> set[str]:
             used.add(args[0])
         elif head == "table":
             used.update(args[1].split(","))
-        elif head not in ("name", "paper"):
+        elif head not in ("name", "paper", "measure"):
             used.add(head)
     return used
 
@@ -692,8 +709,67 @@ def first_difference(expected: str, actual: str) -> str | None:
             f"file has {'(end)' if i > len(b) else repr(b[i - 1].rstrip())}")
 
 
+# ---------------------------------------------------------------------------------------------
+# Tables in other docs, between <!-- measure-table:NAME --> and <!-- /measure-table --> lines,
+# rendered from docs/results/measures/NAME.json (`python scripts/results_doc.py blocks`).
+
+BLOCK_DOCS = (ROOT / "docs" / "method.md",)
+BLOCK = re.compile(r"(<!-- measure-table:([\w-]+) -->\n)(.*?)(<!-- /measure-table -->)", re.S)
+
+
+def _share(part: int, whole: int) -> str:
+    return f"{100.0 * part / whole:.1f}%" if whole else DASH
+
+
+def table_n3m_small_set(measure: dict) -> str:
+    """benchmarks/n3m_small_set.py's figures: per method, within ±5° of the clean and hidden test
+    frames (estimated frames in brackets) and the poses' sources."""
+    rows = []
+    for key, label in (("n3m", "`n3m` (marker levels only)"),
+                       ("n3m-fallback", "N3M with the fallback (the `n3m` row before issue 34)"),
+                       ("sift-pnp", "`sift-pnp`")):
+        sets = measure["summary"][key]
+        cells = [f"{_share(s['within_5'], s['frames'])} ({_share(s['estimated'], s['frames'])})"
+                 for s in (sets["clean"], sets["hidden"])]
+        sources = "; ".join(f"{s['from_markers']} / {s['from_ransac']}" for s in (sets["clean"], sets["hidden"]))
+        rows.append([label, *cells, sources])
+    return _table(["method", "clean", "40% hidden", "poses from markers / RANSAC (clean; hidden)"], rows)
+
+
+MEASURE_TABLES = {"n3m-small-set": table_n3m_small_set}
+
+
+def fill_blocks(text: str, measures: dict) -> str:
+    """``text`` with every measure-table block rendered from its measure."""
+    def one(m):
+        name = m.group(2)
+        if name not in MEASURE_TABLES or name not in measures:
+            raise PlaceholderError(f"no measure table {name!r} (tables: {', '.join(MEASURE_TABLES)}; "
+                                   f"measures: {', '.join(sorted(measures))})")
+        return m.group(1) + MEASURE_TABLES[name](measures[name]) + "\n" + m.group(4)
+    return BLOCK.sub(one, text)
+
+
+def _blocks_main(argv) -> int:
+    check = argv == ["--check"]
+    measures = load_measures()
+    for doc in BLOCK_DOCS:
+        text = doc.read_text()
+        filled = fill_blocks(text, measures)
+        if check and filled != text:
+            print(f"{doc}: its measure tables are not what docs/results/measures/ renders "
+                  f"({first_difference(filled, text)}); run python scripts/results_doc.py blocks", file=sys.stderr)
+            return 1
+        if not check:
+            doc.write_text(filled)
+        print(f"{doc}: {'up to date' if check else 'written'}")
+    return 0
+
+
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["blocks"]:
+        return _blocks_main(argv[1:])
     if argv[:1] == ["snapshot"]:
         p = argparse.ArgumentParser(prog="results_doc.py snapshot", description="Write docs/results/NAME.json.")
         p.add_argument("name")

@@ -1,5 +1,5 @@
 """The ``spm-data`` commands (cli.py puts them in the group): make, occlude, merge, check, look at
-and export datasets. Each is a thin wrapper around one library call; importers are in cli_import.py.
+and export datasets. Each is a thin wrapper around one library call; importers are in importers.py.
 
 The grammar: the input (a folder, a shard) is the first argument, every output is ``--out``."""
 

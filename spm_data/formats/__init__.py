@@ -3,7 +3,7 @@ transforms.json captures (instant-ngp, nerfstudio), BOP (with PLY models and COC
 
 The importers, one registration each: :data:`IMPORTERS` maps ``spm-data import NAME`` to the
 function that imports it and the options it takes. The command line
-(spm_data/pipelines/cli_import.py builds one command per entry), its help and the layers test
+(spm_cli/importers.py builds one command per entry), its help and the layers test
 read this one table.
 
 To add an importer ``xyz``: write ``spm_data/formats/xyz.py`` whose ``import_xyz(path, out_dir,

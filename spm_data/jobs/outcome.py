@@ -90,7 +90,7 @@ def catch_signals_early() -> None:
 
 
 def signals_for_work() -> None:
-    """When a command starts its work (cli_support.handle_errors): SIGINT and SIGTERM raise
+    """When a command starts its work (spm_cli.support.handle_errors): SIGINT and SIGTERM raise
     KeyboardInterrupt (recorded, see ``received``), which the command turns into its one-line
     message, exit 130 / 143, the run's lock released and its partial files removed. Only from
     the main thread, and only over our early handler or Python's defaults (a caller's own
@@ -146,7 +146,7 @@ def deferred_interrupt():
 
 def warnings_as_lines() -> None:
     """In a worker process: the library's warnings (SpmWarning) as one ``warning: …`` line on its
-    stderr (the command's), as the command prints its own (cli_support), not Python's two-line
+    stderr (the command's), as the command prints its own (spm_cli.support), not Python's two-line
     ``FILE:LINE: SpmWarning: …`` format; other warnings as Python shows them."""
     python = warnings.showwarning
 

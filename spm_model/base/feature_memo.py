@@ -162,8 +162,12 @@ def _path(key: bytes) -> Path:
 def _read(key: bytes) -> tuple | None:
     """The folder's entry for ``key``; None when there is none or it cannot be used (said once)."""
     path = _path(key)
+    if not path.exists():
+        # Looked for first: an entry another worker renames into place between a failed open
+        # and a look for the file would be taken for a damaged one (a spurious warning).
+        return None
     found = load_entry(path, key)
-    if found is None and path.exists() and not _warned[0]:
+    if found is None and not _warned[0]:
         _warned[0] = True
         warnings.warn(f"feature memo entry {path} is damaged, cut short, of an earlier format or of another "
                       "image; recomputed and rewritten (any further ones in this process silently)", SpmWarning)

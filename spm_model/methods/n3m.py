@@ -22,6 +22,7 @@ from spm_data.core.poses import label_to_pose, pose_to_label
 from spm_model.errors import ModelError
 from spm_model.base.estimator import Needs, PoseEstimator
 from spm_model.methods import n3m_points as pts
+from spm_model.methods import sift_points_memo as memo
 from spm_model.methods.n3m_pose import estimate, match
 from spm_model.methods.n3m_select import select_markers
 
@@ -79,10 +80,18 @@ class SiftPoints(PoseEstimator):
         if len(obs["xyz"]) == 0:
             raise ModelError(f"{type(self).__name__}: SIFT found no keypoint on the objects of the training "
                              "frames; check their masks and depth, or raise sift_side")
+        # N3M and SIFT + PnP with the same parameters merge the same observations: once a process.
+        key = memo.observations_key((self.merge_pixels, self.descriptors_per_point), obs)
+        parts, stored = memo.remembered_points(key, lambda: self._merged_points(obs))
+        for name, value in stored.items():
+            setattr(self, name, value)
+        return obs, parts
+
+    def _merged_points(self, obs) -> tuple[list, dict]:
+        """The per-object points of ``obs`` and the database (SiftPoints.FITTED's values)."""
         radius = float(self.merge_pixels) * float(np.median(obs["footprint"]))
         parts = [self._object_points(obs, o, radius) for o in np.unique(obs["object"])]
-        self._store_points(parts, radius)
-        return obs, parts
+        return parts, self._stored_points(parts, radius)
 
     def _checked_poses(self, frames, poses) -> np.ndarray:
         return _check_poses(frames, poses, type(self).__name__)
@@ -147,19 +156,17 @@ class SiftPoints(PoseEstimator):
         return {"position": position[keep], "detected": detected[keep], "view_ids": view_ids,
                 "desc_rows": desc_rows, "object": obj, "desc": obs["desc"]}
 
-    def _store_points(self, parts, radius: float) -> None:
-        """Every object's points into one database (the attributes of SiftPoints.FITTED)."""
+    def _stored_points(self, parts, radius: float) -> dict:
+        """Every object's points into one database: {attribute of SiftPoints.FITTED: value}."""
         offsets = _offsets(parts)
         points = np.concatenate([p["position"] for p in parts]).reshape(-1, 3)
         owner = [np.full(len(r), offsets[k] + i) for k, p in enumerate(parts) for i, r in enumerate(p["desc_rows"])]
         if len(points) < 4:
             raise ModelError(f"{type(self).__name__}: only {len(points)} 3-D points were seen in 2 or more "
                              "training views; give more (or closer) training views")
-        self.points_ = points
-        self.point_object_ = np.repeat([p["object"] for p in parts], np.diff(offsets))
-        self.descriptors_ = np.concatenate([p["desc"][r] for p in parts for r in p["desc_rows"]])
-        self.descriptor_point_ = np.concatenate(owner)
-        self.merge_radius_ = radius
+        return {"points_": points, "point_object_": np.repeat([p["object"] for p in parts], np.diff(offsets)),
+                "descriptors_": np.concatenate([p["desc"][r] for p in parts for r in p["desc_rows"]]),
+                "descriptor_point_": np.concatenate(owner), "merge_radius_": radius}
 
     # ------------------------------------------------------------------ predict
     def predict(self, frames) -> np.ndarray:
@@ -204,10 +211,12 @@ class SiftPoints(PoseEstimator):
         (R, t, inliers, source) or None (n3m_pose.estimate's)."""
 
     def _index(self):
-        """The FLANN index over the stored descriptors, built once per fitted model."""
+        """The FLANN index over the stored descriptors (built once per process for equal ones:
+        sift_points_memo), its searches remembered per test image."""
         cached = getattr(self, "_flann", None)
         if cached is None or cached[0] is not self.descriptors_:
-            cached = (self.descriptors_, pts.build_index(self.descriptors_.astype(np.float32)))
+            key, index = memo.remembered_index(self.descriptors_, lambda d: pts.build_index(d.astype(np.float32)))
+            cached = (self.descriptors_, memo.RememberedSearches(key, index))
             self._flann = cached
         return cached[1]
 

@@ -162,7 +162,8 @@ def fit_codebook(geometry, appearance, parts: int, dims: int = 16, geometry_weig
     appearance_scale = float(np.sqrt(reduced.var(axis=0).mean())) or 1.0
     geometry_scale = geometry_weight / max(float(geometry.std(axis=0).mean()), 1e-6)
     joint = np.hstack([reduced / appearance_scale, geometry * geometry_scale])
-    centres, labels = kmeans2(joint, parts, minit="++", seed=np.random.default_rng(seed), iter=20)
+    seeds = kmeans_plus_plus(joint, parts, np.random.default_rng(seed))
+    centres, labels = kmeans2(joint, seeds, minit="matrix", iter=20)
     spreads = np.full_like(centres, 1e-3)
     radii = np.zeros(parts)
     for k in range(parts):
@@ -172,3 +173,21 @@ def fit_codebook(geometry, appearance, parts: int, dims: int = 16, geometry_weig
             d2 = np.sum((members - centres[k]) ** 2 / spreads[k], axis=1)
             radii[k] = np.quantile(d2, PRESENCE_QUANTILE)
     return PartCodebook(mean, basis, appearance_scale, geometry_scale, centres, spreads, radii)
+
+
+def kmeans_plus_plus(data: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
+    """(k, d) k-means++ seeds of ``data`` (n, d): scipy.cluster.vq.kmeans2's ``minit="++"``, the same
+    draws from ``rng`` and the same centres, bit for bit (tested), but each point's least squared
+    distance to the centres so far is kept and lowered by the newest one, where scipy measures it
+    to every centre again (k-squared work: 5 of SMM's 14 s of fit in a split of 960 frames)."""
+    from scipy.spatial.distance import cdist
+
+    seeds = np.empty((int(k), data.shape[1]))
+    seeds[0] = data[rng.integers(data.shape[0])]
+    least = None
+    for i in range(1, int(k)):
+        newest = cdist(seeds[i - 1:i], data, metric="sqeuclidean")[0]
+        least = newest if least is None else np.minimum(least, newest)
+        cumulative = (least / least.sum()).cumsum()
+        seeds[i] = data[int(np.searchsorted(cumulative, rng.uniform()))]
+    return seeds

@@ -226,3 +226,23 @@ def test_entries_of_the_earlier_formats_are_recomputed(tmp_path):
     calls = []
     with pytest.warns(SpmWarning):
         assert _same(_reread(folder, [img], calls), first) and len(calls) == 1
+
+
+def test_an_entry_another_worker_writes_meanwhile_is_no_damage(tmp_path, monkeypatch, recwarn):
+    """Two workers missing the same image at once: the second worker's entry appearing while this
+    one looks is no damaged entry (it once said so, in a spurious warning on every first run)."""
+    img = np.random.default_rng(2).integers(0, 255, (16, 16, 3), dtype=np.uint8)
+    use_folder(tmp_path / "memo")
+    real_load = feature_memo.load_entry
+
+    def load_then_the_other_worker_writes(path, key):
+        found = real_load(path, key)
+        if found is None and not path.exists():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            save_entry(path, counting([])(img), key)
+        return found
+
+    monkeypatch.setattr(feature_memo, "load_entry", load_then_the_other_worker_writes)
+    calls = []
+    memoized(("k",), (img,), lambda: counting(calls)(img))
+    assert len(calls) == 1 and not [w for w in recwarn if issubclass(w.category, SpmWarning)]

@@ -243,12 +243,15 @@ FINGERPRINTS = {"pca": "3848a8e968df", "ls": "d99f7b05640e", "n3m": "98b408523a4
                 "smm": "e6d453e56c51", "template": "aeebd67fac82"}
 
 
-def test_each_deterministic_method_gives_the_same_estimates_frame_for_frame(tmp_path, monkeypatch):
+@pytest.mark.parametrize("memo_mb", ["0", "64"])
+def test_each_deterministic_method_gives_the_same_estimates_frame_for_frame(tmp_path, monkeypatch, memo_mb):
     from spm_model.base.frames import read_camera_frames
     from spm_model.bench.fitting import fit_predict
     from spm_model.pipelines.check_estimator import built_in_set
 
-    monkeypatch.setenv("SPM_FEATURE_MEMO_MB", "0")   # computed here, not served from an earlier run
+    # "0": computed here, not served from an earlier run; "64": with the in-process memos on (the
+    # feature memo, and N3M's points and searches shared with SIFT + PnP), as a benchmark runs
+    monkeypatch.setenv("SPM_FEATURE_MEMO_MB", memo_mb)
     table = built_in_set(tmp_path / "set")
     frames = read_camera_frames(table, np.arange(len(table)))
     images = hashlib.sha256()

@@ -122,3 +122,21 @@ def test_small_images_are_upsampled_enough_for_sift():
     geometry, _ = local_features(small, small_mask)
     assert len(geometry) >= 30                         # 36 here; doubling alone (64 px) found 21
     assert np.abs(geometry).max() <= 0.6               # still object-centred, in units of sqrt(area)
+
+
+@pytest.mark.parametrize("n, d, k, seed", [(3000, 18, 96, 0), (500, 5, 7, 3), (40, 2, 40, 1)])
+def test_kmeans_plus_plus_seeds_are_scipys_bit_for_bit(n, d, k, seed):
+    import warnings
+
+    from scipy.cluster.vq import kmeans2
+
+    from spm_model.methods.smm_parts import kmeans_plus_plus
+
+    data = np.random.default_rng(seed + 10).normal(size=(n, d))
+    data[: n // 10] = data[0]                                      # repeated points: zero distances
+    seeds = kmeans_plus_plus(data, k, np.random.default_rng(seed))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")                             # scipy's warning of an empty cluster
+        theirs = kmeans2(data, k, minit="++", seed=np.random.default_rng(seed), iter=5)
+        ours = kmeans2(data, seeds, minit="matrix", iter=5)
+    assert np.array_equal(theirs[0], ours[0]) and np.array_equal(theirs[1], ours[1])
