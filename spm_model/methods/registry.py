@@ -43,12 +43,16 @@ METHOD_NAMES = {"spm": "SPM", "knn1": "KNN K=1", "knn3": "KNN K=3", "pca": "PCA-
 
 
 def builtin_methods(seed: int, features: FeatureConfig, model_params: dict | None = None) -> dict:
-    """Fresh, unfitted instances of every built-in method, in report order."""
+    """Fresh, unfitted instances of every built-in method, in report order. ``model_params``: SPM's
+    parameters, but for its "cnn" entry: the cnn method's ({"device": "cuda"}, spm train --device)."""
+    cnn = (model_params or {}).get("cnn") or {}
+    if model_params and "cnn" in model_params:
+        model_params = {k: v for k, v in model_params.items() if k != "cnn"}
     spm = SPMPose(seed=seed, features=features, params=model_params)
     return {"spm": spm, "knn1": SPMNeighbours(k=1, spm=spm), "knn3": SPMNeighbours(k=3, spm=spm),
             "pca": RawImagePose(kind="pca"), "ls": RawImagePose(kind="ls"), "n3m": N3MPose(),
             "sift-pnp": SiftPnPPose(), "smm": SMMPose(seed=seed),
-            "template": TemplatePose(), "cnn": CNNPose(seed=seed), "chance": ChancePose(seed=seed)}
+            "template": TemplatePose(), "cnn": CNNPose(seed=seed, **cnn), "chance": ChancePose(seed=seed)}
 
 
 def load_estimator_class(spec: str):

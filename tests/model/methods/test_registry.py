@@ -79,3 +79,13 @@ def test_check_predictions():
             check_predictions("mine", pred, 2)
         assert str(info.value) == ("estimator mine: predict(frames) must return (2, 6) labels (rx, ry, rz degrees, "
                                    f"t metres; NaN rows for no estimate), got {got}")
+
+
+def test_the_cnn_entry_of_the_model_params_goes_to_the_cnn_alone():
+    from spm_model.bench.protocols import spm_params
+
+    params = {"cnn": {"device": "cpu"}, "alpha": 0.01}
+    methods = builtin_methods(3, FeatureConfig(), params)
+    assert (methods["cnn"].device, methods["cnn"].seed, methods["spm"].params) == ("cpu", 3, {"alpha": 0.01})
+    assert builtin_methods(0, FeatureConfig(), None)["cnn"].device == "auto"
+    assert spm_params(params) == {"alpha": 0.01} and params["cnn"] == {"device": "cpu"}   # the caller's kept
