@@ -629,6 +629,30 @@ def table_beside_note(snaps, pair):
 TABLES.update({"beside": table_beside, "beside-note": table_beside_note})
 
 
+def table_size_curve(snaps, names):
+    """One row per snapshot of benchmarks/train_size.py (the same protocol at growing render sizes):
+    frames, the methods' ±5° with intervals, the cnn's training cost, render and train wall times."""
+    rows, methods = [], []
+    for snap in names.split(","):
+        s = value(snaps, snap, "summary")
+        methods += [m for m in _entries(s) if m not in methods]
+    methods = [m for m in methods if m != "chance"] + ["chance"]
+    header = ["Frames rendered (test frames)"] + [f"{name(m)}: ±5° % (95% CI)" for m in methods] + [
+        "CNN final fit: s (steps, epochs)", "render s", "train and test s"]
+    for snap in names.split(","):
+        s, made = value(snaps, snap, "summary"), value(snaps, snap, "made")
+        cost = (value(snaps, snap, "context").get("training") or {}).get("cnn") or {}
+        entries = _entries(s)
+        rows.append([f"{value(snaps, snap, 'context.frames'):,} ({_frames(s):,})"]
+                    + [_ci_cell(entries[m]) if m in entries else DASH for m in methods]
+                    + [f"{cost['seconds']:.0f} ({cost['steps']}, {cost['epochs']:.1f})" if cost else DASH,
+                       f"{made['before'][0]['wall_s']:.0f}" if made.get("before") else DASH, f"{made['wall_s']:.0f}"])
+    return _table(header, rows)
+
+
+TABLES.update({"size-curve": table_size_curve})
+
+
 # ---------------------------------------------------------------------------------------------
 # Rendering.
 

@@ -20,6 +20,8 @@ SNAPSHOTS = ROOT / "docs" / "results"
 EXPECTED = {"bop-loco", "fig5", "views", "loco", "instances", "coil20-32-views", "coil20-32-interleaved"}
 # ... and the cnn's rows, each run apart on the same shards and seeds (issue 48): SNAP-cnn beside SNAP.
 EXPECTED |= {"coil20-32-views-cnn", "coil20-32-interleaved-cnn", "fig5-cnn"}
+# ... and benchmarks/train_size.py's instances runs at growing render sizes (issue 48's curve).
+EXPECTED |= {"train-size-1000"}
 
 
 def _load_script():
@@ -232,3 +234,19 @@ def test_a_separate_runs_method_is_grafted_beside_a_snapshot_and_said():
     assert results_doc.table_beside_note(snaps, "a,a-cnn").endswith(
         "chance scores differently, so the splits may differ.")
     assert results_doc.used_snapshots("{{table:beside:a,a-cnn:methods}}") == {"a", "a-cnn"}
+
+
+def test_the_size_curve_has_a_row_per_render_size_with_every_methods_rate_and_the_cost():
+    def snap(frames, cnn, wall):
+        s = _beside_snap({"cnn": cnn, "template": 40.0}, [2.0],
+                         {"wall_s": wall, "before": [{"command": "spm-data render", "wall_s": 24.1}]})
+        s["context"] = {"frames": frames, "training": {"cnn": {"seconds": 51.6, "steps": 800, "epochs": 12.345}}}
+        return s
+
+    text = results_doc.table_size_curve({"s1": snap(1002, 20.0, 300.4), "s4": snap(4002, 30.0, 900.0)}, "s1,s4")
+    lines = text.splitlines()
+    assert lines[0] == ("| Frames rendered (test frames) | CNN embedding + retrieval (ours): ±5° % (95% CI) | HOG "
+                        "templates (reference): ±5° % (95% CI) | chance (random training pose): ±5° % (95% CI) | CNN "
+                        "final fit: s (steps, epochs) | render s | train and test s |")
+    assert lines[2] == "| 1,002 (100) | 20.0 (19.0–21.0) | 40.0 (39.0–41.0) | 2.0 (1.0–3.0) | 52 (800, 12.3) | 24 | 300 |"
+    assert lines[3].startswith("| 4,002 (100) | 30.0 (29.0–31.0) |")
