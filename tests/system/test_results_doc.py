@@ -21,7 +21,7 @@ EXPECTED = {"bop-loco", "fig5", "views", "loco", "instances", "coil20-32-views",
 # ... and the cnn's rows, each run apart on the same shards and seeds (issue 48): SNAP-cnn beside SNAP.
 EXPECTED |= {"coil20-32-views-cnn", "coil20-32-interleaved-cnn", "fig5-cnn"}
 # ... and benchmarks/train_size.py's instances runs at growing render sizes (issue 48's curve).
-EXPECTED |= {"train-size-1000"}
+EXPECTED |= {"train-size-1000", "train-size-4000"}
 
 
 def _load_script():
