@@ -27,7 +27,7 @@ def device_option(default, what):
     return click.option("--device", "device", default=default, metavar="auto|cpu|cuda|cuda:N",
                         show_default=default is not None,
                         help=f"Where {what} (auto: a GPU when torch sees one, else the CPU). A device torch "
-                             "cannot use is an error.")
+                             "cannot use is an error." + ("" if default else " [default: auto]"))
 
 
 def _parse_roi(text):
@@ -179,7 +179,7 @@ def check_estimator_cmd(spec, timeout):
 @click.option("--model", "model_path", required=True, type=click.Path(),
               help="model.npz (SPM), reference-model.npz or cnn-model.npz from spm train.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
-@device_option(None, "a cnn model runs [default: auto]")
+@device_option(None, "a cnn model runs")
 @bop_options
 @ALLOW_PARTIAL
 @executor_options("Feature-extraction processes")
@@ -218,7 +218,7 @@ def evaluate_cmd(model_path, shards, as_json, device, bop_results, bop_dataset, 
 @click.option("--roi", default=None, help="Region of interest x,y,width,height (pixels) holding the object.")
 @click.option("--mask", "mask_path", default=None, type=click.Path(), help="Object mask image (non-zero = object).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON: every image, failed ones with their error.")
-@device_option(None, "a cnn model runs [default: auto]")
+@device_option(None, "a cnn model runs")
 @handle_errors
 def predict_cmd(model_path, images, roi, mask_path, as_json, device):
     """Print the 6-DoF pose estimate of each IMAGE by the model --model (rx ry rz degrees, t metres).
