@@ -125,7 +125,12 @@ def run(argv=None) -> int:
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--layout", choices=("auto", "coil20", "coil100"), default="auto")
+    parser.add_argument("--methods", default=None, metavar="NAME,...",
+                        help="built-in methods (default all), as spm train --methods: e.g. cnn,chance to add one "
+                             "method's rows to an earlier run's (the same import, seeds and splits)")
     args = parser.parse_args(argv)
+    methods = None if args.methods is None else [m.strip() for m in args.methods.split(",") if m.strip()]
+    also = "" if methods is None else f" --methods {','.join(methods)}"
     start = time.monotonic()
     out = Path(args.out)
     imported = imported_layout(args.folder)
@@ -143,19 +148,20 @@ def run(argv=None) -> int:
     lines = [f"# Real images: {layout} from `{args.folder}`", "",
              f"{datetime.date.today().isoformat()}, {platform.node()} ({os.cpu_count()} cores), "
              f"`python benchmarks/real_coil.py {' '.join(argv if argv is not None else sys.argv[1:])}`; "
-             f"{args.runs} runs per protocol, every built-in method.", "", PAPER_TABLE2 + ".", ""]
+             f"{args.runs} runs per protocol, {', '.join(methods) if methods else 'every built-in method'}.", "",
+             PAPER_TABLE2 + ".", ""]
     for protocol in PROTOCOLS:
         report = out / f"report-{protocol}"
-        stamp(f"spm train {shards} --protocol {protocol} --runs {args.runs} --workers {args.workers} "
+        stamp(f"spm train {shards} --protocol {protocol} --runs {args.runs} --workers {args.workers}{also} "
               f"--out {report}", start)
         with Progress() as progress:
             train(shards, report, protocol=protocol, runs=args.runs, executor=make_executor(workers=args.workers),
-                  log=lambda m: stamp(m, start), progress=progress,
-                  command=f"spm train {shards} --protocol {protocol} --runs {args.runs} --workers {args.workers} "
-                          f"--out {report}")
+                  log=lambda m: stamp(m, start), progress=progress, builtins=methods,
+                  command=f"spm train {shards} --protocol {protocol} --runs {args.runs} --workers {args.workers}"
+                          f"{also} --out {report}")
         rows, declined = method_rows(report)
-        section = [f"## {protocol}", "", f"Command: `spm train {shards} --protocol {protocol} --runs {args.runs} "
-                   f"--out {report}`", ""] + markdown_table(rows) + [""]
+        section = [f"## {protocol}", "", f"Command: `spm train {shards} --protocol {protocol} --runs {args.runs}"
+                   f"{also} --out {report}`", ""] + markdown_table(rows) + [""]
         section += [f"- {METHOD_NAMES.get(m, m)} declined ({d['splits']} of {d['of']} splits): {d['reason']}"
                     for m, d in declined.items()] + [""]
         print("\n".join(section), flush=True)

@@ -577,6 +577,101 @@ TABLES = {"fig5-bins": table_fig5_bins, "fig5-overall": table_fig5_overall, "met
 
 
 # ---------------------------------------------------------------------------------------------
+# A separate run's methods beside a snapshot's (issue 48: the cnn, run alone with chance on the
+# same shards, protocol, runs and seeds, so the committed run's splits; snapshot "BASE-cnn").
+#   {{table:beside:BASE,EXTRA:KIND[:ARGS]}}   table KIND of BASE with EXTRA's methods that BASE
+#                                             lacks grafted in, their rows marked †
+#   {{table:beside-note:BASE,EXTRA}}          † said: EXTRA's date, command, wall time, load and
+#                                             whether chance, seeded by the run, agrees run by run
+
+BESIDE_MARK = " †"
+
+
+def _added(snaps, base: str, extra: str) -> list:
+    """The methods of ``extra`` that ``base`` lacks (chance aside), in ``extra``'s order."""
+    have = value(snaps, base, "summary.methods")
+    return [m for m in value(snaps, extra, "summary.methods") if m not in have]
+
+
+def _graft(base, extra, added: list) -> None:
+    """``extra``'s entries of the ``added`` methods copied into ``base`` wherever ``base`` has the
+    dict (or list, item by item) that holds them in ``extra``: methods, classes, Fig. 5's curves,
+    instances, the runs' overall rates."""
+    if isinstance(base, dict) and isinstance(extra, dict):
+        for key, item in extra.items():
+            if key in added and key not in base:
+                base[key] = item
+                if "chance" in base:            # chance stays last, as the report orders methods
+                    base["chance"] = base.pop("chance")
+            elif key in base:
+                _graft(base[key], item, added)
+    elif isinstance(base, list) and isinstance(extra, list) and len(base) == len(extra):
+        for b, e in zip(base, extra):
+            _graft(b, e, added)
+
+
+def table_beside(snaps, pair, kind, *args):
+    """Table ``kind`` of the first snapshot of ``pair`` with the second's added methods, marked."""
+    base, extra = pair.split(",")
+    added = _added(snaps, base, extra)
+    merged = json.loads(json.dumps(_snap(snaps, base)))
+    for part in ("summary", "evaluation"):
+        _graft(merged[part], _snap(snaps, extra)[part], added)
+    text = TABLES[kind]({**snaps, base: merged}, base, *args)
+    for m in added:
+        text = text.replace(f"| {name(m)} |", f"| {name(m)}{BESIDE_MARK} |")
+    return text
+
+
+def _same_chance(snaps, base: str, extra: str) -> bool:
+    """Whether chance (a random training pose, seeded by the run) scored the same in every run of
+    both snapshots: the same splits and test frames, as far as the snapshots can tell."""
+    def per_run(snap):
+        return [(r["overall"].get("chance") or {}).get("success_tol5") for r in value(snaps, snap, "evaluation.runs")]
+    return per_run(base) == per_run(extra) and None not in per_run(base)
+
+
+def table_beside_note(snaps, pair):
+    """The † line under a beside table."""
+    base, extra = pair.split(",")
+    made = value(snaps, extra, "made")
+    names = ", ".join(name(m) for m in _added(snaps, base, extra))
+    same = ("chance scores the same in every run of both, so the splits are the same"
+            if _same_chance(snaps, base, extra) else "chance scores differently, so the splits may differ")
+    load = f", {made['note']}" if made.get("note") else ""
+    return (f"†{names}: a separate run (snapshot [{extra}](results/{extra}.json)), {made['date']}, "
+            f"`{made['command']}`, {made['wall_s']:.0f} s{load}; the same shards, protocol, runs and seeds as the "
+            f"rows beside it: {same}.")
+
+
+TABLES.update({"beside": table_beside, "beside-note": table_beside_note})
+
+
+def table_size_curve(snaps, names):
+    """One row per snapshot of benchmarks/train_size.py (the same protocol at growing render sizes):
+    frames, the methods' ±5° with intervals, the cnn's training cost, render and train wall times."""
+    rows, methods = [], []
+    for snap in names.split(","):
+        s = value(snaps, snap, "summary")
+        methods += [m for m in _entries(s) if m not in methods]
+    methods = [m for m in methods if m != "chance"] + ["chance"]
+    header = ["Frames rendered (test frames)"] + [f"{name(m)}: ±5° % (95% CI)" for m in methods] + [
+        "CNN final fit: s (steps, epochs)", "render s", "train and test s"]
+    for snap in names.split(","):
+        s, made = value(snaps, snap, "summary"), value(snaps, snap, "made")
+        cost = (value(snaps, snap, "context").get("training") or {}).get("cnn") or {}
+        entries = _entries(s)
+        rows.append([f"{value(snaps, snap, 'context.frames'):,} ({_frames(s):,})"]
+                    + [_ci_cell(entries[m]) if m in entries else DASH for m in methods]
+                    + [f"{cost['seconds']:.0f} ({cost['steps']}, {cost['epochs']:.1f})" if cost else DASH,
+                       f"{made['before'][0]['wall_s']:.0f}" if made.get("before") else DASH, f"{made['wall_s']:.0f}"])
+    return _table(header, rows)
+
+
+TABLES.update({"size-curve": table_size_curve})
+
+
+# ---------------------------------------------------------------------------------------------
 # Rendering.
 
 def resolve(expr: str, snaps: dict) -> str:

@@ -22,6 +22,14 @@ def timeout_option(command):
                              "takes longer is stopped and declined.")(command)
 
 
+def device_option(default, what):
+    """--device auto|cpu|cuda|cuda:N: where the cnn method's network runs (spm_model/methods/cnn_net.py)."""
+    return click.option("--device", "device", default=default, metavar="auto|cpu|cuda|cuda:N",
+                        show_default=default is not None,
+                        help=f"Where {what} (auto: a GPU when torch sees one, else the CPU). A device torch "
+                             "cannot use is an error." + ("" if default else " [default: auto]"))
+
+
 def _parse_roi(text):
     try:
         x, y, w, h = (int(v) for v in text.split(","))
@@ -107,6 +115,7 @@ def _bop_line(result) -> None:
               help="EM clusters per frame (at most 256).")
 @click.option("--estimator", "estimators", multiple=True, metavar="MODULE:CLASS",
               help="Also evaluate your estimator (fit(frames, poses), predict(frames)); repeatable. docs/estimators.md")
+@device_option("auto", "the cnn method trains and predicts")
 @timeout_option
 @bop_options
 @ALLOW_PARTIAL
@@ -114,8 +123,8 @@ def _bop_line(result) -> None:
 @old_spelling("--shards", "shards", "give the folder as the first argument", required="SHARDS", type=click.Path())
 @old_spelling("--report", "report_dir", "use --out", type=click.Path())
 @handle_errors
-def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs, ellipse, gamma, estimators, timeout,
-              bop_results, bop_dataset, bop_split, bop_ids_from, allow_partial, executor):
+def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs, ellipse, gamma, estimators, device,
+              timeout, bop_results, bop_dataset, bop_split, bop_ids_from, allow_partial, executor):
     """Extract features of the shards in SHARDS (searched recursively, cached), evaluate SPM and the
     other methods under --protocol (offgrid: test on --test), and write the report and the models to --out."""
     from spm_model.spm.features import FeatureConfig
@@ -128,7 +137,8 @@ def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs,
                        log=bar.write, command="spm " + " ".join(sys.argv[1:]),
                        estimators=estimators, allow_partial=allow_partial, test=test,
                        train_occluded=train_occluded, builtins=_method_names(methods),
-                       bop=_bop(bop_results, bop_dataset, bop_split, bop_ids_from), timeout=timeout)
+                       bop=_bop(bop_results, bop_dataset, bop_split, bop_ids_from), timeout=timeout,
+                       model_params={"cnn": {"device": device}} if device != "auto" else None)
     except KeyboardInterrupt:
         from spm_data.jobs.outcome import exit_status
 
@@ -173,14 +183,15 @@ def check_estimator_cmd(spec, timeout):
 @click.command("evaluate")
 @click.argument("shards", metavar="SHARDS", required=False, type=click.Path())
 @click.option("--model", "model_path", required=True, type=click.Path(),
-              help="model.npz (SPM) or reference-model.npz from spm train.")
+              help="model.npz (SPM), reference-model.npz or cnn-model.npz from spm train.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
+@device_option(None, "a cnn model runs")
 @bop_options
 @ALLOW_PARTIAL
 @executor_options("Feature-extraction processes")
 @old_spelling("--shards", "shards", "give the folder as the first argument", required="SHARDS", type=click.Path())
 @handle_errors
-def evaluate_cmd(model_path, shards, as_json, bop_results, bop_dataset, bop_split, bop_ids_from, allow_partial,
+def evaluate_cmd(model_path, shards, as_json, device, bop_results, bop_dataset, bop_split, bop_ids_from, allow_partial,
                  executor):
     """Score a trained model (--model: SPM or reference) on the shards in SHARDS: ±5°, sum < 5° and
     < 3°, median errors per class."""
@@ -192,7 +203,7 @@ def evaluate_cmd(model_path, shards, as_json, bop_results, bop_dataset, bop_spli
     try:
         result = evaluate_model(model_path, shards, progress=bar, executor=executor,
                                 allow_partial=allow_partial, bop=_bop(bop_results, bop_dataset, bop_split,
-                                                                      bop_ids_from))
+                                                                      bop_ids_from), device=device)
     finally:
         bar.close()
     if as_json:
@@ -209,12 +220,13 @@ def evaluate_cmd(model_path, shards, as_json, bop_results, bop_dataset, bop_spli
 @click.command("predict")
 @click.argument("images", metavar="IMAGE...", nargs=-1, required=True, type=click.Path())
 @click.option("--model", "model_path", required=True, type=click.Path(),
-              help="model.npz (SPM) or reference-model.npz from spm train.")
+              help="model.npz (SPM), reference-model.npz or cnn-model.npz from spm train.")
 @click.option("--roi", default=None, help="Region of interest x,y,width,height (pixels) holding the object.")
 @click.option("--mask", "mask_path", default=None, type=click.Path(), help="Object mask image (non-zero = object).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON: every image, failed ones with their error.")
+@device_option(None, "a cnn model runs")
 @handle_errors
-def predict_cmd(model_path, images, roi, mask_path, as_json):
+def predict_cmd(model_path, images, roi, mask_path, as_json, device):
     """Print the 6-DoF pose estimate of each IMAGE by the model --model (rx ry rz degrees, t metres).
 
     stdout: one line per image that got a pose (--json: every image, failed ones as
@@ -224,7 +236,7 @@ def predict_cmd(model_path, images, roi, mask_path, as_json):
 
     with Progress("image") as bar:
         results = predict_images(model_path, images, roi=None if roi is None else _parse_roi(roi),
-                                 mask_path=mask_path, progress=bar)
+                                 mask_path=mask_path, progress=bar, device=device)
     out = format_predictions(results, as_json)
     if out:
         click.echo(out)

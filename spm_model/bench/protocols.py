@@ -279,6 +279,11 @@ def _with_first_run(output: tuple, first: tuple) -> tuple:
 FINAL_MODELS = ("spm", "template")  # the methods whose model ``spm train`` saves (model.npz, reference-model.npz)
 
 
+def spm_params(model_params: dict) -> dict:
+    """SPM's parameters of ``model_params`` (its "cnn" entry is the cnn method's: registry.builtin_methods)."""
+    return {k: v for k, v in model_params.items() if k != "cnn"}
+
+
 def final_models(table: FeatureTable, model_params: dict, train_occluded: bool, wanted=FINAL_MODELS) -> tuple:
     """(SPMEstimator or None, TemplatePose or None, training frames of the SPM model, {name: why it
     declined}): the models ``spm train`` saves, of the methods ``wanted`` names, fitted on every training
@@ -294,7 +299,7 @@ def final_models(table: FeatureTable, model_params: dict, train_occluded: bool, 
         declined["spm"] = why
     elif "spm" in wanted:
         try:
-            model = SPMEstimator(**model_params).fit(table.train_vector[usable], table.pose[usable])
+            model = SPMEstimator(**spm_params(model_params)).fit(table.train_vector[usable], table.pose[usable])
         except Exception as exc:  # noqa: BLE001 - as in the splits: the other model is still written
             declined["spm"] = failure(exc)
     try:

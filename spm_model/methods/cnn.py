@@ -124,6 +124,13 @@ def soft_targets(q: np.ndarray, centres: np.ndarray, spread: float = 0.5) -> np.
     return (w / w.sum(axis=1, keepdims=True)).astype(np.float32)
 
 
+def check_device(device: str) -> str:
+    """``device`` as the cnn method resolves it ("auto" -> "cuda" or "cpu"); ModelError, one line, when
+    torch is not installed or cannot use it (cnn_net.resolve_device): spm train, evaluate and predict
+    check --device with it before any work."""
+    return cnn_net.resolve_device(cnn_net.torch_module(), device)
+
+
 class CNNPose(PoseEstimator):
     """fit(frames, poses (n, 6)) -> self; predict(frames) -> (n, 6), NaN for an empty mask.
     Learned (FITTED): the network's arrays by torch's names (``net_``), the bin rotations, the

@@ -33,16 +33,38 @@ def torch_module():
     return torch
 
 
+DEVICES = "auto, cpu, cuda or cuda:N"
+
+
 def resolve_device(torch, device: str) -> str:
-    """'auto' -> 'cuda' when a GPU is visible, else 'cpu'; any other name as given (ModelError when
-    torch does not know it)."""
+    """'auto' -> 'cuda' when torch sees a GPU, else 'cpu'; 'cpu', 'cuda', 'cuda:N' as given when torch
+    can use it; ModelError (one line: what was asked, what is here, the fix) otherwise."""
+    device = str(device).strip()
     if device == "auto":
         return "cuda" if torch.cuda.is_available() else "cpu"
-    try:
-        torch.device(device)
-    except (RuntimeError, ValueError):
-        raise ModelError(f"device {device!r} is not one torch knows; give cpu, cuda, cuda:N or auto") from None
+    if device == "cpu":
+        return device
+    kind, _, index = device.partition(":")
+    if kind != "cuda" or (index and not index.isdigit()):
+        raise ModelError(f"device {device!r} is not one the cnn method takes; give {DEVICES}")
+    gpus = torch.cuda.device_count() if torch.cuda.is_available() else 0
+    if gpus == 0:
+        raise ModelError(f"device {device!r}: torch sees no GPU here (a CPU-only build or no CUDA device); "
+                         "give --device cpu, or auto (which falls back to cpu)")
+    if index and int(index) >= gpus:
+        raise ModelError(f"device {device!r}: torch sees {gpus} GPU{'s' if gpus > 1 else ''} (cuda:0"
+                         f"{f' to cuda:{gpus - 1}' if gpus > 1 else ''}); give one of them, cuda, cpu or auto")
     return device
+
+
+def device_line(torch, device: str) -> str:
+    """What ``device`` resolves to, said in one line for the CLI: "cnn device: cuda:0 (NVIDIA ...)",
+    "cnn device: cpu (auto: torch sees no GPU here)"."""
+    resolved = resolve_device(torch, device)
+    if resolved == "cpu":
+        return "cnn device: cpu" + (" (auto: torch sees no GPU here, so the CPU)" if device == "auto" else "")
+    name = torch.cuda.get_device_name(torch.device(resolved))
+    return f"cnn device: {resolved} ({name}{'; auto' if device == 'auto' else ''})"
 
 
 def make_net(torch, side: int, width: int, embed: int, bins: int):
@@ -100,12 +122,23 @@ def train_net(torch, net, batches, targets: np.ndarray, *, steps: int, lr: float
 
 def embed_all(torch, net, x: np.ndarray, device: str, block: int = 512) -> np.ndarray:
     """(n, embed) float32 unit embeddings of inputs (n, 2, s, s), in blocks, without gradients."""
-    net.to(device).eval()
+    placed(torch, net, device)
     out = []
     with torch.no_grad():
         for s in range(0, len(x), block):
             out.append(embeddings(torch, net, torch.from_numpy(x[s: s + block]).to(device)).cpu().numpy())
     return np.concatenate(out) if out else np.zeros((0, net["head"].in_features), np.float32)
+
+
+def placed(torch, net, device: str):
+    """``net`` on ``device`` in eval mode, moved or switched only when it is not already: moving
+    walks every module, about 10 ms a call on a CPU, more than one crop's forward pass costs."""
+    want, have = torch.device(device), next(net.parameters()).device
+    if have.type != want.type or (want.index is not None and have.index != want.index):
+        net.to(want)
+    if net.training:
+        net.eval()
+    return net
 
 
 def state_arrays(net) -> dict:

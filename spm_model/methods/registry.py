@@ -71,7 +71,8 @@ METHODS = (
     Method("smm", "SMM (Mei et al. 2011)", lambda seed, features, params, spm: SMMPose(seed=seed)),
     Method("template", "HOG templates (reference)", lambda seed, features, params, spm: TemplatePose(),
            "reference-model.npz", "HOG templates", lambda: TemplatePose),
-    Method("cnn", "CNN embedding + retrieval (ours)", lambda seed, features, params, spm: CNNPose(seed=seed),
+    Method("cnn", "CNN embedding + retrieval (ours)",
+           lambda seed, features, params, spm: CNNPose(seed=seed, **params["cnn"]),
            "cnn-model.npz", "CNN", lambda: CNNPose),
     Method("chance", "chance (random training pose)", lambda seed, features, params, spm: ChancePose(seed=seed)),
 )
@@ -94,9 +95,13 @@ def check_method_names(names, what: str = "builtins") -> list | None:
 
 
 def builtin_methods(seed: int, features: FeatureConfig, model_params: dict | None = None) -> dict:
-    """Fresh, unfitted instances of every built-in method, in report order."""
+    """Fresh, unfitted instances of every built-in method, in report order. ``model_params``: SPM's
+    parameters, but for its "cnn" entry: the cnn method's ({"device": "cuda"}, spm train --device)."""
+    cnn = (model_params or {}).get("cnn") or {}
+    if model_params and "cnn" in model_params:
+        model_params = {k: v for k, v in model_params.items() if k != "cnn"}
     spm = SPMPose(seed=seed, features=features, params=model_params)
-    return {m.name: m.make(seed, features, model_params, spm) for m in METHODS}
+    return {m.name: m.make(seed, features, {**(model_params or {}), "cnn": cnn}, spm) for m in METHODS}
 
 
 def load_estimator_class(spec: str):

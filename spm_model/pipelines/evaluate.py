@@ -13,14 +13,16 @@ from spm_model.bench.metrics import summarise
 from spm_model.bench.scoring import frame_errors
 from spm_model.bench.surface_metrics import mesh_keys
 from spm_model.methods.registry import SAVED_MODELS
+from spm_model.methods.cnn import CNNPose, check_device
 from spm_model.spm.estimator import SPMEstimator
 from spm_model.spm.features import FeatureConfig
 
 
-def load_model(path):
+def load_model(path, device: str | None = None):
     """A model file from ``spm train``: an SPMEstimator (model.npz), a TemplatePose (reference-model.npz)
-    or a CNNPose (cnn-model.npz).
-    ModelError naming the file for a missing, truncated, corrupt or foreign one."""
+    or a CNNPose (cnn-model.npz), a CNNPose to run on ``device`` (None: "auto", whatever device it
+    was trained on). ModelError naming the file for a missing, truncated, corrupt or foreign one, and
+    for a ``device`` torch cannot use or given with a model that is not a cnn one."""
     header, arrays = load_model_file(path)  # read once
     kinds = {name: method.model_class() for name, method in SAVED_MODELS.items()}
     if header.get("kind") not in kinds:
@@ -36,20 +38,33 @@ def load_model(path):
         problem = (f"no {exc.args[0]!r} in it" if isinstance(exc, KeyError) and exc.args else
                    f"{type(exc).__name__}: {exc}" if isinstance(exc, IndexError) else str(exc))
     else:
-        return model
+        return _on_device(model, path, device)
     raise ModelError(f"{path}: damaged spm model file ({one_line(problem)}); retrain it with spm train")
 
 
+def _on_device(model, path, device: str | None):
+    """``model`` set to run on ``device`` (a cnn model; None: auto); ModelError for any other model given one."""
+    if not isinstance(model, CNNPose):
+        if device is not None:
+            raise ModelError(f"--device {device}: only a cnn model runs on a device, {path} is a "
+                             f"{'spm' if isinstance(model, SPMEstimator) else 'template'} model; leave --device out")
+        return model
+    check_device(device or "auto")
+    model.device = device or "auto"
+    return model
+
+
 def evaluate_model(model_path, shards, *, progress=None, executor=None,
-                   allow_partial: bool = False, bop=None) -> dict:
+                   allow_partial: bool = False, bop=None, device: str | None = None) -> dict:
     """Score a saved model (SPM or reference) on every frame under ``shards``:
     {"classes": {class: summary}, "all": summary} (summaries: spm_model/bench/metrics.py).
     progress: a callable taking count deltas, told each step (feature_cache.progress_phase):
     the features (load_features), "predicting", "scoring". bop: a BopOutput (bop_output.py): also
-    write the estimates as a BOP results file, method "spm", "template" or "cnn" (the result's ``bop_results``)."""
+    write the estimates as a BOP results file, method "spm", "template" or "cnn" (the result's ``bop_results``).
+    device: where a cnn model runs (load_model)."""
     if bop is not None:
         bop.check(shards, allow_partial=allow_partial)
-    model = load_model(model_path)
+    model = load_model(model_path, device)
     features = model.features if isinstance(model, SPMEstimator) else FeatureConfig()
     table = load_features(shards, features, progress=progress, executor=executor,
                           allow_partial=allow_partial)

@@ -56,14 +56,15 @@ def read_mask(path) -> np.ndarray:
     return mask
 
 
-def predict_images(model_path, images, *, roi=None, mask_path=None, progress=None) -> list[dict]:
+def predict_images(model_path, images, *, roi=None, mask_path=None, progress=None, device=None) -> list[dict]:
     """One result per image, in order: {"image", "pose": {rx..tz}[, "keypoints", "eccentricity"]},
     or {"image", "error": reason} when that image cannot be read (missing, not an image,
     truncated, over Pillow's decompression-bomb limit), the region of interest does not fit
     it, or the model finds no pose in it. The model and ``mask_path`` are read first: a
     problem with either raises ModelError (no image is read). progress: a callable taking image
-    deltas (feature_cache.progress_phase: "predict", one per image)."""
-    model = load_model(model_path)
+    deltas (feature_cache.progress_phase: "predict", one per image). device: where a cnn model runs
+    (evaluate.load_model)."""
+    model = load_model(model_path, device)
     mask = read_mask(mask_path) if mask_path is not None else None
     results = []
     progress_phase(progress, "predict", len(images), "image")

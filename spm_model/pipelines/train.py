@@ -21,7 +21,7 @@ from spm_model.bench.plugin_refs import describe
 from spm_model.bench.protocols import evaluate, training_rows
 from spm_model.bench.report import (check_report_folder, declined_everywhere, summary_text, write_error,
                                     write_report)
-from spm_model.methods.cnn import CNNPose
+from spm_model.methods.cnn import CNNPose, check_device
 from spm_model.methods.registry import SAVED_MODELS, check_method_names
 from spm_model.spm.features import FeatureConfig
 
@@ -106,7 +106,8 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
     (feature_cache.progress_phase): the features (load_features), "fitting" and "scoring"
     (protocols.evaluate), "report". bop: a BopOutput (bop_output.py): also write the first run's
     estimates as BOP results files (its ``bop_results``). timeout: seconds a plug-in's call (construct
-    and fit, or one predict) may take before the plug-in is declined (None: no limit).
+    and fit, or one predict) may take before the plug-in is declined (None: no limit). model_params:
+    SPM's parameters, and as "cnn" the cnn method's ({"device": "cuda"}: spm train --device).
     Returns {"report": folder, "model", "reference_model", "cnn_model": paths, "summary", "evaluation", "text"}."""
     if runs < 1:
         raise ModelError(f"--runs must be at least 1, got {runs}")
@@ -119,6 +120,9 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
             raise ShardError(f"no such folder: {folder}")
     out = check_report_folder(report_dir if report_dir else Path(shards) / "report")  # before any work
     plugins = load_estimators(estimators, timeout)
+    device = ((model_params or {}).get("cnn") or {}).get("device", "auto")
+    if device != "auto" and _asked("cnn", builtins):
+        check_device(device)   # before any work: a device torch cannot use is one line, not a declined method
     if bop is not None:
         bop.check(shards, test, allow_partial=allow_partial)
     # The report folder is locked for the whole run as a shard folder is: a second train (or
@@ -162,7 +166,8 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
                           progress=progress, timeout=timeout)
     model, reference, train_features, final_declined = evaluation.pop("final_models")
     check_some_method_ran(evaluation)
-    learned = _final_cnn(table, evaluation["train_occluded"], final_declined) if _asked("cnn", builtins) else None
+    learned = (_final_cnn(table, evaluation["train_occluded"], final_declined, model_params.get("cnn"))
+               if _asked("cnn", builtins) else None)
     asked = [m for m in SAVED_MODELS if _asked(m, builtins)]   # a model only of a method asked for
     models = {m: "written" if fitted is not None else {"declined": final_declined.get(m, "")}
               for m, fitted in (("spm", model), ("template", reference), ("cnn", learned)) if m in asked}
@@ -225,16 +230,17 @@ def _asked(method: str, builtins) -> bool:
     return builtins is None or method in builtins
 
 
-def _final_cnn(table: FeatureTable, train_occluded: bool, declined: dict):
+def _final_cnn(table: FeatureTable, train_occluded: bool, declined: dict, params: dict | None = None):
     """The cnn model on every training frame, as protocols.final_models fits the others (after the
-    splits, in this process, on one BLAS thread); None with its reason in ``declined`` when it fails."""
+    splits, in this process, on one BLAS thread; ``params``: model_params' "cnn" entry, e.g. the device);
+    None with its reason in ``declined`` when it fails."""
     from threadpoolctl import threadpool_limits
 
     rows = np.flatnonzero(~table.test) if "test" in table.arrays else np.arange(len(table))
     rows = training_rows(table, rows, train_occluded)
     try:
         with threadpool_limits(limits=1, user_api="blas"):
-            return CNNPose().fit(Frames(table, rows), table.pose[rows])
+            return CNNPose(**(params or {})).fit(Frames(table, rows), table.pose[rows])
     except Exception as exc:  # noqa: BLE001 - as in the splits: the other models are still written
         declined["cnn"] = failure(exc)
         return None

@@ -83,3 +83,39 @@ def test_train_fits_and_names_only_the_models_of_methods_asked_for(model_shards,
     payload = json.loads((shards / "report" / "results.json").read_text())
     assert payload["context"]["models"] == {}
     assert "No model was written." in (shards / "report" / "results.md").read_text()
+
+
+def test_device_places_the_cnn_and_a_device_torch_cannot_use_is_one_line(model_shards, tmp_path, monkeypatch):
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)   # a CPU-only machine, GPU or not here
+    runner = CliRunner()
+    shards = tmp_path / "s"
+    shutil.copytree(model_shards, shards)
+    for device, message in [("cuda", "error: device 'cuda': torch sees no GPU here (a CPU-only build or no CUDA "
+                                     "device); give --device cpu, or auto (which falls back to cpu)"),
+                            ("gpu0", "error: device 'gpu0' is not one the cnn method takes; give auto, cpu, cuda or "
+                                     "cuda:N")]:
+        r = runner.invoke(model_cli, ["train", str(shards), "--methods", "cnn,chance", "--device", device])
+        assert (r.exit_code, r.output.strip()) == (1, message)
+        assert not (shards / "report").exists()                       # refused before any work
+    r = runner.invoke(model_cli, ["train", str(shards), "--runs", "1", "--protocol", "views",
+                                  "--methods", "cnn,template,chance", "--device", "cpu"])
+    assert r.exit_code == 0, r.output
+    context = json.loads((shards / "report" / "results.json").read_text())["context"]
+    assert context["model_params"] == {"cnn": {"device": "cpu"}} and context["training"]["cnn"]["device"] == "cpu"
+    cnn, reference = str(shards / "report" / "cnn-model.npz"), str(shards / "report" / "reference-model.npz")
+    d = read_shard(sorted(shards.glob("box*.h5"))[0], ["rgb"], frames=slice(3, 4))
+    Image.fromarray(d["rgb"][0]).save(tmp_path / "box.png")
+    r = runner.invoke(model_cli, ["predict", "--model", cnn, str(tmp_path / "box.png"), "--roi", "16,16,96,96",
+                                  "--device", "cpu", "--json"])
+    assert r.exit_code == 0 and len(json.loads(r.output)[0]["pose"]) == 6, r.output
+    for args, message in [(["predict", "--model", cnn, str(tmp_path / "box.png"), "--device", "cuda:1"],
+                           "error: device 'cuda:1': torch sees no GPU here"),
+                          (["evaluate", str(shards), "--model", cnn, "--device", "cuda"],
+                           "error: device 'cuda': torch sees no GPU here"),
+                          (["predict", "--model", reference, str(tmp_path / "box.png"), "--device", "cpu"],
+                           f"error: --device cpu: only a cnn model runs on a device, {reference} is a template "
+                           "model; leave --device out")]:
+        r = runner.invoke(model_cli, args)
+        assert r.exit_code == 1 and r.output.startswith(message) and len(r.output.strip().splitlines()) == 1, r.output

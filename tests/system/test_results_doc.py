@@ -18,6 +18,10 @@ ROOT = Path(__file__).resolve().parents[2]
 SNAPSHOTS = ROOT / "docs" / "results"
 # What docs/results.md reports: each experiment's snapshot.
 EXPECTED = {"bop-loco", "fig5", "views", "loco", "instances", "coil20-32-views", "coil20-32-interleaved"}
+# ... and the cnn's rows, each run apart on the same shards and seeds (issue 48): SNAP-cnn beside SNAP.
+EXPECTED |= {"coil20-32-views-cnn", "coil20-32-interleaved-cnn", "fig5-cnn"}
+# ... and benchmarks/train_size.py's instances runs at growing render sizes (issue 48's curve).
+EXPECTED |= {"train-size-1000", "train-size-4000"}
 
 
 def _load_script():
@@ -201,3 +205,51 @@ def test_snapshot_of_a_truncated_or_summary_less_results_json_is_one_error_line(
     code = results_doc.main(["snapshot", "x", str(tmp_path / "none.json"), "--command", "c", "--wall-s", "1",
                              "--folder", str(tmp_path)])
     assert code == 1 and capsys.readouterr().err.startswith(f"error: {tmp_path / 'none.json'}: cannot read it (No such")
+
+
+def _beside_snap(methods: dict, chance_runs: list, made=None) -> dict:
+    """A snapshot with ``methods`` {name: ±5° %}, chance at 2%, and chance's ±5° per run."""
+    def entry(rate):
+        return {"frames": 100, "coverage": 100.0, "success_tol5": rate, "std": {"success_tol5": 0.5},
+                "ci95": {"success_tol5": {"low": rate - 1, "high": rate + 1, "n": 100}}}
+    runs = [{"seed": i, "overall": {**{m: {"success_tol5": r} for m, r in methods.items()},
+                                    "chance": {"success_tol5": c}}} for i, c in enumerate(chance_runs)]
+    return {"summary": {"methods": {m: entry(r) for m, r in methods.items()}, "chance": entry(2.0)},
+            "evaluation": {"runs": runs}, "made": made or {}}
+
+
+def test_a_separate_runs_method_is_grafted_beside_a_snapshot_and_said():
+    made = {"date": "2026-11-28", "command": "python benchmarks/real_coil.py X --methods cnn,chance", "wall_s": 99.6,
+            "note": "load 6-12"}
+    snaps = {"a": _beside_snap({"template": 90.0}, [1.5, 2.5]), "a-cnn": _beside_snap({"cnn": 80.0}, [1.5, 2.5], made)}
+    text = results_doc.table_beside(snaps, "a,a-cnn", "methods")
+    rows = text.splitlines()[2:]
+    assert [r.split(" | ")[0] for r in rows] == ["| HOG templates (reference)", "| CNN embedding + retrieval (ours) †",
+                                                 "| chance (random training pose)"]
+    assert rows[1].endswith("| 80.0 (79.0–81.0) | 0.5 | 80.0 |")   # the runs' range: its per-run rates grafted
+    assert "cnn" not in snaps["a"]["summary"]["methods"]                      # the snapshot itself untouched
+    assert results_doc.table_beside_note(snaps, "a,a-cnn") == (
+        "†CNN embedding + retrieval (ours): a separate run (snapshot [a-cnn](results/a-cnn.json)), 2026-11-28, "
+        "`python benchmarks/real_coil.py X --methods cnn,chance`, 100 s, load 6-12; the same shards, protocol, runs "
+        "and seeds as the rows beside it: chance scores the same in every run of both, so the splits are the same.")
+    snaps["a-cnn"] = _beside_snap({"cnn": 80.0}, [1.5, 3.0], made)
+    assert results_doc.table_beside_note(snaps, "a,a-cnn").endswith(
+        "chance scores differently, so the splits may differ.")
+    assert results_doc.used_snapshots("{{table:beside:a,a-cnn:methods}}") == {"a", "a-cnn"}
+
+
+def test_the_size_curve_has_a_row_per_render_size_with_every_methods_rate_and_the_cost():
+    def snap(frames, cnn, wall):
+        s = _beside_snap({"cnn": cnn, "template": 40.0}, [2.0],
+                         {"wall_s": wall, "before": [{"command": "spm-data render", "wall_s": 24.1}]})
+        s["context"] = {"frames": frames, "training": {"cnn": {"seconds": 51.6, "steps": 800, "epochs": 12.345}}}
+        return s
+
+    text = results_doc.table_size_curve({"s1": snap(1002, 20.0, 300.4), "s4": snap(4002, 30.0, 900.0)}, "s1,s4")
+    lines = text.splitlines()
+    assert lines[0] == ("| Frames rendered (test frames) | CNN embedding + retrieval (ours): ±5° % (95% CI) | HOG "
+                        "templates (reference): ±5° % (95% CI) | chance (random training pose): ±5° % (95% CI) | CNN "
+                        "final fit: s (steps, epochs) | render s | train and test s |")
+    assert lines[2] == ("| 1,002 (100) | 20.0 (19.0–21.0) | 40.0 (39.0–41.0) | 2.0 (1.0–3.0) | 52 (800, 12.3) "
+                        "| 24 | 300 |")
+    assert lines[3].startswith("| 4,002 (100) | 30.0 (29.0–31.0) |")

@@ -1,3 +1,5 @@
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -37,8 +39,41 @@ def test_training_lowers_the_loss_on_separable_targets_and_settings_are_restored
     assert (torch.get_num_threads(), torch.are_deterministic_algorithms_enabled()) == (threads, deterministic)
 
 
+def fake_torch(gpus: int):
+    """torch's device queries as a machine with ``gpus`` GPUs answers them."""
+    cuda = SimpleNamespace(is_available=lambda: gpus > 0, device_count=lambda: gpus,
+                           get_device_name=lambda device: f"GPU{device.index or 0}")
+    return SimpleNamespace(cuda=cuda, device=torch.device)
+
+
 def test_devices_auto_resolves_and_an_unknown_one_is_one_error():
     assert cnn_net.resolve_device(torch, "auto") == ("cuda" if torch.cuda.is_available() else "cpu")
     assert cnn_net.resolve_device(torch, "cpu") == "cpu"
-    with pytest.raises(ModelError, match="^device 'gpu0' is not one torch knows; give cpu, cuda, cuda:N or auto$"):
-        cnn_net.resolve_device(torch, "gpu0")
+    for bad in ("gpu0", "mps", "cuda:x", "cuda:-1", ""):
+        with pytest.raises(ModelError, match=f"^device {bad!r} is not one the cnn method takes; give auto, cpu, "
+                                             "cuda or cuda:N$"):
+            cnn_net.resolve_device(torch, bad)
+
+
+def test_cuda_without_a_gpu_is_one_error_and_auto_falls_back_to_the_cpu():
+    cpu_only = fake_torch(0)
+    assert cnn_net.resolve_device(cpu_only, "auto") == "cpu"
+    assert cnn_net.device_line(cpu_only, "auto") == "cnn device: cpu (auto: torch sees no GPU here, so the CPU)"
+    assert cnn_net.device_line(cpu_only, "cpu") == "cnn device: cpu"
+    for asked in ("cuda", "cuda:0"):
+        with pytest.raises(ModelError, match=rf"^device '{asked}': torch sees no GPU here \(a CPU-only build or no "
+                                             r"CUDA device\); give --device cpu, or auto \(which falls back to cpu\)$"):
+            cnn_net.resolve_device(cpu_only, asked)
+
+
+def test_a_gpu_torch_sees_is_taken_and_one_past_the_count_refused():
+    two = fake_torch(2)
+    assert [cnn_net.resolve_device(two, d) for d in ("auto", "cuda", "cuda:1", "cpu")] == ["cuda", "cuda", "cuda:1",
+                                                                                            "cpu"]
+    assert cnn_net.device_line(two, "cuda:1") == "cnn device: cuda:1 (GPU1)"
+    assert cnn_net.device_line(two, "auto") == "cnn device: cuda (GPU0; auto)"
+    with pytest.raises(ModelError, match=r"^device 'cuda:2': torch sees 2 GPUs \(cuda:0 to cuda:1\); give one of "
+                                         "them, cuda, cpu or auto$"):
+        cnn_net.resolve_device(two, "cuda:2")
+    with pytest.raises(ModelError, match=r"^device 'cuda:1': torch sees 1 GPU \(cuda:0\)"):
+        cnn_net.resolve_device(fake_torch(1), "cuda:1")

@@ -103,3 +103,13 @@ def test_train_refuses_an_unknown_builtin_before_any_work(tmp_path):
     with pytest.raises(ModelError, match="^builtins: unknown spn; choose from "):
         train(tmp_path, tmp_path / "report", builtins=["spn"])
     assert not (tmp_path / "report").exists()
+
+
+def test_the_cnn_entry_of_the_model_params_goes_to_the_cnn_alone():
+    from spm_model.bench.protocols import spm_params
+
+    params = {"cnn": {"device": "cpu"}, "alpha": 0.01}
+    methods = builtin_methods(3, FeatureConfig(), params)
+    assert (methods["cnn"].device, methods["cnn"].seed, methods["spm"].params) == ("cpu", 3, {"alpha": 0.01})
+    assert builtin_methods(0, FeatureConfig(), None)["cnn"].device == "auto"
+    assert spm_params(params) == {"alpha": 0.01} and params["cnn"] == {"device": "cpu"}   # the caller's kept
