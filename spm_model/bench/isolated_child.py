@@ -45,9 +45,21 @@ def child_main(read_fd: int, write_fd: int, parent: int, work: str = "spm_model.
         with threadpool_limits(limits=1, user_api="blas"):   # as bench_job: results independent of the cores
             serve_work(down, up)
         up.close()
-    except (EOFError, OSError):
+    except (EOFError, OSError, Closed):
         pass   # the parent closed the pipe or is gone (a spare never used, an interrupted run): nothing to say
     os._exit(0)   # a plug-in's threads or atexit handlers never keep it alive
+
+
+class Closed(Exception):
+    """The parent closed this child before giving it work (a spare it did not need)."""
+
+
+def first_message(down):
+    """The work's first message; Closed when the parent sent None instead (EstimatorProcess.close)."""
+    message = down.recv()
+    if message is None:
+        raise Closed
+    return message
 
 
 def send(up, header: dict, arrays=()) -> None:
@@ -62,7 +74,7 @@ def serve(down, up) -> None:
     from spm_model.base.feature_memo import use_folder
     from spm_model.methods.registry import check_predictions
 
-    _, (run, params, plugins), names, frames, poses, memo = down.recv()
+    _, (run, params, plugins), names, frames, poses, memo = first_message(down)
     use_folder(memo)
     built = make_methods(run, params, [n for n in names if n not in plugins])   # share SPM with KNN
     fitted = {}
@@ -113,7 +125,7 @@ def describe_one(spec: str) -> dict:
 
 def serve_describe(down, up) -> None:
     """The child's work: a list of specs; for each, its description or the error (one line)."""
-    for spec in down.recv():
+    for spec in first_message(down):
         try:
             send(up, {"name": spec, **describe_one(spec)})
         except ModelError as exc:

@@ -276,7 +276,7 @@ def _with_first_run(output: tuple, first: tuple) -> tuple:
     return tested, n_train, test, {n: errors[n] for n in order}, notes
 
 
-FINAL_MODELS = ("spm", "template")  # the methods whose model ``spm train`` saves (model.npz, reference-model.npz)
+FINAL_MODELS = ("spm", "template")  # the saved models fitted here; cnn's is fitted by train._final_cnn
 
 
 def spm_params(model_params: dict) -> dict:

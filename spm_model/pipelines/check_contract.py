@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from spm_model.bench.fitting import call_failure
-from spm_model.bench.isolated_child import send
+from spm_model.bench.isolated_child import first_message, send
 from spm_model.bench.plugin_refs import resolve
 from spm_model.methods.registry import check_predictions
 
@@ -134,7 +134,7 @@ class ContractChecks:
 
 def serve_checks(down, up) -> None:
     """The child's work: ("checks", cls, frames, poses, camera frames, permuted poses)."""
-    _, plugin, frames, poses, camera, permuted = down.recv()
+    _, plugin, frames, poses, camera, permuted = first_message(down)
     try:
         cls = resolve(plugin)
     except BaseException as exc:  # noqa: BLE001 - its module's code, whatever it raised: one failed check

@@ -129,7 +129,7 @@ class ShardWriter:
 
     def store_chunk(self, field: str, index: int, chunk: bytes) -> None:
         """Store one encoded chunk (encode_chunk) of frame ``index`` of ``field`` (the render
-        pipeline's writer thread, commands/render_frames.py); HDF5 lays chunks out in the order
+        pipeline's writer thread, pipelines/render_frames.py); HDF5 lays chunks out in the order
         they are stored, so a caller that wants write_images' bytes stores them in its order."""
         self._store([(field, index)], [chunk], {field: 1})
 

@@ -1,6 +1,6 @@
 """One fitted check for every estimator (spm_model/base/estimator.py): synthetic inputs only (frames
 served from cached feature columns, tests.helpers), so no rendering. Model files that restore
-state through ``from_state``: tests/model/test_model_files.py."""
+state through ``from_state``: tests/model/base/test_model_files.py."""
 
 import numpy as np
 import pytest

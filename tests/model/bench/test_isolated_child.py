@@ -66,3 +66,15 @@ def test_serve_describe_answers_each_spec_and_a_raising_module_is_one_line(modul
     (bad, _), (good, _) = _replies(up_read)
     assert bad["name"] == specs[0] and "KeyboardInterrupt" in bad["error"] and "\n" not in bad["error"]
     assert good["name"] == specs[1] and good["deterministic"] is True and "error" not in good
+
+
+def test_a_spare_closed_before_any_work_ends_quietly(capfd):
+    """EstimatorProcess.close sends None; a spare that got it as its first message printed a
+    TypeError traceback (seen when the environment changed between splits) and exited 1."""
+    from spm_model.bench.isolation import READY, EstimatorProcess
+
+    child = EstimatorProcess()
+    assert child.up.recv_bytes() == READY     # started: Python and our modules loaded
+    child.send(None)
+    assert child.proc.wait() == 0
+    assert "Traceback" not in capfd.readouterr().err
