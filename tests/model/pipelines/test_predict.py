@@ -44,7 +44,7 @@ def test_predict_counts_every_image_read_or_failed(tmp_path, monkeypatch):
             self.step[3] += n
 
     Image.fromarray(np.zeros((8, 8, 3), np.uint8)).save(tmp_path / "a.png")
-    monkeypatch.setattr(predict, "load_model", lambda path: Model())
+    monkeypatch.setattr(predict, "load_model", lambda path, device=None: Model())
     progress = Steps()
     results = predict.predict_images("model.npz", [tmp_path / "a.png", tmp_path / "missing.png"], progress=progress)
     assert [("error" in r) for r in results] == [False, True] and progress.step == ["predict", 2, "image", 2]
