@@ -135,9 +135,9 @@ def mask_from_depth(depth: np.ndarray) -> np.ndarray:
 def labels_agreeing_with_depth(labels: np.ndarray, depth: np.ndarray, label_depth: np.ndarray) -> np.ndarray:
     """(H, W) uint8 instance labels that agree with ``depth`` (H, W) float32 metres, 0 = nothing.
 
-    ``labels`` (H, W) uint8 come from a second GL pass whose own depth is ``label_depth``. A GL
-    driver may compile that pass's shader differently (Mesa's does), so at about one pixel in a
-    hundred frames it covers a silhouette pixel the colour pass did not, or the reverse. A label
+    ``labels`` (H, W) uint8 come from a second GL pass whose own depth is ``label_depth``. On Mesa
+    that pass (and pyrender's depth-only one) now and then covers a silhouette pixel the colour pass
+    did not, or the reverse: about one pixel in a hundred frames (why is not established). A label
     is kept where both passes drew the same depth; elsewhere the pixel takes the label of its
     8-neighbour (among the kept, non-zero ones) nearest in depth, and none where depth has no
     surface. So the visible mask and the depth a BOP export writes say the same of every pixel."""
