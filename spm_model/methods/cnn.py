@@ -131,6 +131,19 @@ def check_device(device: str) -> str:
     return cnn_net.resolve_device(cnn_net.torch_module(), device)
 
 
+def device_note(device: str) -> str | None:
+    """The one line saying where the cnn method will run ("cnn device: cpu (auto: torch sees no GPU
+    here, so the CPU)", cnn_net.device_line), for spm train to print before any work; None when
+    torch is not installed and ``device`` is "auto" (the method is then declined with the install
+    hint, the other methods run). ModelError, one line, for a device torch cannot use."""
+    if device == "auto":
+        try:
+            import torch   # noqa: F401  (only whether it is there)
+        except ImportError:
+            return None
+    return cnn_net.device_line(cnn_net.torch_module(), device)
+
+
 class CNNPose(PoseEstimator):
     """fit(frames, poses (n, 6)) -> self; predict(frames) -> (n, 6), NaN for an empty mask.
     Learned (FITTED): the network's arrays by torch's names (``net_``), the bin rotations, the

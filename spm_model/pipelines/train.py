@@ -21,7 +21,7 @@ from spm_model.bench.plugin_refs import describe
 from spm_model.bench.protocols import evaluate, training_rows
 from spm_model.bench.report import (check_report_folder, declined_everywhere, summary_text, write_error,
                                     write_report)
-from spm_model.methods.cnn import CNNPose, check_device
+from spm_model.methods.cnn import CNNPose, device_note
 from spm_model.methods.registry import SAVED_MODELS, check_method_names
 from spm_model.spm.features import FeatureConfig
 
@@ -121,8 +121,10 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
     out = check_report_folder(report_dir if report_dir else Path(shards) / "report")  # before any work
     plugins = load_estimators(estimators, timeout)
     device = ((model_params or {}).get("cnn") or {}).get("device", "auto")
-    if device != "auto" and _asked("cnn", builtins):
-        check_device(device)   # before any work: a device torch cannot use is one line, not a declined method
+    if _asked("cnn", builtins):
+        note = device_note(device)   # before any work: a device torch cannot use is one line, not a declined method
+        if note:
+            log(note)
     if bop is not None:
         bop.check(shards, test, allow_partial=allow_partial)
     # The report folder is locked for the whole run as a shard folder is: a second train (or

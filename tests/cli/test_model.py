@@ -102,6 +102,7 @@ def test_device_places_the_cnn_and_a_device_torch_cannot_use_is_one_line(model_s
     r = runner.invoke(model_cli, ["train", str(shards), "--runs", "1", "--protocol", "views",
                                   "--methods", "cnn,template,chance", "--device", "cpu"])
     assert r.exit_code == 0, r.output
+    assert "cnn device: cpu\n" in r.output                             # said before any work
     context = json.loads((shards / "report" / "results.json").read_text())["context"]
     assert context["model_params"] == {"cnn": {"device": "cpu"}} and context["training"]["cnn"]["device"] == "cpu"
     cnn, reference = str(shards / "report" / "cnn-model.npz"), str(shards / "report" / "reference-model.npz")

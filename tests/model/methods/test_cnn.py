@@ -8,7 +8,7 @@ from spm_model.errors import ModelError
 from spm_model.base.safetensors_file import read_safetensors
 from spm_model.bench.metrics import wilson_interval
 from spm_model.methods.baselines import ChancePose
-from spm_model.methods.cnn import CNNPose, soft_targets, view_bins, rotation_quaternions
+from spm_model.methods.cnn import CNNPose, device_note, soft_targets, view_bins, rotation_quaternions
 from tests.helpers import grid_split, within_5_degrees
 
 # A budget for tests: seconds on one thread (the default trains 800 steps of 64 frames).
@@ -86,6 +86,18 @@ def test_without_torch_fit_and_load_fail_with_one_line_naming_the_extra(split, f
             call()
         assert str(caught.value) == ("the cnn method needs PyTorch, which is not installed here; "
                                      "pip install 'spm[learn]' (make install includes it)")
+
+
+def test_device_note_says_where_the_cnn_runs_and_nothing_without_torch_on_auto(monkeypatch):
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert device_note("auto") == "cnn device: cpu (auto: torch sees no GPU here, so the CPU)"
+    assert device_note("cpu") == "cnn device: cpu"
+    monkeypatch.setitem(sys.modules, "torch", None)                # import torch raises ImportError
+    assert device_note("auto") is None                               # the method is declined, the others run
+    with pytest.raises(ModelError, match="^the cnn method needs PyTorch"):
+        device_note("cpu")                                           # asked for by name: one line, before any work
 
 
 def test_view_bins_spread_over_the_rotations_and_targets_favour_the_nearest():
