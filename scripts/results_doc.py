@@ -610,17 +610,36 @@ def _graft(base, extra, added: list) -> None:
             _graft(b, e, added)
 
 
-def table_beside(snaps, pair, kind, *args):
-    """Table ``kind`` of the first snapshot of ``pair`` with the second's added methods, marked."""
-    base, extra = pair.split(",")
+def _grafted(snaps, base: str, extra: str) -> tuple[dict, list]:
+    """A copy of snapshot ``base`` with ``extra``'s added methods grafted in, and those methods."""
     added = _added(snaps, base, extra)
     merged = json.loads(json.dumps(_snap(snaps, base)))
     for part in ("summary", "evaluation"):
         _graft(merged[part], _snap(snaps, extra)[part], added)
-    text = TABLES[kind]({**snaps, base: merged}, base, *args)
-    for m in added:
+    return merged, added
+
+
+def _marked(text: str, added) -> str:
+    for m in dict.fromkeys(added):
         text = text.replace(f"| {name(m)} |", f"| {name(m)}{BESIDE_MARK} |")
     return text
+
+
+def table_beside(snaps, pair, kind, *args):
+    """Table ``kind`` of the first snapshot of ``pair`` with the second's added methods, marked."""
+    base, extra = pair.split(",")
+    merged, added = _grafted(snaps, base, extra)
+    return _marked(TABLES[kind]({**snaps, base: merged}, base, *args), added)
+
+
+def table_beside_each(snaps, bases, suffix, kind):
+    """Table ``kind`` of several snapshots (``bases``, comma-separated: protocols, dof, surface), each
+    with the added methods of its snapshot BASE``suffix`` (e.g. loco-cnn) grafted in, marked."""
+    merged, added = dict(snaps), []
+    for base in bases.split(","):
+        merged[base], more = _grafted(snaps, base, base + suffix)
+        added += more
+    return _marked(TABLES[kind](merged, bases), added)
 
 
 def _same_chance(snaps, base: str, extra: str) -> bool:
@@ -640,11 +659,11 @@ def table_beside_note(snaps, pair):
             if _same_chance(snaps, base, extra) else "chance scores differently, so the splits may differ")
     load = f", {made['note']}" if made.get("note") else ""
     return (f"†{names}: a separate run (snapshot [{extra}](results/{extra}.json)), {made['date']}, "
-            f"`{made['command']}`, {made['wall_s']:.0f} s{load}; the same shards, protocol, runs and seeds as the "
+            f"`{made['command']}`, {made['wall_s']:.0f} s{load}; the same data, protocol, runs and seeds as the "
             f"rows beside it: {same}.")
 
 
-TABLES.update({"beside": table_beside, "beside-note": table_beside_note})
+TABLES.update({"beside": table_beside, "beside-each": table_beside_each, "beside-note": table_beside_note})
 
 
 def table_size_curve(snaps, names):

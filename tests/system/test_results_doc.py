@@ -19,9 +19,9 @@ SNAPSHOTS = ROOT / "docs" / "results"
 # What docs/results.md reports: each experiment's snapshot.
 EXPECTED = {"bop-loco", "fig5", "views", "loco", "instances", "coil20-32-views", "coil20-32-interleaved"}
 # ... and the cnn's rows, each run apart on the same shards and seeds (issue 48): SNAP-cnn beside SNAP.
-EXPECTED |= {"coil20-32-views-cnn", "coil20-32-interleaved-cnn", "fig5-cnn"}
+EXPECTED |= {"coil20-32-views-cnn", "coil20-32-interleaved-cnn", "fig5-cnn", "loco-cnn", "views-cnn", "instances-cnn"}
 # ... and benchmarks/train_size.py's instances runs at growing render sizes (issue 48's curve).
-EXPECTED |= {"train-size-1000", "train-size-4000"}
+EXPECTED |= {"train-size-1000", "train-size-4000", "train-size-16000"}
 
 
 def _load_script():
@@ -230,12 +230,25 @@ def test_a_separate_runs_method_is_grafted_beside_a_snapshot_and_said():
     assert "cnn" not in snaps["a"]["summary"]["methods"]                      # the snapshot itself untouched
     assert results_doc.table_beside_note(snaps, "a,a-cnn") == (
         "†CNN embedding + retrieval (ours): a separate run (snapshot [a-cnn](results/a-cnn.json)), 2026-11-28, "
-        "`python benchmarks/real_coil.py X --methods cnn,chance`, 100 s, load 6-12; the same shards, protocol, runs "
+        "`python benchmarks/real_coil.py X --methods cnn,chance`, 100 s, load 6-12; the same data, protocol, runs "
         "and seeds as the rows beside it: chance scores the same in every run of both, so the splits are the same.")
     snaps["a-cnn"] = _beside_snap({"cnn": 80.0}, [1.5, 3.0], made)
     assert results_doc.table_beside_note(snaps, "a,a-cnn").endswith(
         "chance scores differently, so the splits may differ.")
     assert results_doc.used_snapshots("{{table:beside:a,a-cnn:methods}}") == {"a", "a-cnn"}
+
+
+def test_beside_each_grafts_every_snapshots_own_separate_run_and_marks_its_rows(monkeypatch):
+    def rows_of(snaps, names):   # a table kind over several snapshots: one row per method of each
+        return "\n".join(f"| {results_doc.name(m)} | {n} {snaps[n]['summary']['methods'][m]['success_tol5']} |"
+                         for n in names.split(",") for m in snaps[n]["summary"]["methods"])
+    monkeypatch.setitem(results_doc.TABLES, "rows-of", rows_of)
+    snaps = {"a": _beside_snap({"template": 90.0}, [1.5]), "a-cnn": _beside_snap({"cnn": 80.0}, [1.5]),
+             "b": _beside_snap({"template": 40.0}, [2.5]), "b-cnn": _beside_snap({"cnn": 30.0}, [2.5])}
+    text = results_doc.table_beside_each(snaps, "a,b", "-cnn", "rows-of")
+    ref, cnn = "| HOG templates (reference) |", "| CNN embedding + retrieval (ours) † |"
+    assert text.splitlines() == [f"{ref} a 90.0 |", f"{cnn} a 80.0 |", f"{ref} b 40.0 |", f"{cnn} b 30.0 |"]
+    assert "cnn" not in snaps["a"]["summary"]["methods"] and "cnn" not in snaps["b"]["summary"]["methods"]
 
 
 def test_the_size_curve_has_a_row_per_render_size_with_every_methods_rate_and_the_cost():
