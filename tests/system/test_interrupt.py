@@ -75,7 +75,9 @@ def test_a_signal_at_any_moment_of_render_is_one_line_and_resumable(tmp_path, si
     """From the first instant (issue 35: SIGTERM at 0.8-1.3 s was ignored, Ctrl-C at 0.3 s was a
     traceback, click's "Aborted!" at others): the project's line, 130 / 143, nothing partial, no
     lock, and the same command finishes the folder. At 0 s the signal may land before Python
-    runs at all: then the process ends by the signal itself (-2 / -15), having made nothing."""
+    runs at all: then the process ends by the signal itself (-2 / -15), having made nothing; so it does
+    when the signal lands after the command finished, as Python's finalisation restores the default
+    handlers (seen once at 3 s on a quiet machine, 2026-11-29: the folder was complete)."""
     spec = tmp_path / "cup.toml"
     spec.write_text(SPEC)
     out = tmp_path / "out"
@@ -83,8 +85,9 @@ def test_a_signal_at_any_moment_of_render_is_one_line_and_resumable(tmp_path, si
     code, output = _interrupted(cmd, sig, delay)
     assert code in (128 + sig, -sig, 0), output          # 0: the render (30 small shards) beat the signal
     assert "Traceback" not in output and "Aborted!" not in output and "Exception ignored" not in output, output
-    if code == -sig:
-        assert not out.exists()
+    if code == -sig:   # before Python ran (nothing made), or after the command had finished and Python's
+        # finalisation had given the signals back to the system's default (the whole folder made)
+        assert not out.exists() or (read_manifest(out)["frames"] == 480 and len(list_shards(out)) == 30), output
     elif code == 128 + sig:
         assert output.strip().splitlines()[-1].startswith("interrupted"), output
     if out.exists():
