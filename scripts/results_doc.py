@@ -831,7 +831,25 @@ def table_n3m_small_set(measure: dict) -> str:
     return _table(["method", "clean", "40% hidden", "poses from markers / RANSAC (clean; hidden)"], rows)
 
 
-MEASURE_TABLES = {"n3m-small-set": table_n3m_small_set}
+def table_isolation_cost(measure: dict) -> str:
+    """benchmarks/isolation_cost.py's figures: per protocol and in total, each way's wall seconds
+    per run, their medians and the ratio; then how they were measured (the loads of every run)."""
+    s, made = measure["summary"], measure["made"]
+    rows = [[part, " / ".join(f"{w:.1f}" for w in f["isolated_s"]), " / ".join(f"{w:.1f}" for w in f["in_process_s"]),
+             f"{f['isolated_median_s']:.1f} / {f['in_process_median_s']:.1f}", f"{f['ratio']:.3f}"]
+            for part, f in [*s["protocols"].items(), ("total", s["total"])]]
+    loads = [x[k] for x in made["loads"] for k in ("start", "end")]
+    p = made["parameters"]
+    return (_table(["protocol", "isolated, each run (s)", "in-process, each run (s)", "medians (s)",
+                    "isolated / in-process"], rows)
+            + f"\n\n{made['date']}, `{made['command']}`: {s['frames']:,} frames, methods {p['methods']}, "
+            f"--runs {p['runs']}, --workers {p['workers']}, --rounds {p['rounds']} (each way; {p['order']}), "
+            f"{made['machine']['nproc']} CPUs, 1-minute load average {min(loads):.1f}–{max(loads):.1f} at the "
+            f"runs' starts and ends; results.json summaries identical both ways; target: ratio "
+            f"≤ {s['target_ratio']:.2f}.")
+
+
+MEASURE_TABLES = {"n3m-small-set": table_n3m_small_set, "isolation-cost": table_isolation_cost}
 
 
 def fill_blocks(text: str, measures: dict) -> str:
