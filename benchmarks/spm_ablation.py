@@ -510,7 +510,8 @@ def cmd_run(args) -> None:
     (out / "results.json").write_text(json.dumps({"args": vars(args), "seconds": seconds, "variants": results,
                                                   "probe": stages}, indent=1, default=str))
     if args.measure:
-        found["made"] = doc.made_block(shlex.join(["python", "benchmarks/spm_ablation.py", *args.argv]), seconds)
+        found["made"] = doc.made_block(shlex.join(["python", "benchmarks/spm_ablation.py", *args.argv]), seconds,
+                                       cpu_s=doc.cpu_seconds())
         Path(args.measure).parent.mkdir(parents=True, exist_ok=True)
         write_json_atomic(args.measure, found, sort_keys=False)
     log(f"done in {seconds:.0f} s; wrote {out / 'tables.md'} and results.json")

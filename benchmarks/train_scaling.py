@@ -170,8 +170,7 @@ def write_measure(path: Path, summary: dict, command: str, wall_s: float) -> Non
     spec = importlib.util.spec_from_file_location("results_doc", ROOT / "scripts" / "results_doc.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    load = os.getloadavg()
-    made = {**module.made_block(command, wall_s), "load_end": [round(x, 2) for x in load]}
+    made = module.made_block(command, wall_s, cpu_s=module.cpu_seconds())
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(path, {"summary": summary, "made": made}, sort_keys=False)
 

@@ -157,11 +157,20 @@ def _number(text: str):
     return text
 
 
+def cpu_seconds() -> float:
+    """CPU seconds (user + system, every thread) of this process and its finished children: the
+    work a measurement did, which a shared machine's other users slow down less than the wall time."""
+    import resource
+
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
 def made_block(command: str, wall_s: float, date: str | None = None, note: str | None = None,
-               parameters: dict | None = None, before: list | None = None) -> dict:
+               parameters: dict | None = None, before: list | None = None, cpu_s: float | None = None) -> dict:
     """How a snapshot was made: ``parameters`` (the settings of the command it quotes, e.g. the
-    image size a benchmark's default gives) and ``before`` ([{command, wall_s, date}]: the steps
-    that made its input or filled its caches, e.g. the render) where given."""
+    image size a benchmark's default gives), ``before`` ([{command, wall_s, date}]: the steps
+    that made its input or filled its caches, e.g. the render) and ``cpu_s`` (cpu_seconds) where given."""
     from spm_model.spm.features import FEATURE_VERSION
 
     made = {"date": date or datetime.date.today().isoformat(), "command": command, "wall_s": round(float(wall_s), 1),
@@ -174,6 +183,8 @@ def made_block(command: str, wall_s: float, date: str | None = None, note: str |
         made["before"] = before
     if note:
         made["note"] = note
+    if cpu_s is not None:
+        made["cpu_s"] = round(float(cpu_s), 1)
     return made
 
 
@@ -870,8 +881,8 @@ def table_spm_solvers(measure: dict) -> str:
             + f"\n\n{made['date']}, `{made['command']}`: the `views` split (seed 0) of {s['frames']:,} frames, "
             f"its first {s['training_frames']:,} training frames with an SPM vector and its test frames with one; "
             f"mean (σ) over {s['seeds']} seeds (the noise copies and Nyström centres vary with the seed); a fit's "
-            f"CPU seconds (all its threads), {made['machine']['nproc']} CPUs, 1-minute load average "
-            f"{made['load_end'][0]:.1f} at the end. Target: the default within one point of the exact solve.")
+            f"CPU seconds (all its threads); the whole command {made['cpu_s']:,.0f} CPU seconds. Target: the "
+            "default within one point of the exact solve.")
 
 
 def _abl(x) -> str:
@@ -911,7 +922,7 @@ def table_spm_ablation_made(measure: dict) -> str:
     return (f"{made['date']}, `{made['command']}`: {sub['frames']:,} subset frames ({sub['with_neighbours']:,} "
             f"with their path neighbours) of {sub['shards_frames']:,}: instances 0–{sub['instances'] - 1} of each of "
             f"{sub['classes']} classes, every {sub['azimuth_step']}. azimuth and every {sub['elevation_step']}. "
-            f"elevation of the grid; split seed {sub['seed']}; {made['machine']['nproc']} CPUs.")
+            f"elevation of the grid; split seed {sub['seed']}; {made['cpu_s']:,.0f} CPU seconds.")
 
 
 MEASURE_TABLES = {"n3m-small-set": table_n3m_small_set, "isolation-cost": table_isolation_cost,

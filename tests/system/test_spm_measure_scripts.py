@@ -39,11 +39,12 @@ def test_solver_figures_are_means_and_sigmas_over_seeds():
                                              "fit_s": 2.0, "fit_cpu_s": 3.0}
     assert found["solvers"]["knn_subset"]["own_sum5"] == 33.0
     made = {"date": "2026-11-29", "command": "python benchmarks/train_scaling.py S --accuracy-only",
-            "machine": {"nproc": 2}, "load_end": [1.5, 1.0, 1.0]}
+            "machine": {"nproc": 2}, "cpu_s": 321.4}
     table = results_doc.table_spm_solvers({"summary": found, "made": made})
     assert "| exact Eq. 5 over every training frame | 31.0 (σ 1.0) | 11.0 (σ 1.0) | 0.5 (σ 0.5) | 3.0 |" in table
     assert "re-predicting its 1,200 training frames" in table and "on 500 new views" in table
     assert "of 2,880 frames" in table and "over 2 seeds" in table and made["command"] in table
+    assert "the whole command 321 CPU seconds" in table
 
 
 def test_measure_without_accuracy_only_is_refused_in_one_line():
@@ -79,4 +80,6 @@ def test_the_ablation_measure_holds_the_tables_figures(instance_shards, tmp_path
         assert table in r.stdout
     assert f"| {variants[0][0]} | {default['train_coverage_pct']:.0f} / {default['query_coverage_pct']:.0f} | " \
            f"{default['views']['nn']['median_deg']:.1f} |" in results_doc.table_spm_ablation(found)
-    assert "96 subset frames (192 with their path neighbours) of 192" in results_doc.table_spm_ablation_made(found)
+    made = results_doc.table_spm_ablation_made(found)
+    assert "96 subset frames (192 with their path neighbours) of 192" in made
+    assert found["made"]["cpu_s"] > 0 and f"{found['made']['cpu_s']:,.0f} CPU seconds" in made
