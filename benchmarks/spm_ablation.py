@@ -306,7 +306,7 @@ def fit_spm(X, y, cfg, reg, cache, key):
     model.projection_ = base.projection_
     model.regressor_ = RBFPoseRegressor(alpha=base.alpha, noise=base.noise, noise_copies=base.noise_copies,
                                         landmarks=reg.get("landmarks", base.landmarks), seed=base.seed,
-                                        width_scale=reg.get("width_scale", 1.0)).fit(model.transform(X), y)
+                                        width_scale=reg.get("width_scale", 1.0)).fit(base.transform(X), y)
     return model
 
 
