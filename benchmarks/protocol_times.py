@@ -61,21 +61,40 @@ def _methods(path: Path) -> dict:
                            "of this script") from None
 
 
-def compare(a: Path, b: Path) -> None:
+def differences(a: Path, b: Path) -> list:
+    """(protocol, method, largest difference, its key) for every method of every protocol folder
+    of ``a`` against ``b``'s (method None: the protocol is missing in ``b``; a method or figure
+    missing in ``b`` differs by nan). CompareError when a folder or results.json cannot be read."""
     for folder in (a, b):
         if not folder.is_dir():
             raise CompareError(f"{folder}: no such folder; give two --out folders of this script")
+    rows = []
     for folder in sorted(p for p in a.iterdir() if (p / "results.json").exists()):
         other = b / folder.name / "results.json"
         if not other.exists():
-            print(f"{folder.name}: missing in {b}")
+            rows.append((folder.name, None, float("nan"), ""))
             continue
         A, B = _methods(folder / "results.json"), _methods(other)
         for method in A:
             la, lb = leaves(A[method]), leaves(B.get(method, {}))
             keys = set(la) | set(lb)
             worst = max((abs(la.get(k, float("nan")) - lb.get(k, float("nan"))), k) for k in keys) if keys else (0, "")
-            print(f"{folder.name} {method}: largest difference {worst[0]:.3g} ({worst[1]})")
+            rows.append((folder.name, method, *worst))
+    return rows
+
+
+def compare(a: Path, b: Path) -> None:
+    for protocol, method, worst, key in differences(a, b):
+        print(f"{protocol}: missing in {b}" if method is None
+              else f"{protocol} {method}: largest difference {worst:.3g} ({key})")
+
+
+def timed_train(shards: Path, out: Path, protocol: str, runs: int, builtins, executor) -> float:
+    """Wall seconds of the library call behind `spm train SHARDS --protocol P --runs R` into ``out``."""
+    t0 = time.perf_counter()
+    with stage(f"protocol_times: spm train {shards} --protocol {protocol}") as progress:
+        train(shards, out, protocol=protocol, runs=runs, builtins=builtins, executor=executor, progress=progress)
+    return time.perf_counter() - t0
 
 
 def main() -> None:
@@ -100,11 +119,8 @@ def main() -> None:
     load = os.getloadavg()[0]
     times = {}
     for protocol in args.protocols.split(","):
-        t0 = time.perf_counter()
-        with stage(f"protocol_times: spm train {args.shards} --protocol {protocol}") as progress:
-            train(args.shards, args.out / protocol, protocol=protocol, runs=args.runs, builtins=builtins,
-                  executor=LocalExecutor(workers=args.workers), progress=progress)
-        times[protocol] = time.perf_counter() - t0
+        times[protocol] = timed_train(args.shards, args.out / protocol, protocol, args.runs, builtins,
+                                      LocalExecutor(workers=args.workers))
         print(f"{protocol}: {times[protocol]:.0f} s ({args.runs} runs, {args.workers} workers, "
               f"methods {args.methods or 'all'})", flush=True)
     total = sum(times.values())

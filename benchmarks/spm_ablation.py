@@ -9,7 +9,7 @@ Usage (from the repository root, in the venv; PYOPENGL_PLATFORM=egl for renderin
     python benchmarks/spm_ablation.py run [/work/data/py/render]
            [--hires /work/data/ablation/render512] [--out /work/data/ablation/results]
            [--instances 2] [--azimuth-step 2] [--elevation-step 2] [--seed 0] [--no-hires] [--no-best]
-           [--probe-only]
+           [--probe-only] [--measure docs/results/measures/spm-ablation.json]
 
 Subset: every class in the shards folder, instances 0 .. --instances-1 of each, every
 --azimuth-step-th azimuth and every --elevation-step-th elevation of the camera
@@ -49,8 +49,10 @@ default 10, elsewhere) while rendering, finding keypoints and running the varian
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import re
+import shlex
 import sys
 import time
 from dataclasses import asdict, replace
@@ -62,6 +64,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from spm_data.jobs.progress import Progress  # noqa: E402
+from spm_data.io.files import write_json_atomic  # noqa: E402
 from spm_data.io.shards import list_shards, read_shard  # noqa: E402
 from spm_model.spm.bunches import BunchError, fit_bunches  # noqa: E402
 from spm_model.spm.ellipse import EllipseError, fit_ellipse  # noqa: E402
@@ -303,7 +306,7 @@ def fit_spm(X, y, cfg, reg, cache, key):
     model.projection_ = base.projection_
     model.regressor_ = RBFPoseRegressor(alpha=base.alpha, noise=base.noise, noise_copies=base.noise_copies,
                                         landmarks=reg.get("landmarks", base.landmarks), seed=base.seed,
-                                        width_scale=reg.get("width_scale", 1.0)).fit(model.transform(X), y)
+                                        width_scale=reg.get("width_scale", 1.0)).fit(base.transform(X), y)
     return model
 
 
@@ -388,35 +391,21 @@ def probe(fs, seed, cache):
 
 # ----------------------------------------------------------------------------- run
 
-def fmt(x, digits=1):
-    return "–" if x is None else f"{x:.{digits}f}"
+def results_doc():
+    """scripts/results_doc.py: the tables (table_spm_ablation*, what docs/spm-ablation.md shows) and made_block."""
+    spec = importlib.util.spec_from_file_location("results_doc", ROOT / "scripts" / "results_doc.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
-def table1(rows) -> str:
-    head = ("| variant | train / query vectors (%) | views 1-NN med° | views 1-NN ±5° % | views SPM med° | "
-            "views SPM ±5° % | inst. 1-NN med° | inst. 1-NN ±5° % | inst. SPM med° | inst. SPM ±5° % |")
-    lines = [head, "|" + "---|" * 10]
-    for name, r in rows:
-        cells = [name, f"{r['train_coverage_pct']:.0f} / {r['query_coverage_pct']:.0f}"]
-        for p in ("views", "instances"):
-            for m in ("nn", "spm"):
-                cells += [fmt(r[p][m]["median_deg"]), fmt(r[p][m]["tol5_pct"])]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
-STAGES = {"a": "(a) keypoint layout (8x8 histogram in the box)", "b": "(b) bunch centres (EM means, ordered)",
-          "c": "(c) ellipse (centre, axes, orientation)", "d": "(d) foci-distance vector (16-d)",
-          "e": "(e) re-projected vector (SPP)", "z": "chance: a random training frame's label"}
-
-
-def table2(res) -> str:
-    lines = ["| descriptor | views 1-NN med° | views ±5° % | instances 1-NN med° | instances ±5° % |",
-             "|---|---|---|---|---|"]
-    for k, label in STAGES.items():
-        lines.append(f"| {label} | {fmt(res['views'][k]['median_deg'])} | {fmt(res['views'][k]['tol5_pct'])} | "
-                     f"{fmt(res['instances'][k]['median_deg'])} | {fmt(res['instances'][k]['tol5_pct'])} |")
-    return "\n".join(lines)
+def measure_of(lo: FrameSet, args, rows: list, stages: dict, needed: int, shards_frames: int) -> dict:
+    """The figures as docs/results/measures/spm-ablation.json holds them (without its made block)."""
+    keep = ("train_coverage_pct", "query_coverage_pct", "views", "instances", "rule", "features", "regressor")
+    return {"subset": {"frames": lo.n, "with_neighbours": needed, "shards_frames": shards_frames,
+                       "classes": len(set(lo.class_name.tolist())), "instances": args.instances,
+                       "azimuth_step": args.azimuth_step, "elevation_step": args.elevation_step, "seed": args.seed},
+            "variants": [[name, {k: r[k] for k in keep}] for name, r in rows], "probe": stages}
 
 
 def cmd_run(args) -> None:
@@ -507,7 +496,12 @@ def cmd_run(args) -> None:
     log("probe")
     stages = probe(lo, args.seed, cache)
     seconds = time.time() - start
-    t1, t2 = table1(rows), table2(stages)
+    doc = results_doc()
+    labels = read_labels(list_shards(args.shards))
+    found = {"summary": measure_of(lo, args, rows, stages, int(subset_masks(labels, args.instances, args.azimuth_step,
+                                                                           args.elevation_step)[1].sum()),
+                                   len(labels["pose"]))}
+    t1, t2 = doc.table_spm_ablation(found), doc.table_spm_ablation_probe(found)
     text = (f"Subset: {lo.n} frames ({args.instances} instances per class, every {args.azimuth_step}. azimuth, "
             f"every {args.elevation_step}. elevation), seed {args.seed}; run time {seconds / 60:.1f} min\n\n"
             f"{t1}\n\n{t2}\n")
@@ -515,6 +509,11 @@ def cmd_run(args) -> None:
     (out / "tables.md").write_text(text)
     (out / "results.json").write_text(json.dumps({"args": vars(args), "seconds": seconds, "variants": results,
                                                   "probe": stages}, indent=1, default=str))
+    if args.measure:
+        found["made"] = doc.made_block(shlex.join(["python", "benchmarks/spm_ablation.py", *args.argv]), seconds,
+                                       cpu_s=doc.cpu_seconds())
+        Path(args.measure).parent.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(args.measure, found, sort_keys=False)
     log(f"done in {seconds:.0f} s; wrote {out / 'tables.md'} and results.json")
 
 
@@ -540,7 +539,11 @@ def main(argv=None) -> None:
             p.add_argument("--probe-only", action="store_true", help="only the default row and table 2")
             p.add_argument("--projection-samples", type=int, default=1000,
                            help="SPMEstimator's projection_samples (1000, its default; less only for smoke tests)")
+            p.add_argument("--measure", help="also write the tables' figures and how they were made to this JSON "
+                                             "(docs/results/measures/spm-ablation.json: docs/spm-ablation.md's tables)")
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
+    args.argv = argv
     if args.old_shards:  # the old spelling, kept for one release
         print("warning: --shards is deprecated; give the folder as the first argument", file=sys.stderr)
         args.shards = args.old_shards

@@ -157,11 +157,20 @@ def _number(text: str):
     return text
 
 
+def cpu_seconds() -> float:
+    """CPU seconds (user + system, every thread) of this process and its finished children: the
+    work a measurement did, which a shared machine's other users slow down less than the wall time."""
+    import resource
+
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
 def made_block(command: str, wall_s: float, date: str | None = None, note: str | None = None,
-               parameters: dict | None = None, before: list | None = None) -> dict:
+               parameters: dict | None = None, before: list | None = None, cpu_s: float | None = None) -> dict:
     """How a snapshot was made: ``parameters`` (the settings of the command it quotes, e.g. the
-    image size a benchmark's default gives) and ``before`` ([{command, wall_s, date}]: the steps
-    that made its input or filled its caches, e.g. the render) where given."""
+    image size a benchmark's default gives), ``before`` ([{command, wall_s, date}]: the steps
+    that made its input or filled its caches, e.g. the render) and ``cpu_s`` (cpu_seconds) where given."""
     from spm_model.spm.features import FEATURE_VERSION
 
     made = {"date": date or datetime.date.today().isoformat(), "command": command, "wall_s": round(float(wall_s), 1),
@@ -174,6 +183,8 @@ def made_block(command: str, wall_s: float, date: str | None = None, note: str |
         made["before"] = before
     if note:
         made["note"] = note
+    if cpu_s is not None:
+        made["cpu_s"] = round(float(cpu_s), 1)
     return made
 
 
@@ -824,11 +835,13 @@ def first_difference(expected: str, actual: str) -> str | None:
 
 
 # ---------------------------------------------------------------------------------------------
-# Tables in other docs, between <!-- measure-table:NAME --> and <!-- /measure-table --> lines,
-# rendered from docs/results/measures/NAME.json (`python scripts/results_doc.py blocks`).
+# Tables in other docs, between <!-- measure-table:NAME --> (or NAME/PART, another table of the
+# same measure) and <!-- /measure-table --> lines, rendered from docs/results/measures/NAME.json
+# (`python scripts/results_doc.py blocks`).
 
-BLOCK_DOCS = (ROOT / "docs" / "method.md",)
-BLOCK = re.compile(r"(<!-- measure-table:([\w-]+) -->\n)(.*?)(<!-- /measure-table -->)", re.S)
+BLOCK_DOCS = (ROOT / "docs" / "method.md", ROOT / "README.md", ROOT / "docs" / "spm-ablation.md",
+              ROOT / "docs" / "scaling.md")
+BLOCK = re.compile(r"(<!-- measure-table:([\w-]+)(/[\w-]+)? -->\n)(.*?)(<!-- /measure-table -->)", re.S)
 
 
 def _share(part: int, whole: int) -> str:
@@ -850,17 +863,100 @@ def table_n3m_small_set(measure: dict) -> str:
     return _table(["method", "clean", "40% hidden", "poses from markers / RANSAC (clean; hidden)"], rows)
 
 
-MEASURE_TABLES = {"n3m-small-set": table_n3m_small_set}
+def table_isolation_cost(measure: dict) -> str:
+    """benchmarks/isolation_cost.py's figures: per protocol and in total, each way's wall seconds
+    per run, their medians and the ratio; then how they were measured (the loads of every run)."""
+    s, made = measure["summary"], measure["made"]
+    rows = [[part, " / ".join(f"{w:.1f}" for w in f["isolated_s"]), " / ".join(f"{w:.1f}" for w in f["in_process_s"]),
+             f"{f['isolated_median_s']:.1f} / {f['in_process_median_s']:.1f}", f"{f['ratio']:.3f}"]
+            for part, f in [*s["protocols"].items(), ("total", s["total"])]]
+    loads = [x[k] for x in made["loads"] for k in ("start", "end")]
+    p = made["parameters"]
+    return (_table(["protocol", "isolated, each run (s)", "in-process, each run (s)", "medians (s)",
+                    "isolated / in-process"], rows)
+            + f"\n\n{made['date']}, `{made['command']}`: {s['frames']:,} frames, methods {p['methods']}, "
+            f"--runs {p['runs']}, --workers {p['workers']}, --rounds {p['rounds']} (each way; {p['order']}), "
+            f"{made['machine']['nproc']} CPUs, 1-minute load average {min(loads):.1f}–{max(loads):.1f} at the "
+            f"runs' starts and ends; results.json summaries identical both ways; target: ratio "
+            f"≤ {s['target_ratio']:.2f}.")
+
+
+SOLVER_ROWS = (("exact_all", "exact Eq. 5 over every training frame"),
+               ("exact_subset", "exact Eq. 5 over a seeded 1,000-frame subset (the default)"),
+               ("knn_subset", "`projection=\"knn\"` (64 neighbours) over that subset"))
+
+
+def table_spm_solvers(measure: dict) -> str:
+    """benchmarks/train_scaling.py --accuracy-only: SPM's Eq. 5 solvers against the exact solve."""
+    s, made = measure["summary"], measure["made"]
+
+    def cell(f, key):
+        return f"{f[key]:.1f} (σ {f[key + '_std']:.1f})"
+    rows = [[label, cell(s["solvers"][key], "own_sum5"), cell(s["solvers"][key], "own_sum3"),
+             cell(s["solvers"][key], "new_sum5"), f"{s['solvers'][key]['fit_cpu_s']:.1f}"]
+            for key, label in SOLVER_ROWS]
+    return (_table(["solve", f"sum<5° % re-predicting its {s['training_frames']:,} training frames",
+                    "sum<3° % (the same)", f"sum<5° % on {s['test_frames']:,} new views", "fit, CPU s"], rows)
+            + f"\n\n{made['date']}, `{made['command']}`: the `views` split (seed 0) of {s['frames']:,} frames, "
+            f"its first {s['training_frames']:,} training frames with an SPM vector and its test frames with one; "
+            f"mean (σ) over {s['seeds']} seeds (the noise copies and Nyström centres vary with the seed); a fit's "
+            f"CPU seconds (all its threads); the whole command {made['cpu_s']:,.0f} CPU seconds. Target: the "
+            "default within one point of the exact solve.")
+
+
+def _abl(x) -> str:
+    return DASH if x is None else f"{x:.1f}"
+
+
+def table_spm_ablation(measure: dict) -> str:
+    """benchmarks/spm_ablation.py's Table 1: one open choice at a time (1-NN and SPM, two protocols)."""
+    rows = []
+    for name, r in measure["summary"]["variants"]:
+        cells = [name, f"{r['train_coverage_pct']:.0f} / {r['query_coverage_pct']:.0f}"]
+        cells += [_abl(r[p][m][k]) for p in ("views", "instances") for m in ("nn", "spm")
+                  for k in ("median_deg", "tol5_pct")]
+        rows.append(cells)
+    return _table(["variant", "train / query vectors (%)", "views 1-NN med°", "views 1-NN ±5° %", "views SPM med°",
+                   "views SPM ±5° %", "inst. 1-NN med°", "inst. 1-NN ±5° %", "inst. SPM med°", "inst. SPM ±5° %"],
+                  rows)
+
+
+ABLATION_STAGES = {"a": "(a) keypoint layout (8x8 histogram in the box)", "b": "(b) bunch centres (EM means, ordered)",
+                   "c": "(c) ellipse (centre, axes, orientation)", "d": "(d) foci-distance vector (16-d)",
+                   "e": "(e) re-projected vector (SPP)", "z": "chance: a random training frame's label"}
+
+
+def table_spm_ablation_probe(measure: dict) -> str:
+    """benchmarks/spm_ablation.py's Table 2: the stage-by-stage 1-NN probe."""
+    probe = measure["summary"]["probe"]
+    rows = [[label, *(_abl(probe[p][k][m]) for p in ("views", "instances") for m in ("median_deg", "tol5_pct"))]
+            for k, label in ABLATION_STAGES.items()]
+    return _table(["descriptor", "views 1-NN med°", "views ±5° %", "instances 1-NN med°", "instances ±5° %"], rows)
+
+
+def table_spm_ablation_made(measure: dict) -> str:
+    """How the ablation's measure was made: its subset and command."""
+    s, made = measure["summary"], measure["made"]
+    sub = s["subset"]
+    return (f"{made['date']}, `{made['command']}`: {sub['frames']:,} subset frames ({sub['with_neighbours']:,} "
+            f"with their path neighbours) of {sub['shards_frames']:,}: instances 0–{sub['instances'] - 1} of each of "
+            f"{sub['classes']} classes, every {sub['azimuth_step']}. azimuth and every {sub['elevation_step']}. "
+            f"elevation of the grid; split seed {sub['seed']}; {made['cpu_s']:,.0f} CPU seconds.")
+
+
+MEASURE_TABLES = {"n3m-small-set": table_n3m_small_set, "isolation-cost": table_isolation_cost,
+                  "spm-solvers": table_spm_solvers, "spm-ablation": table_spm_ablation,
+                  "spm-ablation/probe": table_spm_ablation_probe, "spm-ablation/made": table_spm_ablation_made}
 
 
 def fill_blocks(text: str, measures: dict) -> str:
     """``text`` with every measure-table block rendered from its measure."""
     def one(m):
-        name = m.group(2)
-        if name not in MEASURE_TABLES or name not in measures:
-            raise PlaceholderError(f"no measure table {name!r} (tables: {', '.join(MEASURE_TABLES)}; "
+        measure, table = m.group(2), m.group(2) + (m.group(3) or "")
+        if table not in MEASURE_TABLES or measure not in measures:
+            raise PlaceholderError(f"no measure table {table!r} (tables: {', '.join(MEASURE_TABLES)}; "
                                    f"measures: {', '.join(sorted(measures))})")
-        return m.group(1) + MEASURE_TABLES[name](measures[name]) + "\n" + m.group(4)
+        return m.group(1) + MEASURE_TABLES[table](measures[measure]) + "\n" + m.group(5)
     return BLOCK.sub(one, text)
 
 
