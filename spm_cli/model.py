@@ -153,13 +153,15 @@ def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs,
 
 
 def _models_line(result) -> str:
-    """"models: PATH (SPM), PATH (reference)" for what train fitted and wrote (only the models of
-    methods asked for), and what it could not fit."""
-    written = [f"{result[key]} ({what})" for key, what in (("model", "SPM"), ("reference_model", "reference"),
-                                                           ("cnn_model", "CNN")) if result.get(key) is not None]
-    missing = [f"{what} declined" for key, what in (("spm", "SPM"), ("template", "reference"), ("cnn", "CNN"))
-               if result["models"].get(key, "written") != "written"]   # absent: not asked for, so not fitted
-    none = "none (neither spm, template nor cnn was asked for)" if not result["models"] else "none"
+    """"models: PATH (SPM), PATH (HOG templates)" for what train fitted and wrote (only the models of
+    methods asked for; each named by its registry row's model title), and what it could not fit."""
+    from spm_model.methods.registry import SAVED_MODELS
+
+    written = [f"{path} ({SAVED_MODELS[name].model_title})" for name, path in result["model_files"].items()]
+    missing = [f"{SAVED_MODELS[name].model_title} declined" for name, state in result["models"].items()
+               if state != "written"]   # absent: not asked for, so not fitted
+    *others, last = SAVED_MODELS
+    none = f"none (neither {', '.join(others)} nor {last} was asked for)" if not result["models"] else "none"
     return "models: " + (", ".join(written) or none) + (f" ({'; '.join(missing)})" if missing else "")
 
 
