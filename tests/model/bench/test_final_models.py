@@ -55,10 +55,11 @@ def test_a_final_model_that_cannot_be_fitted_is_declined_with_why_and_the_others
     monkeypatch.setattr(TemplatePose, "fit", boom)
     table = load_features(model_shards, FAST)
     rows = final_rows(table, train_occluded=True)[:4]
-    fitted, declined = fit_final_models(table, {"features": FAST}, rows, ["spm", "template", "pca"])
-    assert fitted == {"spm": None, "template": None, "pca": fitted["pca"]} and fitted["pca"] is not None
-    assert declined == {"spm": "needs 10 training frames with SPM features, 4 of 4 have them (SIFT finds too few "
-                                "keypoints on small or plain images)", "template": "RuntimeError: boom"}
+    featured = int(np.isfinite(table.train_vector[rows]).all(axis=1).sum())
+    fitted, declined = fit_final_models(table, {"features": FAST}, rows, ["spm", "template", "chance"])
+    assert fitted == {"spm": None, "template": None, "chance": fitted["chance"]} and fitted["chance"] is not None
+    assert declined == {"spm": f"needs 10 training frames with SPM features, {featured} of 4 have them (SIFT finds "
+                                "too few keypoints on small or plain images)", "template": "RuntimeError: boom"}
 
 
 def test_saving_writes_each_fitted_model_to_its_rows_file_and_removes_stale_ones(model_shards, tmp_path):
@@ -110,10 +111,13 @@ def mean_row(monkeypatch):
 
 
 def test_a_method_added_as_one_row_with_a_model_file_is_fitted_saved_and_read_back(model_shards, tmp_path,
-                                                                                   mean_row):
+                                                                                   mean_row, monkeypatch):
     """Its splits run in the methods' fresh processes, which import the registry without the
     test's row (so they decline it there); the final model is fitted in this process (one worker)."""
+    monkeypatch.setenv("SPM_PROGRESS_EVERY", "100000")   # no progress line among the lines read below
     runner = CliRunner()
+    assert "mean-model.npz (mean pose), from spm train" in " ".join(runner.invoke(model_cli, ["evaluate", "--help"])
+                                                                   .output.split())   # help reads the rows
     shards, report = tmp_path / "s", tmp_path / "report"
     shutil.copytree(model_shards, shards)
     r = runner.invoke(model_cli, ["train", str(shards), "--out", str(report), "--runs", "1", "--protocol", "views",
