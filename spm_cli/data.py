@@ -176,7 +176,7 @@ export_group = Group("export", help="Hand shards to other tools in their formats
 @handle_errors
 def export_bop_cmd(folder, out_dir, split, meshes_from, ids_from, no_distractors, allow_partial):
     """Write the shard folder FOLDER as a BOP dataset in --out (one scene per object instance)."""
-    from spm_data.formats.bop import export_bop
+    from spm_data.formats.bop.export import export_bop
 
     bar = Progress()
     try:

@@ -49,14 +49,16 @@ def _method_names(values):
     return check_method_names(comma_list(values), "--methods")
 
 
-class MethodsOption(click.Option):
-    """--methods, whose help lists the registry's names (read when help is shown: the registry
-    imports every method)."""
+class RegistryOption(click.Option):
+    """An option whose help names what the method registry holds, read when help is shown (the
+    registry imports every method): ``{names}``, the built-in methods (--methods); ``{model_files}``,
+    the model files spm train writes (--out, --model)."""
 
     def get_help_record(self, ctx):
-        from spm_model.methods.registry import METHOD_NAMES
+        from spm_model.methods.registry import METHOD_NAMES, SAVED_MODELS
 
-        self.help = self.help.format(names=", ".join(METHOD_NAMES))
+        *others, last = (f"{m.model_file} ({m.model_title})" for m in SAVED_MODELS.values())
+        self.help = self.help.format(names=", ".join(METHOD_NAMES), model_files=f"{', '.join(others)} or {last}")
         return super().get_help_record(ctx)
 
 
@@ -93,8 +95,9 @@ def _bop_line(result) -> None:
 
 @click.command("train")
 @click.argument("shards", metavar="SHARDS", required=False, type=click.Path())
-@click.option("--out", "report_dir", default=None, type=click.Path(),
-              help="Report folder: results.md/json, plots, model.npz, reference-model.npz [default: SHARDS/report].")
+@click.option("--out", "report_dir", default=None, type=click.Path(), cls=RegistryOption,
+              help="Report folder: results.md/json, plots and the models of the methods asked for: {model_files} "
+                   "[default: SHARDS/report].")
 @click.option("--protocol", type=click.Choice(["loco", "views", "instances", "offgrid", "interleaved"]), default=None,
               help="loco (default; views where the data has one class): leave one class out; views: new views of "
                    "seen objects; instances: leave one instance out of every class (category level); offgrid: "
@@ -105,7 +108,7 @@ def _bop_line(result) -> None:
 @click.option("--train-occluded/--clean-training", "train_occluded", default=None,
               help="Whether occluded frames train too (the paper's training with noise) [default: yes, but no "
                    "under offgrid].")
-@click.option("--methods", "methods", cls=MethodsOption, multiple=True, metavar="NAME[,NAME...]",
+@click.option("--methods", "methods", cls=RegistryOption, multiple=True, metavar="NAME[,NAME...]",
               help="Built-in methods to run (default all): {names}. Repeatable, or comma-separated.")
 @click.option("--runs", default=3, show_default=True, type=click.IntRange(min=1, max=100),
               help="Repeated runs (seeds) for sigma (at most 100).")
@@ -153,13 +156,15 @@ def train_cmd(shards, report_dir, protocol, test, train_occluded, methods, runs,
 
 
 def _models_line(result) -> str:
-    """"models: PATH (SPM), PATH (reference)" for what train fitted and wrote (only the models of
-    methods asked for), and what it could not fit."""
-    written = [f"{result[key]} ({what})" for key, what in (("model", "SPM"), ("reference_model", "reference"),
-                                                           ("cnn_model", "CNN")) if result.get(key) is not None]
-    missing = [f"{what} declined" for key, what in (("spm", "SPM"), ("template", "reference"), ("cnn", "CNN"))
-               if result["models"].get(key, "written") != "written"]   # absent: not asked for, so not fitted
-    none = "none (neither spm, template nor cnn was asked for)" if not result["models"] else "none"
+    """"models: PATH (SPM), PATH (HOG templates)" for what train fitted and wrote (only the models of
+    methods asked for; each named by its registry row's model title), and what it could not fit."""
+    from spm_model.methods.registry import SAVED_MODELS
+
+    written = [f"{path} ({SAVED_MODELS[name].model_title})" for name, path in result["model_files"].items()]
+    missing = [f"{SAVED_MODELS[name].model_title} declined" for name, state in result["models"].items()
+               if state != "written"]   # absent: not asked for, so not fitted
+    *others, last = SAVED_MODELS
+    none = f"none (neither {', '.join(others)} nor {last} was asked for)" if not result["models"] else "none"
     return "models: " + (", ".join(written) or none) + (f" ({'; '.join(missing)})" if missing else "")
 
 
@@ -182,8 +187,8 @@ def check_estimator_cmd(spec, timeout):
 
 @click.command("evaluate")
 @click.argument("shards", metavar="SHARDS", required=False, type=click.Path())
-@click.option("--model", "model_path", required=True, type=click.Path(),
-              help="model.npz (SPM), reference-model.npz or cnn-model.npz from spm train.")
+@click.option("--model", "model_path", required=True, type=click.Path(), cls=RegistryOption,
+              help="{model_files}, from spm train.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of the table.")
 @device_option(None, "a cnn model runs")
 @bop_options
@@ -193,8 +198,8 @@ def check_estimator_cmd(spec, timeout):
 @handle_errors
 def evaluate_cmd(model_path, shards, as_json, device, bop_results, bop_dataset, bop_split, bop_ids_from, allow_partial,
                  executor):
-    """Score a trained model (--model: SPM or reference) on the shards in SHARDS: ±5°, sum < 5° and
-    < 3°, median errors per class."""
+    """Score a trained model (--model: a model file spm train wrote) on the shards in SHARDS: ±5°,
+    sum < 5° and < 3°, median errors per class."""
     import json
 
     from spm_model.pipelines.evaluate import evaluate_model
@@ -219,8 +224,8 @@ def evaluate_cmd(model_path, shards, as_json, device, bop_results, bop_dataset, 
 
 @click.command("predict")
 @click.argument("images", metavar="IMAGE...", nargs=-1, required=True, type=click.Path())
-@click.option("--model", "model_path", required=True, type=click.Path(),
-              help="model.npz (SPM), reference-model.npz or cnn-model.npz from spm train.")
+@click.option("--model", "model_path", required=True, type=click.Path(), cls=RegistryOption,
+              help="{model_files}, from spm train.")
 @click.option("--roi", default=None, help="Region of interest x,y,width,height (pixels) holding the object.")
 @click.option("--mask", "mask_path", default=None, type=click.Path(), help="Object mask image (non-zero = object).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON: every image, failed ones with their error.")

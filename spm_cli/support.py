@@ -15,6 +15,8 @@ from spm_data.errors import SpmError, SpmWarning
 from spm_data.jobs import progress
 
 CONTEXT = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
+# The flag of each option the library names by key in a message (spm_data.errors.Option): occlude's.
+FLAGS = {"min": "--min", "max": "--max", "copies": "--copies", "rects": "--rects", "seed": "--seed"}
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
@@ -47,7 +49,7 @@ def handle_errors(fn):
         try:
             result = fn(*args, **kwargs)
         except SpmError as exc:
-            click.echo(f"error: {exc}", err=True)
+            click.echo(f"error: {exc.named(FLAGS)}", err=True)
             sys.exit(1)
         except KeyboardInterrupt:
             _say_interrupted(outcome)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spm_data.errors import SpmError
+from spm_data.errors import Option, SpmError
 
 DEFAULT_TOLERANCE = 0.005
 
@@ -97,7 +97,7 @@ def occlude_mask(mask: np.ndarray, target: float, rng: np.random.Generator, rect
         return Occlusion(out, 0.0, 0.0, True)
     if bounds[1] - bounds[0] >= 2 * tolerance:
         lo_px, hi_px = max(bounds[0], target - tolerance) * total, min(bounds[1], target + tolerance) * total
-    else:  # a range narrower than the tolerance (--min 0.3 --max 0.3): target +- tolerance
+    else:  # a range narrower than the tolerance (min 0.3, max 0.3): target +- tolerance
         lo_px, hi_px = (target - tolerance) * total, (target + tolerance) * total
     first = _state(obj)  # the same for every try
     best = None
@@ -169,7 +169,9 @@ def occlude_image(rgb: np.ndarray, mask: np.ndarray, rng: np.random.Generator, l
 
 
 def check_range(low: float, high: float) -> None:
+    """SpmError unless 0 <= low <= high <= 1, naming the options by key (min, max: Option)."""
     if not (0.0 <= low <= 1.0 and 0.0 <= high <= 1.0):
-        raise SpmError(f"occlusion fractions must lie in [0, 1]: got --min {low}, --max {high}")
+        raise SpmError("occlusion fractions must lie in [0, 1]: got ", Option("min"), f" {low}, ", Option("max"),
+                       f" {high}")
     if low > high:
-        raise SpmError(f"--min {low} is above --max {high}")
+        raise SpmError(Option("min"), f" {low} is above ", Option("max"), f" {high}")

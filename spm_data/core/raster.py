@@ -7,7 +7,7 @@ Blender; a cluttered frame's amodal mask is the target's silhouette. The rules
 are those of bop_toolkit's vispy renderer on Mesa's llvmpipe (:func:`render_depth`:
 vispy's matrices, the vertex shader in float32, draw's clipping at the frustum's
 planes, 1/256-pixel vertex snapping and llvmpipe's fill rule), which a BOP export
-draws its ground truth by (spm_data.formats.bop_gt), so a cluttered frame's mask
+draws its ground truth by (spm_data.formats.bop.gt), so a cluttered frame's mask
 is its export's ``mask/`` to the pixel. pyrender on llvmpipe rasterises by the
 same rules with its own float32 matrices, Blender samples pixel centres: their
 masks match a silhouette up to an edge pixel or two (tests/core/test_raster.py).

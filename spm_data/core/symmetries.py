@@ -2,7 +2,7 @@
 
 Built-in classes state theirs in their generators (meshes.py); for mesh files a
 spec declares them (``mesh.symmetries``, parsed here). The BOP export writes them
-to ``models_info.json`` (bop_models.py).
+to ``models_info.json`` (bop/models.py).
 """
 
 from __future__ import annotations

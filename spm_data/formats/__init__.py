@@ -95,7 +95,7 @@ IMPORTERS: dict[str, Importer] = {
                                                            "docs/datasets.md; import folder's is m)."),
                      Option("--fov", "fov", "float", None, "Vertical field of view, degrees, if tables have no "
                                                            "fx fy cx cy."))),
-    "bop": Importer("spm_data.formats.bop", "import_bop",
+    "bop": Importer("spm_data.formats.bop.read", "import_bop",
                     "A BOP dataset split at PATH, one frame per (image, object); masks are BOP's own (mask_visib).",
                     (Option("--split", "split", "str", "train_pbr", "BOP split folder."),
                      Option("--crop", "crop", "int", None, "Square crops of this size around each object.", 8),

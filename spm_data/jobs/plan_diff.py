@@ -2,10 +2,10 @@
 differs from this run's plan, named with both values, in one line.
 
 A job may offer ``plan_difference(attrs)``: given the attributes of the shard on disk, the
-difference as ``(key, old, new)`` (a spec key such as ``camera.azimuth``, ``seed``, or an option
-such as ``--max``), a phrase ("was made from ..."), or None if it cannot tell. Without one, or when it cannot tell, the
-refusal
-says what kinds of thing may differ.
+difference as ``(key, old, new)`` (a spec key such as ``camera.azimuth``, ``seed``, an option
+such as ``--limit``, or an option by its key, an Option such as occlude's ``max``, which the
+command line names by its flag), a phrase ("was made from ..."), or None if it cannot tell.
+Without one, or when it cannot tell, the refusal says what kinds of thing may differ.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spm_data.errors import SpmError
+from spm_data.errors import Option, SpmError, joined
 
 GENERIC = "was made from another spec, input, seed or options"
 
@@ -56,7 +56,7 @@ def first_difference(old: dict, new: dict) -> tuple | None:
 
 
 def show(key: str, value) -> str:
-    """``--max 0.6`` for an option, ``camera.azimuth = [0, 340, 20]`` for a spec key."""
+    """``--limit 8`` for an option, ``camera.azimuth = [0, 340, 20]`` for a spec key."""
     value = plain(value)
     if value is None:
         text = "none"
@@ -73,10 +73,16 @@ def show(key: str, value) -> str:
     return f"{key} {text}" if key.startswith("--") else f"{key} = {text}"
 
 
-def refusal(job, target: Path, attrs: dict) -> str:
+def shown(key, value) -> tuple:
+    """show() as message parts: an Option key apart (``max``, `` 0.6``), for the command line's flag."""
+    return (key, f" {show('', value)}") if isinstance(key, Option) else (show(key, value),)
+
+
+def refusal(job, target: Path, attrs: dict) -> tuple:
     """The one-line refusal of ``target`` (its attributes ``attrs``), which ``job`` would make
-    from another plan."""
-    what = GENERIC
+    from another plan, as an error's parts (spm_data.errors.joined: one string unless it names an
+    Option)."""
+    what: tuple = (GENERIC,)
     explain = getattr(job, "plan_difference", None)
     if explain is not None:
         try:
@@ -84,8 +90,8 @@ def refusal(job, target: Path, attrs: dict) -> str:
         except (SpmError, KeyError, ValueError, TypeError, OSError):
             found = None   # an older shard without what it would take to tell: the generic line
         if isinstance(found, str):
-            what = found
+            what = (found,)
         elif found is not None:
             key, old, new = found
-            what = f"was made with {show(key, old)}, not {show(key, new)}"
-    return f"{target} {what}; write into a new --out folder or delete {target.parent}"
+            what = ("was made with ", *shown(key, old), ", not ", *shown(key, new))
+    return joined(f"{target} ", *what, f"; write into a new --out folder or delete {target.parent}")

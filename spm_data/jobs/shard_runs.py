@@ -101,7 +101,7 @@ def _pending(jobs, summary: RunSummary) -> list:
             todo.append(job)
             continue
         if attrs.get("plan_key") != job.plan_key:
-            raise ShardError(refusal(job, target, attrs))   # naming what differs, where the job can tell
+            raise ShardError(*refusal(job, target, attrs))   # naming what differs, where the job can tell
         summary.skipped.append(job.name)
     return todo
 

@@ -183,7 +183,7 @@ def _one_pool(job: MergeJob, parts: list, pools: list) -> tuple[np.ndarray, dict
 
 def _warn_shared_names(out_dir) -> None:
     """One warning when two different meshes carry one class and instance name: they become two
-    objects (bop_ids.py), which a user reading names alone would not expect."""
+    objects (bop/ids.py), which a user reading names alone would not expect."""
     import warnings
 
     from spm_data.errors import SpmWarning

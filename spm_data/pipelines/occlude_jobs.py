@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spm_data.errors import ShardError, SpmError
+from spm_data.errors import Option, ShardError, SpmError
 from spm_data.io.folders import open_folder
 from spm_data.io.outputs import check_out_name
 from spm_data.core.occlusion import black_out, check_range, occlude_mask
@@ -27,6 +27,10 @@ from spm_data.io.shards import (ShardReader, ShardWriter, hash_ahead, manifest_e
 from spm_data.io.shards.chunks import runs
 
 DERIVED_FIELDS = ("visible_mask", "source_shard", "source_frame")
+# What a copy is made with, by key (the command line names them by flag: spm_cli/support.py);
+# the shard's attribute of each, in that order.
+OPTIONS = tuple(map(Option, ("min", "max", "rects", "seed", "copy")))
+OPTION_ATTRS = ("occlusion_min", "occlusion_max", "occlusion_rects", "occlusion_seed", "occlusion_copy")
 IMAGES = ("rgb", "visible_mask")  # what occlude writes anew; in this order (the same bytes as before)
 
 
@@ -45,15 +49,13 @@ class OccludeJob:
     verified: tuple | None = None  # the parent's check of the source (seal.py): not hashed again in a worker
 
     def options(self) -> dict:
-        """The options this copy is made with, as the command line names them."""
-        return {"--min": self.low, "--max": self.high, "--rects": self.rects, "--seed": self.seed, "copy": self.copy}
+        """The options this copy is made with, by key (OPTIONS)."""
+        return dict(zip(OPTIONS, (self.low, self.high, self.rects, self.seed, self.copy)))
 
     def plan_difference(self, attrs: dict) -> tuple | str | None:
-        """(key, old, new): the option (``--max``...) that the shard with ``attrs`` was made with
-        otherwise, or a phrase for another input (shard_runs' refusal); None if none is found."""
-        old = {"--min": attrs["occlusion_min"], "--max": attrs["occlusion_max"], "--rects": attrs["occlusion_rects"],
-               "--seed": attrs["occlusion_seed"], "copy": attrs["occlusion_copy"]}
-        found = first_difference(old, self.options())
+        """(key, old, new): the option (an OPTIONS key: ``max``...) that the shard with ``attrs`` was
+        made with otherwise, or a phrase for another input (shard_runs' refusal); None if none is found."""
+        found = first_difference(dict(zip(OPTIONS, (attrs[a] for a in OPTION_ATTRS))), self.options())
         was, now = str(attrs.get("source_plan_key", "")), str(read_attrs(self.source).get("plan_key", ""))
         if found is None and was != now:
             return (f"was made from another version of its input {Path(self.source).name} (made with plan "
@@ -112,19 +114,19 @@ MAX_SEED = 2**63 - 1
 
 
 def check_options(low, high, copies, rects, seed) -> None:
-    """SpmError for options out of range, before any shard is read."""
+    """SpmError for options out of range, before any shard is read, naming each by key (Option)."""
     check_range(low, high)
     if copies < 1 or rects < 1:
-        raise SpmError(f"--copies and --rects must be >= 1, got {copies} and {rects}")
+        raise SpmError(Option("copies"), " and ", Option("rects"), f" must be >= 1, got {copies} and {rects}")
     if rects > MAX_RECTS:
-        raise SpmError(f"--rects {rects}: at most {MAX_RECTS} rectangles per frame")
+        raise SpmError(Option("rects"), f" {rects}: at most {MAX_RECTS} rectangles per frame")
     if not 0 <= seed <= MAX_SEED:
-        raise SpmError(f"--seed {seed}: expected an integer in [0, {MAX_SEED}]")
+        raise SpmError(Option("seed"), f" {seed}: expected an integer in [0, {MAX_SEED}]")
 
 
 def plan_occlusion(shards: dict, out_dir, low, high, copies=1, rects=1, seed=0) -> list[OccludeJob]:
-    """One job per (shard, copy); shards: {path: verified attributes} (check_inputs)."""
-    check_options(low, high, copies, rects, seed)
+    """One job per (shard, copy); shards: {path: verified attributes} (check_inputs); the options
+    as occlude_dataset, the entry, checked them (check_options)."""
     jobs = []
     for path, attrs in shards.items():
         stamp = f"{path.name}:{attrs.get('plan_key', '')}:{path.stat().st_size}"
@@ -192,7 +194,8 @@ def _place(job: OccludeJob, data: dict, images: dict, labels: dict, writer, repo
 def occlude_dataset(in_dir, out_dir, *, low=0.0, high=0.6, copies=1, rects=1, seed=0,
                     progress=None, executor=None, allow_partial=False) -> RunSummary:
     """Occlude every shard of ``in_dir`` into ``out_dir`` (resuming), then write its manifest.
-    Everything is checked before anything is written; ``allow_partial``: see folders.open_folder."""
+    Everything is checked before anything is written, the options first and once (check_options);
+    ``allow_partial``: see folders.open_folder."""
     check_options(low, high, copies, rects, seed)
     shards = check_inputs(in_dir, out_dir, allow_partial)
     jobs = plan_occlusion(shards, out_dir, low, high, copies, rects, seed)

@@ -26,7 +26,7 @@ class SplitJob:
 @dataclass(frozen=True)
 class FinalJob:
     """The models ``spm train`` saves, of the methods ``wanted`` names, fitted on every training frame
-    (protocols.final_models)."""
+    (final_models.fit_final_models)."""
 
     source: object
     model_params: dict

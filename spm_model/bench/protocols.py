@@ -42,8 +42,8 @@ import numpy as np
 
 from spm_model.errors import ModelError
 from spm_model.base.feature_memo import use_folder
-from spm_model.base.frames import Frames
-from spm_model.bench.fitting import builtin_classes, failure, fit_predict, unmet_needs
+from spm_model.bench.final_models import fit_final_models, saved_names
+from spm_model.bench.fitting import builtin_classes, fit_predict
 from spm_model.bench.isolation import DEFAULT_TIMEOUT
 from spm_model.bench.jobs import FinalJob, SplitJob
 from spm_model.bench.feature_cache import FeatureTable, load_features, memo_folder, offgrid_table, progress_phase
@@ -51,9 +51,6 @@ from spm_model.bench.scoring import eccentricity, frame_errors, run_summary
 from spm_model.bench.split_lines import SplitLines
 from spm_model.bench.surface_metrics import mesh_keys
 from spm_model.bench.symmetry_errors import instance_symmetries
-from spm_model.methods.spm_pose import SPMPose
-from spm_model.methods.template import TemplatePose
-from spm_model.spm.estimator import SPMEstimator
 
 PROTOCOLS = ("loco", "views", "instances", "offgrid", "interleaved")
 
@@ -199,12 +196,13 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
     executor, source: the splits of every run as jobs on ``executor`` (spm_data.jobs), each worker
     reading the table from the feature cache of ``source`` = (shards, test folder or None,
     FeatureConfig, allow_partial); the results are those of one worker. Without them, in this process.
-    final: also fit the final models (:func:`final_models`), as the first job, so they are fitted
-    while the splits run instead of after them. timeout: seconds a plug-in's call may take
-    before it is declined (None: no limit). progress: a callable taking count deltas
-    (feature_cache.progress_phase): "fitting" counts the splits (not the final models), "scoring" runs.
+    final: also fit the final models (final_models.fit_final_models, but those fitted after the
+    splits), as the first job, so they are fitted while the splits run instead of after them.
+    timeout: seconds a plug-in's call may take before it is declined (None: no limit). progress: a
+    callable taking count deltas (feature_cache.progress_phase): "fitting" counts the splits (not
+    the final models), "scoring" runs.
     Returns {"protocol", "runs": [...], "eccentricity", "classes", "methods", "train_occluded"} (and
-    with ``final`` "final_models": final_models' result)."""
+    with ``final`` "final_models": fit_final_models' result)."""
     if protocol not in PROTOCOLS:
         raise ModelError(f"protocol must be one of {PROTOCOLS}, got {protocol!r}")
     train_occluded = (protocol != "offgrid") if train_occluded is None else bool(train_occluded)
@@ -218,7 +216,7 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
     jobs = [SplitJob(key, protocol, run, i, dict(model_params or {}), *(later if run else (builtins, estimators)),
                      train_occluded, timeout)
             for run in range(runs) for i in range(len(splits(table, protocol, seed=run)))]
-    wanted = tuple(m for m in FINAL_MODELS if builtins is None or m in builtins)   # only what was asked for
+    wanted = saved_names(builtins, after_splits=False)   # only what was asked for
     finals = [FinalJob(key, dict(model_params or {}), train_occluded, wanted)] if final else []
     progress = progress or (lambda n: None)
     progress_phase(progress, "fitting", len(jobs), "split")
@@ -276,41 +274,15 @@ def _with_first_run(output: tuple, first: tuple) -> tuple:
     return tested, n_train, test, {n: errors[n] for n in order}, notes
 
 
-FINAL_MODELS = ("spm", "template")  # the saved models fitted here; cnn's is fitted by train._final_cnn
-
-
-def spm_params(model_params: dict) -> dict:
-    """SPM's parameters of ``model_params`` (its "cnn" entry is the cnn method's: registry.builtin_methods)."""
-    return {k: v for k, v in model_params.items() if k != "cnn"}
-
-
-def final_models(table: FeatureTable, model_params: dict, train_occluded: bool, wanted=FINAL_MODELS) -> tuple:
-    """(SPMEstimator or None, TemplatePose or None, training frames of the SPM model, {name: why it
-    declined}): the models ``spm train`` saves, of the methods ``wanted`` names, fitted on every training
-    frame (offgrid: every frame of the training folder), without occluded ones unless ``train_occluded``;
-    SPM on the frames with training features. A model not wanted is None without a reason; one that
-    cannot be fitted is None, with its reason."""
+def final_rows(table: FeatureTable, train_occluded: bool) -> np.ndarray:
+    """The rows spm train's saved models are fitted on: every training frame (offgrid: every frame of
+    the training folder), without occluded ones unless ``train_occluded``."""
     rows = np.flatnonzero(~table.test) if "test" in table.arrays else np.arange(len(table))
-    rows = training_rows(table, rows, train_occluded)
-    usable = rows[np.isfinite(table.train_vector[rows]).all(axis=1)]
-    declined, model, reference = {}, None, None
-    why = unmet_needs(SPMPose, table, rows) if "spm" in wanted else None
-    if why is not None:
-        declined["spm"] = why
-    elif "spm" in wanted:
-        try:
-            model = SPMEstimator(**spm_params(model_params)).fit(table.train_vector[usable], table.pose[usable])
-        except Exception as exc:  # noqa: BLE001 - as in the splits: the other model is still written
-            declined["spm"] = failure(exc)
-    try:
-        reference = TemplatePose().fit(Frames(table, rows), table.pose[rows]) if "template" in wanted else None
-    except Exception as exc:  # noqa: BLE001 - as above
-        declined["template"] = failure(exc)
-    return model, reference, len(usable), declined
+    return training_rows(table, rows, train_occluded)
 
 
 def bench_job(job, report=lambda n: None):
-    """A SplitJob (split_job), or a FinalJob: final_models of the table.
+    """A SplitJob (split_job), or a FinalJob: its final models (fit_final_models) on the table's final_rows.
     Runs on one BLAS thread wherever it runs: LAPACK's threaded solvers round differently
     with 2 threads than with 1, and SPM's RBF system amplifies that (0.003 degrees), so the
     BLAS threads of a worker (cores / --workers) would otherwise change results.json and
@@ -320,7 +292,8 @@ def bench_job(job, report=lambda n: None):
     with threadpool_limits(limits=1, user_api="blas"):
         if isinstance(job, FinalJob):
             try:
-                return final_models(_table(job.source), job.model_params, job.train_occluded, job.wanted)
+                table = _table(job.source)
+                return fit_final_models(table, job.model_params, final_rows(table, job.train_occluded), job.wanted)
             except ModelError as exc:
                 raise ModelError(f"final models (on every training frame): {exc}") from None
         return split_job(job, report)

@@ -64,16 +64,14 @@ def markdown(evaluation: dict, summary: dict, context: dict) -> str:
         f"occlusion). {models_sentence(context)}", ""])
 
 
-MODEL_FILES = {name: (m.model_file, m.model_title) for name, m in SAVED_MODELS.items()}
-
-
 def models_sentence(context: dict) -> str:
     """What the run fitted on every training frame and wrote, and what it could not fit."""
     models = context.get("models")
     if models is None:
         return ""
-    written = [f"`{MODEL_FILES[k][0]}` ({MODEL_FILES[k][1]})" for k, v in models.items() if v == "written"]
-    missing = [f"{MODEL_FILES[k][1]} declined ({v['declined']})" for k, v in models.items() if v != "written"]
+    rows = SAVED_MODELS   # read when the report is written: every row with a model file
+    written = [f"`{rows[k].model_file}` ({rows[k].model_title})" for k, v in models.items() if v == "written"]
+    missing = [f"{rows[k].model_title} declined ({v['declined']})" for k, v in models.items() if v != "written"]
     text = ("Models trained on every training frame: " + " and ".join(written) + "." if written
             else "No model was written.")
     cost = context.get("training", {}).get("cnn")

@@ -62,6 +62,12 @@ class SPMPose(PoseEstimator):
             out[ok] = self.model_.predict(X[ok])
         return out
 
+    def save(self, path):
+        """Its SPM estimator's model file (spm train's model.npz: the estimator on vectors, read back
+        as an SPMEstimator by spm evaluate and spm predict); returns the path."""
+        check_fitted(self, self.FITTED)
+        return self.model_.save(path)
+
 
 class SPMNeighbours(PoseEstimator):
     """KNN (Table 2) on the re-projected vectors of ``spm`` (an SPMPose, fitted

@@ -1,6 +1,6 @@
 """``--bop-results DIR`` of ``spm train`` and ``spm evaluate``: every method's estimates as a BOP
-results file ``DIR/{method}_{dataset}-{split}.csv`` (spm_data/formats/bop_results.py), the frames
-numbered as ``spm-data export bop`` numbers them (spm_data/formats/bop_ids.py).
+results file ``DIR/{method}_{dataset}-{split}.csv`` (spm_data/formats/bop/results.py), the frames
+numbered as ``spm-data export bop`` numbers them (spm_data/formats/bop/ids.py).
 
 ``spm evaluate``: the model's estimate of every frame of the folder. ``spm train``: each test
 frame's estimate in the first run (seed 0) of the protocol, every split of it (under loco each
@@ -36,7 +36,7 @@ class BopOutput:
         """SpmError (one line) for a bad name, a folder that cannot be one or cannot be written (a
         read-only place, a name too long), or a shard folder whose frames an export would not number
         (shards in its subfolders), before any work."""
-        from spm_data.formats.bop_results import result_file_name
+        from spm_data.formats.bop.results import result_file_name
 
         for shards in (f for f in shard_folders if f is not None):
             _check_one_folder(Path(shards), allow_partial)
@@ -57,8 +57,8 @@ class BopOutput:
         """One results file per method of ``predictions`` ({method: (table rows, (n, 6) labels)}) of the
         frames of the shard folder ``shards`` (the rows of ``table``, a FeatureTable, are mapped to
         its frame order). Returns the files written."""
-        from spm_data.formats.bop_ids import frame_ids
-        from spm_data.formats.bop_results import pose_rows, result_file_name, save_bop_results
+        from spm_data.formats.bop.ids import frame_ids
+        from spm_data.formats.bop.results import pose_rows, result_file_name, save_bop_results
 
         ids = frame_ids(shards, self.ids_from, allow_partial=allow_partial)
         where = frame_positions(shards, table, allow_partial)

@@ -19,9 +19,10 @@ from spm_model.spm.features import FeatureConfig
 
 
 def load_model(path, device: str | None = None):
-    """A model file from ``spm train``: an SPMEstimator (model.npz), a TemplatePose (reference-model.npz)
-    or a CNNPose (cnn-model.npz), a CNNPose to run on ``device`` (None: "auto", whatever device it
-    was trained on). ModelError naming the file for a missing, truncated, corrupt or foreign one, and
+    """A model file from ``spm train``: the reading class of the registry row whose method the file's
+    header ``kind`` names (SAVED_MODELS: an SPMEstimator from model.npz, a TemplatePose from
+    reference-model.npz, a CNNPose from cnn-model.npz), a CNNPose to run on ``device`` (None: "auto",
+    whatever device it was trained on). ModelError naming the file for a missing, truncated, corrupt or foreign one, and
     for a ``device`` torch cannot use or given with a model that is not a cnn one."""
     header, arrays = load_model_file(path)  # read once
     kinds = {name: method.model_class() for name, method in SAVED_MODELS.items()}
@@ -47,7 +48,7 @@ def _on_device(model, path, device: str | None):
     if not isinstance(model, CNNPose):
         if device is not None:
             raise ModelError(f"--device {device}: only a cnn model runs on a device, {path} is a "
-                             f"{'spm' if isinstance(model, SPMEstimator) else 'template'} model; leave --device out")
+                             f"{_method(model)} model; leave --device out")
         return model
     check_device(device or "auto")
     model.device = device or "auto"

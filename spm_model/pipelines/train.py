@@ -14,14 +14,13 @@ from spm_data.io.locking import OutputLock
 from spm_data.io.outputs import removing_created
 from spm_data.io.shards import MANIFEST, list_shards, read_attrs, read_manifest
 from spm_model.bench.feature_cache import FeatureTable, load_features, offgrid_table, progress_phase
-from spm_model.base.frames import Frames
-from spm_model.bench.fitting import failure
+from spm_model.bench.final_models import fit_final_models, save_final_models, saved_names, training_costs
 from spm_model.bench.isolation import DEFAULT_TIMEOUT
 from spm_model.bench.plugin_refs import describe
-from spm_model.bench.protocols import evaluate, training_rows
+from spm_model.bench.protocols import evaluate, final_rows
 from spm_model.bench.report import (check_report_folder, declined_everywhere, summary_text, write_error,
                                     write_report)
-from spm_model.methods.cnn import CNNPose, device_note
+from spm_model.methods.cnn import device_note
 from spm_model.methods.registry import SAVED_MODELS, check_method_names
 from spm_model.spm.features import FeatureConfig
 
@@ -108,7 +107,8 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
     estimates as BOP results files (its ``bop_results``). timeout: seconds a plug-in's call (construct
     and fit, or one predict) may take before the plug-in is declined (None: no limit). model_params:
     SPM's parameters, and as "cnn" the cnn method's ({"device": "cuda"}: spm train --device).
-    Returns {"report": folder, "model", "reference_model", "cnn_model": paths, "summary", "evaluation", "text"}."""
+    Returns {"report": folder, "model_files": {method: path of each model written}, "models": {method:
+    "written" or {"declined": why}}, "summary", "evaluation", "text", "bop_results"}."""
     if runs < 1:
         raise ModelError(f"--runs must be at least 1, got {runs}")
     builtins = check_method_names(builtins)   # before any work: an unknown name is one line, not no method
@@ -166,13 +166,16 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
     evaluation = evaluate(table, protocol, runs, model_params, estimators=plugins, report=log, builtins=builtins,
                           train_occluded=train_occluded, executor=executor, source=source, final=True,
                           progress=progress, timeout=timeout)
-    model, reference, train_features, final_declined = evaluation.pop("final_models")
+    fitted, final_declined = evaluation.pop("final_models")
     check_some_method_ran(evaluation)
-    learned = (_final_cnn(table, evaluation["train_occluded"], final_declined, model_params.get("cnn"))
-               if _asked("cnn", builtins) else None)
+    rows = final_rows(table, evaluation["train_occluded"])
+    later = fit_final_models(table, model_params, rows, saved_names(builtins, after_splits=True))
+    fitted, final_declined = {**fitted, **later[0]}, {**final_declined, **later[1]}
+    train_features = np.isfinite(table.train_vector[rows]).all(axis=1).sum()   # the final SPM model's frames
     asked = [m for m in SAVED_MODELS if _asked(m, builtins)]   # a model only of a method asked for
-    models = {m: "written" if fitted is not None else {"declined": final_declined.get(m, "")}
-              for m, fitted in (("spm", model), ("template", reference), ("cnn", learned)) if m in asked}
+    models = {m: "written" if fitted.get(m) is not None else {"declined": final_declined.get(m, "")}
+              for m in asked}
+    costs = training_costs(fitted)
     context = {"command": command, "shards": str(shards), **({"test": str(test)} if test is not None else {}),
                "frames": len(table), "train_features": int(train_features),
                "query_features": int(np.isfinite(table.query_vector).all(axis=1).sum()),
@@ -183,20 +186,17 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
                                                             f"{cls.__module__}:{cls.__qualname__}"
                                                             for name, cls in plugins.items()},
                "models": models, **({"length_unit": unit} if unit != "m" else {}),
-               **({"training": {"cnn": learned.training_}} if learned is not None else {})}
+               **({"training": costs} if costs else {})}
     progress_phase(progress, "report", None, None)
     try:
-        model_path = _save(model, out / SAVED_MODELS["spm"].model_file)
-        reference_path = _save(reference, out / SAVED_MODELS["template"].model_file)
-        cnn_path = _save(learned, out / SAVED_MODELS["cnn"].model_file)
+        model_files = save_final_models(fitted, out)
     except OSError as exc:
         raise write_error(out, exc) from None
     summary = write_report(evaluation, context, out)
     written = [] if bop is None else _bop_results(bop, table, evaluation["protocol"], model_params, builtins,
                                                    plugins, train_occluded, test or shards, allow_partial, timeout)
-    return {"report": out, "model": model_path, "reference_model": reference_path, "cnn_model": cnn_path,
-            "summary": summary,
-            "evaluation": evaluation, "text": summary_text(summary), "models": models, "bop_results": written}
+    return {"report": out, "model_files": model_files, "summary": summary, "evaluation": evaluation,
+            "text": summary_text(summary), "models": models, "bop_results": written}
 
 
 def alone_line(table: FeatureTable) -> str:
@@ -230,32 +230,6 @@ def _bop_results(bop, table, protocol, model_params, builtins, plugins, train_oc
 
 def _asked(method: str, builtins) -> bool:
     return builtins is None or method in builtins
-
-
-def _final_cnn(table: FeatureTable, train_occluded: bool, declined: dict, params: dict | None = None):
-    """The cnn model on every training frame, as protocols.final_models fits the others (after the
-    splits, in this process, on one BLAS thread; ``params``: model_params' "cnn" entry, e.g. the device);
-    None with its reason in ``declined`` when it fails."""
-    from threadpoolctl import threadpool_limits
-
-    rows = np.flatnonzero(~table.test) if "test" in table.arrays else np.arange(len(table))
-    rows = training_rows(table, rows, train_occluded)
-    try:
-        with threadpool_limits(limits=1, user_api="blas"):
-            return CNNPose(**(params or {})).fit(Frames(table, rows), table.pose[rows])
-    except Exception as exc:  # noqa: BLE001 - as in the splits: the other models are still written
-        declined["cnn"] = failure(exc)
-        return None
-
-
-def _save(model, path: Path):
-    """Write ``model`` to ``path`` and return the path; None (and a stale file of an earlier run at
-    ``path`` removed, so the folder never pairs this report with another run's model) without one."""
-    if model is None:
-        path.unlink(missing_ok=True)
-        path.with_suffix(".safetensors").unlink(missing_ok=True)   # the cnn model's weights beside it
-        return None
-    return model.save(path)
 
 
 def check_some_method_ran(evaluation: dict) -> None:

@@ -49,6 +49,22 @@ def test_errors_are_one_line_and_exit_1(small_specs_dir, tmp_path):
     assert r.exit_code == 1 and "not an spm shard" in r.output
 
 
+def test_occludes_option_errors_are_the_library_ones_with_the_flags_named(small_specs_dir, tmp_path, monkeypatch):
+    """The library checks occlude's options once and names them by key (min, max, seed...); the
+    command line's one line names the flags (spm_cli/support.py FLAGS)."""
+    monkeypatch.setenv("SPM_PROGRESS_EVERY", "100000")   # no progress line beside the one error line
+    render, out = tmp_path / "r", tmp_path / "o"
+    assert run("render", "--class", "cup", "--specs-dir", small_specs_dir, "--out", render, "--limit", 4).exit_code == 0
+    for args, line in [(["--max", "1.5"], "occlusion fractions must lie in [0, 1]: got --min 0.0, --max 1.5"),
+                       (["--min", "0.5", "--max", "0.3"], "--min 0.5 is above --max 0.3")]:
+        r = run("occlude", render, "--out", out, *args)
+        assert (r.exit_code, r.output) == (1, f"error: {line}\n") and not out.exists()
+    assert run("occlude", render, "--out", out, "--max", "0.6", "--seed", "1").exit_code == 0
+    r = run("occlude", render, "--out", out, "--max", "0.5", "--seed", "1")
+    assert (r.exit_code, r.output) == (1, f"error: {out / 'cup-00000.h5'} was made with --max 0.6, not --max 0.5; "
+                                          f"write into a new --out folder or delete {out}\n")
+
+
 def test_console_scripts_run_as_processes(small_specs_dir, tmp_path):
     exe = [sys.executable, "-c", "import cli; cli.data_cli()"]
     r = subprocess.run(exe + ["render", "--class", "box", "--specs-dir", str(small_specs_dir), "--out",

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from spm_cli.support import (Group, Progress, comma_list, executor_options, handle_errors, old_spelling,
                              run_with_progress)
-from spm_data.errors import ShardError, SpmWarning
+from spm_data.errors import Option, ShardError, SpmError, SpmWarning
 
 
 @click.command()
@@ -23,6 +23,8 @@ def command(fail):
     warnings.warn("half the shards are missing; skipped", SpmWarning)
     if fail == "spm":
         raise ShardError("cup-00000.h5: field 'K' fails its checksum; the shard is corrupt")
+    if fail == "option":   # the library names occlude's options by key; the face by flag (FLAGS)
+        raise SpmError(Option("min"), " 0.7 is above ", Option("max"), " 0.6; ", Option("copy"), " 1")
     if fail == "bug":
         raise ValueError("a bug")
     if fail == "signal-then-bug":   # SIGTERM's KeyboardInterrupt swallowed mid-import; the library then fails
@@ -37,6 +39,11 @@ def test_an_spm_error_is_one_error_line_and_exit_1():
     assert r.exit_code == 1 and r.stdout == ""
     assert r.stderr == ("warning: half the shards are missing; skipped\n"
                         "error: cup-00000.h5: field 'K' fails its checksum; the shard is corrupt\n")
+
+
+def test_an_error_naming_options_by_key_names_their_flags():
+    r = CliRunner().invoke(command, ["--fail", "option"])
+    assert r.exit_code == 1 and r.stderr.splitlines()[-1] == "error: --min 0.7 is above --max 0.6; copy 1"
 
 
 def test_success_warns_in_one_line_and_exits_0():

@@ -13,7 +13,7 @@ from spm_data.core.raster import object_coords, render_depth, silhouette
 from spm_data.core.shapes import procedural_mesh
 from spm_data.core.specs import parse_spec
 from spm_data.errors import SpmError
-from spm_data.formats.bop_gt import bbox
+from spm_data.formats.bop.gt import bbox
 
 UNIT_K = np.eye(3)
 CUBE = trimesh.creation.box(extents=(100.0, 100.0, 100.0))   # mm, centred

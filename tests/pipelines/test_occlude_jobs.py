@@ -88,11 +88,11 @@ def test_a_refusal_names_the_option_that_differs_and_both_values(rendered, tmp_p
     out = tmp_path / "occ"
     occlude_dataset(rendered, out, high=0.6, seed=1)
     tail = f"; write into a new --out folder or delete {out}"
-    for options, what in [(dict(high=0.9, seed=1), "--max 0.6, not --max 0.9"),
-                          (dict(high=0.6, seed=2), "--seed 1, not --seed 2"),
-                          (dict(low=0.1, high=0.6, seed=1), "--min 0, not --min 0.1"),
-                          (dict(high=0.6, seed=1, rects=2), "--rects 1, not --rects 2")]:
-        with pytest.raises(ShardError) as e:
+    for options, what in [(dict(high=0.9, seed=1), "max 0.6, not max 0.9"),
+                          (dict(high=0.6, seed=2), "seed 1, not seed 2"),
+                          (dict(low=0.1, high=0.6, seed=1), "min 0, not min 0.1"),
+                          (dict(high=0.6, seed=1, rects=2), "rects 1, not rects 2")]:
+        with pytest.raises(ShardError) as e:   # the library names the option by key, the CLI by flag
             occlude_dataset(rendered, out, **options)
         assert str(e.value) == f"{out / 'cup-00000.h5'} was made with {what}{tail}"
     r = run("occlude", rendered, "--out", out, "--max", "0.6", "--seed", "3")
@@ -124,12 +124,11 @@ def run(*args):
 def test_cli_errors_are_one_line_and_write_nothing(rendered, tmp_path):
     out = tmp_path / "o"
     for args, message in [
-        (["--max", "1.5"], "must lie in [0, 1]"),
+        (["--max", "1.5"], "occlusion fractions must lie in [0, 1]: got --min 0.0, --max 1.5"),
         (["--min", "0.7", "--max", "0.6"], "--min 0.7 is above --max 0.6"),
     ]:
         r = run("occlude", rendered, "--out", out, *args)
-        assert r.exit_code == 1 and r.output.startswith("error: ") and message in r.output
-        assert r.output.strip().count("\n") == 0 and not out.exists()
+        assert r.exit_code == 1 and r.output == f"error: {message}\n" and not out.exists()
     empty = tmp_path / "empty"
     empty.mkdir()
     r = run("occlude", empty, "--out", out)

@@ -9,7 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 from cli import data_cli
-from spm_data.formats.bop import import_bop
+from spm_data.formats.bop.read import import_bop
 from spm_data.errors import SpmError
 from spm_data.formats.posed_folder import import_cvl, import_folder
 from spm_data.core.poses import camera_pose

@@ -124,8 +124,9 @@ def test_spm_train_writes_the_cnn_model_with_its_cost_and_spm_predict_runs_it(mo
 
     result = train(model_shards, tmp_path / "report", protocol="views", runs=1,
                    features=FeatureConfig(ellipse="direct"), builtins=["cnn", "chance"])
-    assert result["models"] == {"cnn": "written"} and result["cnn_model"] == tmp_path / "report" / "cnn-model.npz"
-    assert (tmp_path / "report" / "cnn-model.safetensors").is_file() and result["model"] is None
+    assert result["models"] == {"cnn": "written"}
+    assert result["model_files"] == {"cnn": tmp_path / "report" / "cnn-model.npz"}
+    assert (tmp_path / "report" / "cnn-model.safetensors").is_file()
     payload = json.loads((tmp_path / "report" / "results.json").read_text())
     cost = payload["context"]["training"]["cnn"]
     assert cost["frames"] == 144 and cost["steps"] == 90 and cost["device"] in ("cpu", "cuda")  # 40 epochs of 144
@@ -135,7 +136,7 @@ def test_spm_train_writes_the_cnn_model_with_its_cost_and_spm_predict_runs_it(mo
     frame = read_shard(list_shards(model_shards)[0], ("rgb", "mask"), frames=slice(0, 1))
     Image.fromarray(frame["rgb"][0]).save(tmp_path / "view.png")
     Image.fromarray((frame["mask"][0] > 0).astype(np.uint8) * 255).save(tmp_path / "mask.png")
-    out = predict_images(result["cnn_model"], [tmp_path / "view.png"], mask_path=tmp_path / "mask.png")
+    out = predict_images(result["model_files"]["cnn"], [tmp_path / "view.png"], mask_path=tmp_path / "mask.png")
     assert "error" not in out[0] and np.isfinite(list(out[0]["pose"].values())).all()
 
 

@@ -87,6 +87,7 @@ def test_every_list_of_methods_is_read_from_the_rows():
     assert {n: m.model_file for n, m in SAVED_MODELS.items()} == {
         "spm": "model.npz", "template": "reference-model.npz", "cnn": "cnn-model.npz"}
     assert [m.model_class().__name__ for m in SAVED_MODELS.values()] == ["SPMEstimator", "TemplatePose", "CNNPose"]
+    assert [m.name for m in METHODS if m.final_after_splits] == ["cnn"]
 
 
 def test_unknown_method_names_are_one_line_errors_with_the_choices():
@@ -106,10 +107,8 @@ def test_train_refuses_an_unknown_builtin_before_any_work(tmp_path):
 
 
 def test_the_cnn_entry_of_the_model_params_goes_to_the_cnn_alone():
-    from spm_model.bench.protocols import spm_params
-
     params = {"cnn": {"device": "cpu"}, "alpha": 0.01}
     methods = builtin_methods(3, FeatureConfig(), params)
     assert (methods["cnn"].device, methods["cnn"].seed, methods["spm"].params) == ("cpu", 3, {"alpha": 0.01})
     assert builtin_methods(0, FeatureConfig(), None)["cnn"].device == "auto"
-    assert spm_params(params) == {"alpha": 0.01} and params["cnn"] == {"device": "cpu"}   # the caller's kept
+    assert params == {"cnn": {"device": "cpu"}, "alpha": 0.01}   # the caller's kept

@@ -8,8 +8,8 @@ import pytest
 from click.testing import CliRunner
 
 from cli import data_cli, model_cli
-from spm_data.formats.bop_ids import frame_ids
-from spm_data.formats.bop_results import HEADER, load_bop_results, load_test_targets
+from spm_data.formats.bop.ids import frame_ids
+from spm_data.formats.bop.results import HEADER, load_bop_results, load_test_targets
 
 
 @pytest.fixture(scope="module")

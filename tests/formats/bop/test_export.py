@@ -1,4 +1,4 @@
-"""spm_data.formats.bop_export: export as BOP's own tools read it (K convention, models, splits,
+"""spm_data.formats.bop.export: export as BOP's own tools read it (K convention, models, splits,
 COCO, exact meshes, object ids)."""
 
 import json
@@ -11,8 +11,8 @@ import trimesh
 from click.testing import CliRunner
 
 from cli import data_cli
-from spm_data.formats.bop import import_bop
-from spm_data.formats.bop_export import export_bop
+from spm_data.formats.bop.read import import_bop
+from spm_data.formats.bop.export import export_bop
 from spm_data.formats.coco import load_scene_gt_coco, rle_to_mask
 from spm_data.errors import MeshError, SpmError
 from spm_data.formats.ply import load_ply

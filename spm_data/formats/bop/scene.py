@@ -1,6 +1,6 @@
 """The scenes of a BOP split, frame by frame, with every object in each frame.
 
-The export's driver (bop_export.py) hands :meth:`SceneWriter.add_frame` a frame and its
+The export's driver (bop/export.py) hands :meth:`SceneWriter.add_frame` a frame and its
 objects, ``[(obj_id, mesh or None, R (3, 3), t (3,) metres), ...]``, the target first (its
 obj_id names the scene, ``scene_id = obj_id - 1``), then the frame's other objects (its 3-D
 distractors). The writer does the rest: ``rgb/`` (JPEG in ``*_pbr`` splits), ``depth/``
@@ -25,9 +25,9 @@ import numpy as np
 from spm_data.errors import SpmError
 from spm_data.core.occlusion import black_out
 from spm_data.core.poses import K_to_corner_origin
-from spm_data.formats.bop_gt import (depth_scale_for, depth_units, depth_with_occluders, image_gt, object_gt,
+from spm_data.formats.bop.gt import (depth_scale_for, depth_units, depth_with_occluders, image_gt, object_gt,
                                      png_depth_mm)
-from spm_data.formats.bop_models import ply_vertices
+from spm_data.formats.bop.models import ply_vertices
 from spm_data.formats.coco import FILE_NAME as COCO_FILE
 from spm_data.formats.coco import save_scene_gt_coco, scene_coco
 
@@ -128,7 +128,24 @@ class SceneWriter:
         for target, scene in self.scenes.items():
             sdir = self.split_dir / f"{target - 1:06d}"
             for key, name in SCENE_FILES.items():
-                (sdir / name).write_text(json.dumps(scene[key], indent=1))
+                save_scene_file(sdir / name, scene[key])
             coco = scene_coco(self._coco_frames(scene.pop("coco")), dataset="spm", split=self.split,
                               obj_ids=sorted(every_id), bbox_type="amodal")
             save_scene_gt_coco(sdir / COCO_FILE, coco)
+
+
+def save_scene_file(path: Path, table: dict) -> None:
+    """One of a scene's SCENE_FILES (image id -> its entries), as bop_toolkit's inout writes them."""
+    path.write_text(json.dumps(table, indent=1))
+
+
+def load_scene_file(path: Path):
+    """One of a scene's SCENE_FILES as written (the importer, read.py, checks what it holds);
+    SpmError naming the file when it is missing or not JSON."""
+    try:
+        with open(path) as fh:
+            return json.load(fh)
+    except FileNotFoundError:
+        raise SpmError(f"BOP scene file missing: {path}") from None
+    except (OSError, ValueError) as exc:
+        raise SpmError(f"{path}: unreadable JSON ({exc})") from None

@@ -1,4 +1,4 @@
-"""spm_data.formats.bop: import of BOP scenes (poses, depth, visible masks, crops, names), and
+"""spm_data.formats.bop.read: import of BOP scenes (poses, depth, visible masks, crops, names), and
 round trips through the export."""
 
 import json
@@ -6,8 +6,8 @@ import json
 import cv2
 import numpy as np
 
-from spm_data.formats.bop import import_bop
-from spm_data.formats.bop_export import export_bop
+from spm_data.formats.bop.read import import_bop
+from spm_data.formats.bop.export import export_bop
 from spm_data.core.poses import camera_pose
 from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 from spm_data.io.shards import list_shards, read_shard

@@ -1,4 +1,4 @@
-"""spm_data.formats.bop_scene: every object of a frame in its scene, the target first, each with
+"""spm_data.formats.bop.scene: every object of a frame in its scene, the target first, each with
 its masks, scene_gt_info entry and COCO annotation; a target without a mesh keeps image-only
 ground truth; in a merged folder each frame's own occlusion (2-D rectangles, 3-D distractors or
 none), whatever order the folders were merged in."""
@@ -15,10 +15,10 @@ from cli import data_cli
 from spm_data.pipelines.merge import merge_folders
 from spm_data.core.poses import K_to_corner_origin, intrinsics_from_fov
 from spm_data.errors import SpmError
-from spm_data.formats.bop import import_bop
-from spm_data.formats.bop_export import export_bop
-from spm_data.formats.bop_ids import frame_ids, read_objects
-from spm_data.formats.bop_scene import SceneWriter
+from spm_data.formats.bop.read import import_bop
+from spm_data.formats.bop.export import export_bop
+from spm_data.formats.bop.ids import frame_ids, load_objects
+from spm_data.formats.bop.scene import SceneWriter, load_scene_file, save_scene_file
 from spm_data.formats.coco import load_scene_gt_coco, rle_to_mask
 from spm_data.io.folders import open_folder
 from spm_data.io.shards import list_shards, read_shard, shard_layout
@@ -198,7 +198,7 @@ def _frames(folder):
 
 
 def _check_export(folder, bop):
-    ids, names = frame_ids(folder), read_objects(bop)
+    ids, names = frame_ids(folder), load_objects(bop)
     expected = {}
     for k, frame in enumerate(_frames(folder)):
         scene, im = int(ids.scene_id[k]), int(ids.im_id[k])
@@ -255,7 +255,7 @@ def test_camera_json_is_the_specs_camera_and_distractor_names_say_their_size(kin
     assert [camera[k] for k in ("fx", "fy", "cx", "cy")] == [K[0, 0], K[1, 1], K[0, 2], K[1, 2]]
     frame0 = read_shard(open_folder(kinds / "cluttered").shards[0], ["K"], frames=slice(0, 1))["K"][0]
     assert not np.allclose(frame0, intrinsics_from_fov(35.0, 64, 64))   # the case: frame 0's K was randomised
-    objects = read_objects(tmp_path / "bop")
+    objects = load_objects(tmp_path / "bop")
     distractors = [e for e in objects.values() if e.get("role") == "distractor"]
     assert len(distractors) > 2
     names = [e["instance"] for e in distractors]
@@ -263,3 +263,14 @@ def test_camera_json_is_the_specs_camera_and_distractor_names_say_their_size(kin
     for e in distractors:   # e.g. box-10000@73.1mm: its size, to the decimals that tell its sizes apart
         label = e["instance"].rsplit("@", 1)[1]
         assert label.endswith("mm") and float(label[:-2]) == pytest.approx(e["scale_m"] * 1000, abs=0.05)
+
+
+def test_a_scene_file_is_saved_beside_where_it_is_loaded_back_and_a_bad_one_is_one_line(tmp_path):
+    table = {"0": [{"obj_id": 1, "cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "cam_t_m2c": [0, 0, 600.0]}]}
+    save_scene_file(tmp_path / "scene_gt.json", table)
+    assert load_scene_file(tmp_path / "scene_gt.json") == table
+    with pytest.raises(SpmError, match=f"^BOP scene file missing: {tmp_path / 'scene_camera.json'}$"):
+        load_scene_file(tmp_path / "scene_camera.json")
+    (tmp_path / "scene_gt_info.json").write_text("{not json")
+    with pytest.raises(SpmError, match=r"scene_gt_info.json: unreadable JSON \("):
+        load_scene_file(tmp_path / "scene_gt_info.json")

@@ -5,7 +5,7 @@ import pytest
 import trimesh
 
 from spm_data.core.meshes import diameter
-from spm_data.formats.bop_models import (diameter_ends, eval_resample, extreme_vertices, load_models_info, model_info,
+from spm_data.formats.bop.models import (diameter_ends, eval_resample, extreme_vertices, load_models_info, model_info,
                                          save_bop_model, save_models_info, symmetry_info, texture_colors)
 from spm_data.formats.ply import load_ply
 from spm_data.core.symmetries import NO_SYMMETRY, Symmetries, rotation
@@ -92,7 +92,7 @@ def test_eval_resample_spreads_vertices_evenly():
 
 def test_an_object_exported_twice_is_resampled_once_and_written_the_same(tmp_path, monkeypatch):
     from spm_data.core.shapes import procedural_mesh
-    from spm_data.formats import bop_models
+    from spm_data.formats.bop import models as bop_models
 
     calls = []
     monkeypatch.setattr(bop_models, "_RESAMPLED", {})
@@ -112,7 +112,7 @@ def test_an_object_exported_twice_is_resampled_once_and_written_the_same(tmp_pat
 
 
 def test_row_keys_order_rows_as_unique_with_axis_0_does():
-    from spm_data.formats.bop_models import _row_keys
+    from spm_data.formats.bop.models import _row_keys
 
     rows = np.random.default_rng(0).integers(-5, 6, size=(2000, 3))
     _, inverse = np.unique(_row_keys(rows), return_inverse=True)
@@ -126,7 +126,7 @@ def test_a_pool_mesh_drawn_at_several_sizes_is_resampled_once(tmp_path, monkeypa
     names one resampling."""
     from spm_data.core.meshes import TexturedMesh
     from spm_data.core.shapes import procedural_mesh
-    from spm_data.formats import bop_models
+    from spm_data.formats.bop import models as bop_models
 
     calls = []
     monkeypatch.setattr(bop_models, "_RESAMPLED", {})

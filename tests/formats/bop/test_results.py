@@ -1,4 +1,4 @@
-"""spm_data.formats.bop_results: BOP results files (bop_toolkit's bop19 CSV) and test targets."""
+"""spm_data.formats.bop.results: BOP results files (bop_toolkit's bop19 CSV) and test targets."""
 
 import json
 
@@ -7,8 +7,8 @@ import pytest
 
 from spm_data.core.poses import label_to_pose
 from spm_data.errors import SpmError
-from spm_data.formats.bop_ids import FrameIds
-from spm_data.formats.bop_results import (HEADER, load_bop_results, load_test_targets, method_name, pose_rows,
+from spm_data.formats.bop.ids import FrameIds
+from spm_data.formats.bop.results import (HEADER, load_bop_results, load_test_targets, method_name, pose_rows,
                                           result_file_name, save_bop_results, save_test_targets, test_targets,
                                           write_test_targets)
 

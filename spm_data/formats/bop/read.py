@@ -1,4 +1,4 @@
-"""BOP-format datasets (Hodaň et al.) in; out is bop_export.py.
+"""BOP-format datasets (Hodaň et al.) in; out is bop/export.py.
 
 In: ``PATH/SPLIT/SCENE/`` with ``scene_camera.json`` (``cam_K``, ``depth_scale``),
 ``scene_gt.json`` (``cam_R_m2c``, ``cam_t_m2c`` in mm, ``obj_id``), ``rgb/``,
@@ -14,25 +14,15 @@ subtracts 0.5 from cx and cy (poses.K_from_corner_origin).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from spm_data.errors import SpmError
 from spm_data.core.poses import K_from_corner_origin
-from spm_data.formats.bop_export import OBJECTS_FILE, export_bop, read_objects  # noqa: F401 (export_bop: the CLI's)
+from spm_data.formats.bop.ids import OBJECTS_FILE, load_objects
+from spm_data.formats.bop.scene import SCENE_FILES, load_scene_file
 from spm_data.formats.importing import FrameRecord, import_records, pose_problem
-
-
-def _load_json(path: Path):
-    try:
-        with open(path) as fh:
-            return json.load(fh)
-    except FileNotFoundError:
-        raise SpmError(f"BOP scene file missing: {path}") from None
-    except (OSError, ValueError) as exc:
-        raise SpmError(f"{path}: unreadable JSON ({exc})") from None
 
 
 def _find(folder: Path, stem: str):
@@ -62,7 +52,7 @@ def _numbers(entry, key, n, where) -> np.ndarray:
 def _scene_entries(scene: Path):
     """[(image id, image key, camera entry or None, [(object index, obj_id, R, t m)])] of one scene,
     every pose and camera checked (SpmError naming the file, image and object) before any is imported."""
-    cams, gts = _load_json(scene / "scene_camera.json"), _load_json(scene / "scene_gt.json")
+    cams, gts = load_scene_file(scene / SCENE_FILES["camera"]), load_scene_file(scene / SCENE_FILES["gt"])
     for name, table in (("scene_gt.json", gts), ("scene_camera.json", cams)):
         if not isinstance(table, dict):
             raise SpmError(f"{scene / name}: expected an object of image ids, got {type(table).__name__}")
@@ -105,7 +95,7 @@ def bop_records(path, split="train_pbr", crop=False, classes=None):
     if not scenes:
         raise SpmError(f"{root}: no BOP scenes (folders with scene_gt.json)")
     checked = [(scene, _scene_entries(scene)) for scene in scenes]
-    names = read_objects(path) if (Path(path) / OBJECTS_FILE).is_file() else {}
+    names = load_objects(path) if (Path(path) / OBJECTS_FILE).is_file() else {}
     records, problems = [], []
     for scene, entries in checked:
         for im, im_key, cam, objects in entries:

@@ -1,13 +1,13 @@
 """Our shards out as a BOP dataset (Hodaň et al.): one scene per target object.
 
-``camera.json``, ``models/`` and ``models_eval/`` (bop_models.py, from the folder's mesh
+``camera.json``, ``models/`` and ``models_eval/`` (bop/models.py, from the folder's mesh
 store), ``objects.json`` (obj_id -> class, instance, mesh digest), ``test_targets_bop19.json``,
-and per scene (bop_scene.py) ``scene_camera.json``, ``scene_gt.json``, ``scene_gt_info.json``
-and the masks (bop_gt.py: what bop_toolkit's calc_gt_info and calc_gt_masks compute from the
+and per scene (bop/scene.py) ``scene_camera.json``, ``scene_gt.json``, ``scene_gt_info.json``
+and the masks (bop/gt.py: what bop_toolkit's calc_gt_info and calc_gt_masks compute from the
 export, every object in the frame: the target and its 3-D distractors), ``scene_gt_coco.json``;
 rgb as JPEG in ``*_pbr`` splits, PNG otherwise; written to ``OUT.partial`` and renamed.
 
-Object ids, scenes and image ids: bop_ids.py (the rule the results file shares).
+Object ids, scenes and image ids: bop/ids.py (the rule the results file shares).
 
 K: BOP counts the principal point from the pixel corner (cx = W / 2 for a centred
 camera), our shards from the first pixel's centre (OpenCV): export adds 0.5 to cx and
@@ -28,10 +28,10 @@ from spm_data.errors import SpmError
 from spm_data.core.meshes import TexturedMesh
 from spm_data.core.poses import K_to_corner_origin, intrinsics_from_fov
 from spm_data.core.specs import parse_spec
-from spm_data.formats.bop_ids import OBJECTS_FILE, folder_objects, read_objects  # noqa: F401 (read_objects: bop.py's)
-from spm_data.formats.bop_gt import DEPTH_SCALES
-from spm_data.formats.bop_models import save_bop_model, save_models_info
-from spm_data.formats.bop_scene import SceneWriter
+from spm_data.formats.bop.ids import folder_objects, save_objects
+from spm_data.formats.bop.gt import DEPTH_SCALES
+from spm_data.formats.bop.models import save_bop_model, save_models_info
+from spm_data.formats.bop.scene import SceneWriter
 from spm_data.io.outputs import check_creatable, check_out_name, space_fix, top_created
 from spm_data.io.shards import read_attrs, read_shard
 
@@ -91,14 +91,14 @@ class _Export:
         self.rgb_suffix = RGB_SUFFIX[split.endswith("_pbr")]
         self.models: dict[int, object] = {}   # obj_id -> its mesh (None: no mesh, image-only ground truth)
         self.models_info, self.no_model, self.frames, self.scales = {}, set(), 0, {DEPTH_SCALES[0]}
-        self.writer = SceneWriter(root / split, self.rgb_suffix, _encode, self.scales)   # bop_scene.py
+        self.writer = SceneWriter(root / split, self.rgb_suffix, _encode, self.scales)   # bop/scene.py
         self.scenes = self.writer.scenes
         self.names: dict[int, dict] = {}
         for sub in ("models", "models_eval"):
             (root / sub).mkdir(parents=True)
 
     def object_id(self, identity: tuple) -> int:
-        """The obj_id of ``identity`` (bop_ids.py), its model written the first time it is met."""
+        """The obj_id of ``identity`` (bop/ids.py), its model written the first time it is met."""
         obj_id = self.ids[identity]
         if obj_id not in self.models:
             entry = dict(self.found.entries[identity])
@@ -140,8 +140,7 @@ class _Export:
         (self.root / "camera.json").write_text(json.dumps({"cx": K[0, 2], "cy": K[1, 2], "fx": K[0, 0],
                                                            "fy": K[1, 1], "width": int(w), "height": int(h),
                                                            "depth_scale": max(self.scales)}))
-        (self.root / OBJECTS_FILE).write_text(json.dumps({str(k): self.names[k] for k in sorted(self.names)},
-                                                         indent=1))
+        save_objects(self.root, self.names)
         save_models_info(self.root / "models" / "models_info.json", self.models_info)
         save_models_info(self.root / "models_eval" / "models_info.json", self.models_info)
 
@@ -183,7 +182,7 @@ def export_bop(in_dir, out_dir, *, split="train", progress=None, allow_partial=F
                 if progress:
                     progress(1)
         export.finish(shards)
-        from spm_data.formats.bop_results import write_test_targets   # what eval_bop19_pose.py scores against
+        from spm_data.formats.bop.results import write_test_targets   # what eval_bop19_pose.py scores against
         write_test_targets(tmp, split)
         if out_dir.exists():
             out_dir.rmdir()

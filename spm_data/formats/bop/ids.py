@@ -1,5 +1,5 @@
 """Which BOP object, scene and image each frame of a shard folder becomes: the one rule the
-export (bop_export.py) and the results file (bop_results.py) share.
+export (bop/export.py) and the results file (bop/results.py) share.
 
 Objects are meshes: a frame's target is identified by the digest of the mesh it was drawn from
 (core/mesh_store.py), so two meshes under one class and instance name are two objects (their
@@ -55,7 +55,14 @@ class Objects:
     distractors: list = field(default_factory=list)
 
 
-def read_objects(path) -> dict[int, dict]:
+def save_objects(root, names: dict) -> Path:
+    """The export's objects.json at ``root``: obj_id -> entry (:func:`load_objects` reads it back)."""
+    path = Path(root) / OBJECTS_FILE
+    path.write_text(json.dumps({str(k): names[k] for k in sorted(names)}, indent=1))
+    return path
+
+
+def load_objects(path) -> dict[int, dict]:
     """obj_id -> entry ({"class", "instance", "instance_id"}, and "mesh", "names", "role",
     "scale_m" where known) from an export's objects.json (``path``: the file or the export
     folder); SpmError naming the file when it is missing or malformed."""
@@ -148,7 +155,7 @@ def _name_objects(found: Objects, names: dict) -> None:
 
 def number_objects(found: Objects, ids_from=None) -> None:
     """Fill ``found.ids`` by the module's rule."""
-    given = read_objects(ids_from) if ids_from else {}
+    given = load_objects(ids_from) if ids_from else {}
     by_mesh = {(v.get("mesh"), v.get("scale_m")): k for k, v in given.items() if v.get("mesh")}
     by_name = {(v["class"], v["instance"]): k for k, v in given.items() if not v.get("mesh")}
     next_id = max(given, default=0) + 1

@@ -6,7 +6,7 @@ without ``_``, the dataset without ``-`` or ``_``); its first line is the header
 ``scene_id,im_id,obj_id,score,R,t,time``, then one row per estimate: R the 9 numbers of the
 rotation row-major, space-separated, t in millimetres, time in seconds or -1 (unknown). A frame
 without an estimate gets no row. The (scene_id, im_id, obj_id) of a frame are those
-``spm-data export bop`` gives it (bop_ids.py).
+``spm-data export bop`` gives it (bop/ids.py).
 
 Targets: one entry per image, its target (the first object of the image's ``scene_gt.json``
 list; a distractor, ``"role": "distractor"`` in objects.json, and an object without a model
@@ -143,9 +143,9 @@ def load_test_targets(path) -> list[dict]:
 def test_targets(root, split: str) -> list[dict]:
     """The targets of the split ``split`` of the BOP dataset at ``root``, read back from its
     scene_gt.json files and objects.json (module docstring), sorted by scene and image."""
-    from spm_data.formats.bop_ids import read_objects
+    from spm_data.formats.bop.ids import load_objects
 
-    objects = read_objects(Path(root))
+    objects = load_objects(Path(root))
     # Not targets: distractors, and objects without a model (imported frames): bop_toolkit's
     # errors need the model, so a target without one would stop its evaluation.
     distractors = {k for k, v in objects.items() if v.get("role") == "distractor"

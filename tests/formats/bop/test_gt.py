@@ -1,4 +1,4 @@
-"""spm_data.formats.bop_gt: ground truth by bop_toolkit's rules. The renderer's rules are checked
+"""spm_data.formats.bop.gt: ground truth by bop_toolkit's rules. The renderer's rules are checked
 against numbers bop_toolkit's vispy renderer gave on llvmpipe (measured once, bop_toolkit cea62d6,
 Mesa 22.3.6; benchmarks/bop_toolkit_check.py repeats the measurement on whole exports), the
 visibility and counting rules on synthetic scenes, and the export against an independent
@@ -13,9 +13,9 @@ import trimesh
 
 from spm_data.errors import SpmError
 from spm_data.core.poses import cv_to_gl_camera_to_world
-from spm_data.formats.bop_export import export_bop
+from spm_data.formats.bop.export import export_bop
 from spm_data.core.raster import render_depth
-from spm_data.formats.bop_gt import (bbox, depth_scale_for, depth_units, distances, image_gt, object_gt,
+from spm_data.formats.bop.gt import (bbox, depth_scale_for, depth_units, distances, image_gt, object_gt,
                                      png_depth_mm, visible_mask)
 from spm_data.formats.coco import load_scene_gt_coco
 from spm_data.formats.ply import load_ply

@@ -10,8 +10,8 @@ from cli import data_cli
 from spm_data.pipelines.merge import merge_folders
 from spm_data.pipelines.render_jobs import load_run_specs, render_dataset
 from spm_data.errors import SpmWarning
-from spm_data.formats.bop_export import export_bop
-from spm_data.formats.bop_ids import frame_ids, read_objects
+from spm_data.formats.bop.export import export_bop
+from spm_data.formats.bop.ids import OBJECTS_FILE, frame_ids, load_objects, save_objects
 
 SPEC = """class = "{cls}"
 seed = {seed}
@@ -49,7 +49,7 @@ def test_two_meshes_under_one_name_are_two_objects_with_a_warning_at_merge(tmp_p
     said = [str(w.message) for w in seen if issubclass(w.category, SpmWarning)]
     assert len(said) == 1 and "2 name(s) stand for different meshes" in said[0] and "cup/cup-000 (2 meshes)" in said[0]
     export_bop(tmp_path / "m", tmp_path / "bop")
-    objects = read_objects(tmp_path / "bop")
+    objects = load_objects(tmp_path / "bop")
     assert len(objects) == 4 and len({o["mesh"] for o in objects.values()}) == 4
     names = sorted(o["instance"] for o in objects.values())
     assert all("~" in n for n in names) and len(set(names)) == 4
@@ -62,7 +62,7 @@ def test_one_mesh_under_two_names_is_one_object(tmp_path):
     mug = render(tmp_path, "mug", [("mug", "cup", 5)])   # the same generator and seed: the same meshes
     merge_folders([cup, mug], tmp_path / "m")
     export_bop(tmp_path / "m", tmp_path / "bop")
-    objects = read_objects(tmp_path / "bop")
+    objects = load_objects(tmp_path / "bop")
     assert len(objects) == 2
     assert sorted(tuple(o["names"]) for o in objects.values()) == [("cup/cup-000", "mug/cup-000"),
                                                                    ("cup/cup-001", "mug/cup-001")]
@@ -95,11 +95,19 @@ def test_ids_from_keeps_every_id_on_a_subset_export(tmp_path):
     r = CliRunner().invoke(data_cli, ["export", "bop", str(part), "--out", str(tmp_path / "bop-part"),
                                       "--ids-from", str(tmp_path / "bop-full")])
     assert r.exit_code == 0, r.output
-    before, after = read_objects(tmp_path / "bop-full"), read_objects(tmp_path / "bop-part")
+    before, after = load_objects(tmp_path / "bop-full"), load_objects(tmp_path / "bop-part")
     kept = {k: v["mesh"] for k, v in after.items()}
     assert len(kept) == 6 and all(before[k]["mesh"] == digest for k, digest in kept.items())
-    plain = read_objects(export_bop(part, tmp_path / "bop-plain") and tmp_path / "bop-plain")
+    plain = load_objects(export_bop(part, tmp_path / "bop-plain") and tmp_path / "bop-plain")
     assert sorted(plain) == [1, 2, 3, 4, 5, 6] and sorted(after) != [1, 2, 3, 4, 5, 6]
     r = CliRunner().invoke(data_cli, ["export", "bop", str(part), "--out", str(tmp_path / "x"),
                                       "--ids-from", str(tmp_path / "nowhere")])
     assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1 and "no such file" in r.output
+
+
+def test_objects_json_is_saved_beside_where_it_is_loaded_back(tmp_path):
+    names = {2: {"class": "cup", "instance": "cup-1", "instance_id": 1, "mesh": "ab12"},
+             1: {"class": "box", "instance": "box-0", "instance_id": 0}}
+    path = save_objects(tmp_path, names)
+    assert path == tmp_path / OBJECTS_FILE and list(json.loads(path.read_text())) == ["1", "2"]   # by obj_id
+    assert load_objects(tmp_path) == names and load_objects(path) == names
