@@ -120,11 +120,7 @@ def train(shards, report_dir=None, *, protocol: str | None = None, runs: int = 3
             raise ShardError(f"no such folder: {folder}")
     out = check_report_folder(report_dir if report_dir else Path(shards) / "report")  # before any work
     plugins = load_estimators(estimators, timeout)
-    device = ((model_params or {}).get("cnn") or {}).get("device", "auto")
-    if _asked("cnn", builtins):
-        note = device_note(device)   # before any work: a device torch cannot use is one line, not a declined method
-        if note:
-            log(note)
+    _cnn_device(model_params, builtins)   # before any work: a device torch cannot use is one line
     if bop is not None:
         bop.check(shards, test, allow_partial=allow_partial)
     # The report folder is locked for the whole run as a shard folder is: a second train (or
@@ -161,6 +157,9 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
             "of that unit")
     if (table.train_neighbours == 0).any():
         log(alone_line(table))
+    note = _cnn_device(model_params, builtins)   # said once the data is (a refusal before stays one line)
+    if note:
+        log(note)
     model_params = dict(model_params or {}, features=features)
     source = (str(shards), None if test is None else str(test), features, allow_partial)
     evaluation = evaluate(table, protocol, runs, model_params, estimators=plugins, report=log, builtins=builtins,
@@ -226,6 +225,13 @@ def _bop_results(bop, table, protocol, model_params, builtins, plugins, train_oc
 
     predictions = first_run_predictions(table, protocol, model_params, builtins, plugins, train_occluded, timeout)
     return bop.write(folder, table, predictions, allow_partial)
+
+
+def _cnn_device(model_params, builtins) -> str | None:
+    """Where the cnn method will run, in one line (cnn.device_note), when it is asked for; ModelError
+    for a device torch cannot use, so it is refused before any work, not declined."""
+    device = ((model_params or {}).get("cnn") or {}).get("device", "auto")
+    return device_note(device) if _asked("cnn", builtins) else None
 
 
 def _asked(method: str, builtins) -> bool:
