@@ -1,11 +1,14 @@
 """What tests in several files share: waiting for a state, reaping processes, small
 specs, shard arrays, a flipped stored byte, COIL-100 images, transforms.json captures,
-ellipse points, estimator inputs and posed splits of rendered views. Fixtures are in
+ellipse points, estimator inputs, posed splits of rendered views, and the repository's scripts as
+modules. Fixtures are in
 tests/conftest.py; import these as ``from tests.helpers import ...``."""
 
 import contextlib
+import importlib.util
 import json
 import time
+from pathlib import Path
 
 import cv2
 import h5py
@@ -341,3 +344,11 @@ def within_5_degrees(pred, truth) -> np.ndarray:
     found = np.all(np.isfinite(pred), axis=1)
     err = np.abs(wrap_degrees(np.nan_to_num(pred[:, :3]) - truth[:, :3]))
     return found & np.all(err <= 5.0, axis=1)
+
+
+def load_script(path: str, name: str):
+    """A script of the repository (``path`` from its root: benchmarks/..., scripts/...) as a module."""
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[1] / path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

@@ -2,7 +2,6 @@
 thread and gives the same results.json as isolation; a run writes its figures and loads; a
 difference between the two ways is named."""
 
-import importlib.util
 import json
 import os
 import shutil
@@ -12,16 +11,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tests.helpers import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
 def cost():
-    spec = importlib.util.spec_from_file_location("isolation_cost", ROOT / "benchmarks" / "isolation_cost.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("benchmarks/isolation_cost.py", "isolation_cost")
 
 
 def test_the_stand_in_is_in_place_for_the_job_only(cost):
@@ -118,9 +115,7 @@ def test_both_ways_give_the_same_results_and_the_figures_are_written(model_shard
     assert made["command"].startswith("python benchmarks/isolation_cost.py ") and "--rounds 1" in made["command"]
     assert [(x["way"], x["protocol"]) for x in made["loads"]] == [("in-process", "loco"), ("isolated", "loco")]
     assert made["parameters"]["methods"] == "knn1,template" and made["machine"]["nproc"] == os.cpu_count()
-    spec = importlib.util.spec_from_file_location("results_doc", ROOT / "scripts" / "results_doc.py")
-    results_doc = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(results_doc)
+    results_doc = load_script("scripts/results_doc.py", "results_doc")
     table = results_doc.table_isolation_cost(snap)   # what a doc's measure-table block shows
     assert f"| loco | {loco['isolated_s'][0]:.1f} | {loco['in_process_s'][0]:.1f} |" in table
     assert "| total |" in table and f"| {loco['ratio']:.3f} |" in table and made["command"] in table

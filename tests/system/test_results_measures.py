@@ -4,7 +4,6 @@ scripts/results_doc.py): each is quoted, says how it was made (date,
 the command of a script in the repository, wall time, machine), and its script computes what
 it says (benchmarks/spm_vector_distance.py on vectors with known distances)."""
 
-import importlib.util
 import shlex
 from pathlib import Path
 
@@ -12,19 +11,13 @@ import numpy as np
 import pytest
 
 from spm_model.spm.features import FEATURE_VERSION
+from tests.helpers import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _load(path: Path, name: str):
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-results_doc = _load(ROOT / "scripts" / "results_doc.py", "results_doc")
-vector_distance = _load(ROOT / "benchmarks" / "spm_vector_distance.py", "spm_vector_distance")
+results_doc = load_script("scripts/results_doc.py", "results_doc")
+vector_distance = load_script("benchmarks/spm_vector_distance.py", "spm_vector_distance")
 MEASURES = results_doc.load_measures()
 
 

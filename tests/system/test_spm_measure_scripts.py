@@ -3,7 +3,6 @@ README.md and docs/spm-ablation.md quote (docs/results/measures/spm-solvers.json
 spm-ablation.json, issue 46): what they write, and the tables scripts/results_doc.py renders
 from it, are the figures measured."""
 
-import importlib.util
 import json
 import os
 import shutil
@@ -13,22 +12,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tests.helpers import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _load(path: Path, name: str):
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-results_doc = _load(ROOT / "scripts" / "results_doc.py", "results_doc")
+results_doc = load_script("scripts/results_doc.py", "results_doc")
 
 
 def test_solver_figures_are_means_and_sigmas_over_seeds():
-    scaling = _load(ROOT / "benchmarks" / "train_scaling.py", "train_scaling")
+    scaling = load_script("benchmarks/train_scaling.py", "train_scaling")
     # rows per seed: new views sum<5, own sum<5, own sum<3, fit s, fit CPU s
     rows = {name: (np.array([[0.0, 30.0, 10.0, 1.0, 2.0], [1.0, 32.0, 12.0, 3.0, 4.0]]) + i, 1200, 500)
             for i, name in enumerate(scaling.SOLVERS)}
