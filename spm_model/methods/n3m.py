@@ -130,29 +130,23 @@ class SiftPoints(PoseEstimator):
         return obs
 
     def _object_points(self, obs, obj: int, radius: float) -> dict:
-        """One object's 3-D points (seen in at least 2 views): positions, the views that
-        detected them (columns: ``view_ids``, the object's views) and stored descriptors
-        (rows of obs)."""
+        """One object's 3-D points (seen in at least 2 views): positions (the median of their
+        observations), the views that detected them (columns: ``view_ids``, the object's views) and
+        stored descriptors (rows of obs: up to ``descriptors_per_point``, spread over each point's
+        observations in their order). Array work over every point at once (a loop over points
+        was a fifth of N3M's training time), the same numbers as point by point."""
         rows = np.flatnonzero(obs["object"] == obj)
         labels = pts.merge_observations(obs["xyz"][rows], np.zeros(len(rows)), radius)
         view_ids = np.flatnonzero(np.asarray(obs["views"]["object"]) == obj)
-        keep, desc_rows = [], []
-        detected = np.zeros((labels.max() + 1, len(view_ids)), dtype=bool)
-        position = np.zeros((labels.max() + 1, 3))
         order = np.argsort(labels, kind="stable")
-        starts = np.r_[0, np.flatnonzero(np.diff(labels[order])) + 1, len(order)]
-        column = {v: c for c, v in enumerate(view_ids)}
-        for p in range(len(starts) - 1):
-            members = rows[order[starts[p]:starts[p + 1]]]
-            seen = np.unique(obs["view"][members])
-            if len(seen) < 2:
-                continue
-            keep.append(p)
-            detected[p, [column[v] for v in seen]] = True
-            position[p] = np.median(obs["xyz"][members], axis=0)
-            pick = np.linspace(0, len(members) - 1, min(len(members), int(self.descriptors_per_point)))
-            desc_rows.append(members[np.unique(np.rint(pick).astype(int))])
-        keep = np.array(keep, dtype=np.int64)
+        members, starts = rows[order], np.r_[0, np.flatnonzero(np.diff(labels[order])) + 1, len(order)]
+        pairs = np.unique(labels[order] * len(view_ids) + np.searchsorted(view_ids, obs["view"][members]))
+        detected = np.zeros((len(starts) - 1, len(view_ids)), dtype=bool)
+        detected[pairs // len(view_ids), pairs % len(view_ids)] = True
+        keep = np.flatnonzero(detected.sum(axis=1) >= 2)
+        position = pts.group_medians(obs["xyz"][members], starts)
+        picks = pts.spread_picks(np.diff(starts)[keep], int(self.descriptors_per_point))
+        desc_rows = [members[starts[p] + pick] for p, pick in zip(keep, picks)]
         return {"position": position[keep], "detected": detected[keep], "view_ids": view_ids,
                 "desc_rows": desc_rows, "object": obj, "desc": obs["desc"]}
 

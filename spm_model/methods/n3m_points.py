@@ -107,6 +107,31 @@ def merge_observations(xyz, strength, radius: float) -> np.ndarray:
     return labels
 
 
+def group_medians(values, starts) -> np.ndarray:
+    """(g, d): per group of rows ``starts[i]:starts[i + 1]`` of ``values`` (n, d), what
+    ``np.median(axis=0)`` gives for it, bit for bit (the middle value, or the mean of the two
+    middle ones: (a + b) / 2), for every group at once."""
+    values = np.asarray(values, dtype=np.float64)
+    starts = np.asarray(starts, dtype=np.int64)
+    lengths = np.diff(starts)
+    group = np.repeat(np.arange(len(lengths)), lengths)
+    low, high = starts[:-1] + (lengths - 1) // 2, starts[:-1] + lengths // 2
+    out = np.empty((len(lengths), values.shape[1]))
+    for c in range(values.shape[1]):
+        ordered = values[np.lexsort((values[:, c], group)), c]
+        out[:, c] = np.where(lengths % 2 == 1, ordered[low], (ordered[low] + ordered[high]) / 2)
+    return out
+
+
+def spread_picks(lengths, count: int) -> list:
+    """Per length L of ``lengths``, the (distinct, increasing) positions of at most ``count`` items
+    spread evenly over 0..L-1, first and last included: rint(linspace(0, L - 1, min(L, count)))."""
+    known: dict = {}
+    for length in map(int, np.unique(lengths)):
+        known[length] = np.unique(np.rint(np.linspace(0, length - 1, min(length, count))).astype(int))
+    return [known[int(length)] for length in lengths]
+
+
 def small_depth(depth) -> np.ndarray:
     """``depth`` (H, W) downsampled (nearest) to at most VISIBLE_SIDE a side, float32."""
     depth = np.asarray(depth, dtype=np.float32)

@@ -44,13 +44,7 @@ def grow(seed: int, positions, quality, detected, *, size: int, radius: float, m
     one (in quality order) that keeps every pair at least ``min_gap`` apart and the set
     non-collinear, then non-coplanar (:func:`flatness` >= ``min_relief``). Returns
     (size,) int point indices, or None if no such set exists among them."""
-    tree = cKDTree(positions) if tree is None else tree
-    near = np.asarray(tree.query_ball_point(positions[seed], r=radius), dtype=np.int64)
-    near = near[(near != seed) & (quality[near] > 0)]
-    seen = detected[seed]
-    shared = (detected[near] & seen).sum(axis=1)
-    near = near[shared >= COVISIBLE * max(1, seen.sum())]
-    near = near[np.argsort(-quality[near], kind="stable")][:MAX_NEIGHBOURS]
+    near = _neighbours(seed, positions, quality, detected, radius, cKDTree(positions) if tree is None else tree)
     chosen = [seed]
     while len(chosen) < size:
         fits = np.flatnonzero(_fits(positions, chosen, near, min_gap, min_relief))
@@ -59,6 +53,17 @@ def grow(seed: int, positions, quality, detected, *, size: int, radius: float, m
         chosen.append(int(near[fits[0]]))
         near = np.delete(near, fits[0])
     return np.array(chosen, dtype=np.int64)
+
+
+def _neighbours(seed: int, positions, quality, detected, radius: float, tree) -> np.ndarray:
+    """The points a marker may grow with around ``seed``, best first (:func:`grow`): stable ones within
+    ``radius``, co-detected (COVISIBLE), in quality order (ties in index order), at most MAX_NEIGHBOURS."""
+    near = np.asarray(tree.query_ball_point(positions[seed], r=radius), dtype=np.int64)
+    near = near[(near != seed) & (quality[near] > 0)]
+    seen = detected[seed]
+    shared = (detected[near] & seen).sum(axis=1)
+    near = near[shared >= COVISIBLE * max(1, seen.sum())]
+    return near[np.argsort(-quality[near], kind="stable")][:MAX_NEIGHBOURS]
 
 
 def _fits(positions, chosen: list, near, min_gap: float, min_relief: float) -> np.ndarray:
@@ -77,19 +82,69 @@ def _fits(positions, chosen: list, near, min_gap: float, min_relief: float) -> n
 
 def candidates(positions, quality, detected, *, size: int, radius: float, min_gap: float,
                min_relief: float) -> np.ndarray:
-    """Every marker :func:`grow` finds, one per stable seed: (c, size) int point indices."""
+    """Every marker :func:`grow` finds, one per stable seed, in seed order: (c, size) int point indices.
+    Every seed grows at once, a step at a time (one batch of array work per step instead of one
+    per seed and step: the loop over seeds was a third of N3M's training time); each step's choice
+    is grow's, computed from the same numbers, so the markers are grow's, bit for bit
+    (tests/model/methods/test_n3m_select.py compares them)."""
     positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     quality = np.asarray(quality, dtype=np.float64)
-    if len(positions) < size:
+    seeds = np.flatnonzero(quality > 0)
+    if len(positions) < size or not len(seeds):
         return np.zeros((0, size), dtype=np.int64)
     tree = cKDTree(positions)
-    found = []
-    for seed in np.flatnonzero(quality > 0):
-        marker = grow(int(seed), positions, quality, detected, size=size, radius=radius,
-                      min_gap=min_gap, min_relief=min_relief, tree=tree)
-        if marker is not None:
-            found.append(marker)
-    return np.array(found, dtype=np.int64).reshape(-1, size)
+    near = np.full((len(seeds), MAX_NEIGHBOURS), -1, dtype=np.int64)
+    for row, seed in enumerate(seeds):
+        found = _neighbours(int(seed), positions, quality, detected, radius, tree)
+        near[row, :len(found)] = found
+    valid, near = near >= 0, np.maximum(near, 0)
+    chosen = seeds[:, None]
+    gap = np.where(valid, np.linalg.norm(positions[near] - positions[seeds][:, None], axis=2), -np.inf)
+    for _ in range(size - 1):
+        pick = _first_fits(positions, chosen, near, valid & (gap >= min_gap), min_relief)
+        keep = pick >= 0
+        chosen, near, valid, gap, pick = chosen[keep], near[keep], valid[keep], gap[keep], pick[keep]
+        rows = np.arange(len(pick))
+        added = near[rows, pick]
+        chosen = np.concatenate([chosen, added[:, None]], axis=1)
+        valid[rows, pick] = False
+        step = np.linalg.norm(positions[near] - positions[added][:, None], axis=2)
+        gap = np.where(valid, np.minimum(gap, step), -np.inf)
+    return chosen.astype(np.int64).reshape(-1, size)
+
+
+def _first_fits(positions, chosen, near, spaced, min_relief: float, batch: int = 4) -> np.ndarray:
+    """Per row of ``chosen`` (s, k) the column of ``near`` (s, m) holding the first point that may
+    join it (:func:`_fits`: ``spaced`` (s, m), and not flat by ``min_relief``), -1 where none may.
+    The singular values are computed for ``batch`` spaced points of each row at a time, in order,
+    until one fits (usually the first batch)."""
+    first = np.full(len(near), -1, dtype=np.int64)
+    if chosen.shape[1] < 2:   # a set of two points is never flat
+        some = spaced.any(axis=1)
+        first[some] = np.argmax(spaced[some], axis=1)
+        return first
+    rank = np.cumsum(spaced, axis=1) - 1
+    left = rank.max(axis=1, initial=-1)
+    pending = left >= 0
+    start = 0
+    while pending.any():
+        rows, cols = np.nonzero(spaced & (rank >= start) & (rank < start + batch) & pending[:, None])
+        fits = _not_flat(positions[chosen[rows]], positions[near[rows, cols]], min_relief)
+        hit, at = np.unique(rows[fits], return_index=True)   # row-major: each row's first fit
+        first[hit] = cols[fits][at]
+        pending[hit] = False
+        start += batch
+        pending &= left >= start
+    return first
+
+
+def _not_flat(base, added, min_relief: float) -> np.ndarray:
+    """(n,) bool: whether each set ``base`` (n, k, 3) plus its point ``added`` (n, 3) is
+    non-collinear (3 points) or non-coplanar (4 and more) by ``min_relief``, as :func:`_fits`."""
+    trial = np.concatenate([base, added[:, None]], axis=1)
+    s = np.linalg.svd(trial - trial.mean(axis=1, keepdims=True), compute_uv=False)
+    which = 1 if trial.shape[1] == 3 else 2
+    return (s[:, which] >= min_relief * np.maximum(s[:, 0], 1e-300)) & (s[:, 0] > 0)
 
 
 def choose(markers, quality, detected, *, per_view: int, max_markers: int) -> np.ndarray:

@@ -68,3 +68,18 @@ def test_sift_upsampling_keeps_keypoints_in_the_original_pixels_and_mask():
     # Corners found at both scales sit at the same original pixels (within a pixel).
     near = np.linalg.norm(uv1[:, None] - uv2[None], axis=2).min(axis=1)
     assert np.median(near) < 1.0
+
+
+def test_group_medians_and_spread_picks_are_numpys_group_by_group():
+    from spm_model.methods.n3m_points import group_medians, spread_picks
+
+    rng = np.random.default_rng(3)
+    lengths = rng.integers(1, 9, 200)
+    starts = np.r_[0, np.cumsum(lengths)]
+    values = np.round(rng.normal(size=(starts[-1], 3)), 2)            # rounded: ties inside groups
+    medians = group_medians(values, starts)
+    expected = np.array([np.median(values[a:b], axis=0) for a, b in zip(starts[:-1], starts[1:])])
+    assert medians.tobytes() == expected.tobytes()
+    for length, pick in zip(lengths, spread_picks(lengths, 4)):
+        assert np.array_equal(pick, np.unique(np.rint(np.linspace(0, length - 1, min(length, 4))).astype(int)))
+    assert [p.tolist() for p in spread_picks(np.array([1, 2, 7]), 3)] == [[0], [0, 1], [0, 3, 6]]

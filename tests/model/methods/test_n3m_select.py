@@ -61,3 +61,28 @@ def test_select_markers_on_the_table():
         assert flatness(positions[marker]) >= 0.2
     shared = [len(set(a) & set(b)) for i, a in enumerate(found.tolist()) for b in found.tolist()[i + 1:]]
     assert all(s <= 1 for s in shared)
+
+
+def cloud(seed: int, n: int = 300):
+    """A random object: points in a 10 cm cube, qualities on a coarse scale (many ties, some zero),
+    each point detected in a random subset of 12 views."""
+    rng = np.random.default_rng(seed)
+    positions = rng.uniform(0, 0.1, (n, 3))
+    positions[: n // 4, 2] = 0.05                                     # a plane: flat sets must be refused
+    quality = rng.integers(0, 5, n) / 4.0
+    detected = rng.random((n, 12)) < 0.6
+    return positions, quality, detected
+
+
+def test_candidates_are_the_markers_grow_finds_seed_by_seed():
+    from spm_model.methods.n3m_select import candidates
+
+    for seed, (size, relief) in enumerate([(5, 0.1), (4, 0.3), (6, 0.05)]):
+        positions, quality, detected = cloud(seed)
+        kwargs = dict(size=size, radius=0.03, min_gap=0.004, min_relief=relief)
+        found = candidates(positions, quality, detected, **kwargs)
+        grown = [grow(int(s), positions, quality, detected, **kwargs) for s in np.flatnonzero(quality > 0)]
+        expected = np.array([m for m in grown if m is not None]).reshape(-1, size)
+        assert len(expected) > 20 and len(expected) < (quality > 0).sum()   # some seeds fail: both paths tried
+        assert found.dtype == np.int64 and np.array_equal(found, expected)
+    assert candidates(positions, np.zeros(len(positions)), detected, **kwargs).shape == (0, size)
