@@ -197,7 +197,9 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
     reading the table from the feature cache of ``source`` = (shards, test folder or None,
     FeatureConfig, allow_partial); the results are those of one worker. Without them, in this process.
     final: also fit the final models (final_models.fit_final_models, but those fitted after the
-    splits), as the first job, so they are fitted while the splits run instead of after them.
+    splits), as the last job: a worker that has no split left fits them while the others finish
+    theirs (handed out first, the worker that fitted them ended its last split after the others
+    had none left: docs/scaling.md).
     timeout: seconds a plug-in's call may take before it is declined (None: no limit). progress: a
     callable taking count deltas (feature_cache.progress_phase): "fitting" counts the splits (not
     the final models), "scoring" runs.
@@ -220,8 +222,8 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
     finals = [FinalJob(key, dict(model_params or {}), train_occluded, wanted)] if final else []
     progress = progress or (lambda n: None)
     progress_phase(progress, "fitting", len(jobs), "split")
-    outputs = _run_jobs(finals + jobs, executor if source is not None else None, report, progress)
-    models, outputs = (outputs[0], outputs[1:]) if final else (None, outputs)
+    outputs = _run_jobs(jobs + finals, executor if source is not None else None, report, progress)
+    models, outputs = (outputs[-1], outputs[:-1]) if final else (None, outputs)
     if reused:
         first = {job.index: outputs[i] for i, job in enumerate(jobs) if job.run == 0}
         outputs = [_with_first_run(out, first[job.index]) if job.run else out for job, out in zip(jobs, outputs)]

@@ -183,18 +183,18 @@ class SiftPoints(PoseEstimator):
         sift = pts.make_sift(self.max_keypoints)
         out = np.full((len(frames), 6), np.nan)
         sources = []
+        desc_xyz = self.points_[self.descriptor_point_]   # once, not per frame: (d, 3), a gather of every row
         for i, frame in enumerate(frames):
             _check_keys(frame, TEST_KEYS, i, "test", type(self).__name__)
-            found = self._predict_one(frame, index, sift)
+            found = self._predict_one(frame, index, sift, desc_xyz)
             sources.append(None if found is None else found[3])
             if found is not None:
                 out[i] = pose_to_label(found[0], found[1])
         return out, sources
 
-    def _predict_one(self, frame, index, sift):
+    def _predict_one(self, frame, index, sift, desc_xyz):
         uv, desc = pts.remembered_sift_features(frame["rgb"], frame["mask"], side=self.sift_side,
                                                 max_keypoints=self.max_keypoints, sift=sift)
-        desc_xyz = self.points_[self.descriptor_point_]
         keypoint, point = match(index, desc_xyz, self.descriptor_point_, desc, ratio=float(self.ratio),
                                 same_radius=2 * self.merge_radius_)
         return self._pose(point, self.points_[point], uv[keypoint], frame["K"])

@@ -92,11 +92,7 @@ def candidates(positions, quality, detected, *, size: int, radius: float, min_ga
     seeds = np.flatnonzero(quality > 0)
     if len(positions) < size or not len(seeds):
         return np.zeros((0, size), dtype=np.int64)
-    tree = cKDTree(positions)
-    near = np.full((len(seeds), MAX_NEIGHBOURS), -1, dtype=np.int64)
-    for row, seed in enumerate(seeds):
-        found = _neighbours(int(seed), positions, quality, detected, radius, tree)
-        near[row, :len(found)] = found
+    near = _neighbour_table(seeds, positions, quality, detected, radius)
     valid, near = near >= 0, np.maximum(near, 0)
     chosen = seeds[:, None]
     gap = np.where(valid, np.linalg.norm(positions[near] - positions[seeds][:, None], axis=2), -np.inf)
@@ -111,6 +107,26 @@ def candidates(positions, quality, detected, *, size: int, radius: float, min_ga
         step = np.linalg.norm(positions[near] - positions[added][:, None], axis=2)
         gap = np.where(valid, np.minimum(gap, step), -np.inf)
     return chosen.astype(np.int64).reshape(-1, size)
+
+
+def _neighbour_table(seeds, positions, quality, detected, radius: float) -> np.ndarray:
+    """(s, MAX_NEIGHBOURS) int: row i holds :func:`_neighbours` of ``seeds[i]`` in its order, -1 after
+    them; every seed at once (one tree query, unsorted as grow's is, then one stable sort)."""
+    lists = cKDTree(positions).query_ball_point(positions[seeds], r=radius, return_sorted=False)
+    counts = np.array([len(found) for found in lists], dtype=np.int64)
+    near = np.concatenate([np.asarray(found, dtype=np.int64) for found in lists])
+    row = np.repeat(np.arange(len(seeds)), counts)
+    seen = detected[seeds]
+    shared = (detected[near] & seen[row]).sum(axis=1)
+    keep = (near != seeds[row]) & (quality[near] > 0) & (shared >= COVISIBLE * np.maximum(1, seen.sum(axis=1))[row])
+    near, row = near[keep], row[keep]
+    order = np.lexsort((-quality[near], row))   # by seed, best first, ties in the query's order
+    near, row = near[order], row[order]
+    rank = np.arange(len(row)) - np.searchsorted(row, row)
+    table = np.full((len(seeds), MAX_NEIGHBOURS), -1, dtype=np.int64)
+    first = rank < MAX_NEIGHBOURS
+    table[row[first], rank[first]] = near[first]
+    return table
 
 
 def _first_fits(positions, chosen, near, spaced, min_relief: float, batch: int = 4) -> np.ndarray:
