@@ -5,7 +5,7 @@ gives the training rows (unoccluded, as the benchmark trains); those are split a
 inner training frames and the validation frames are predicted for a grid of (rerank, hog_weight): the
 network is trained once, only the retrieval changes. Prints and writes ±5° % (and up to symmetry) per cell.
 
-    python benchmarks/cnn_rerank.py SHARDS --protocols views,instances --out rerank.json
+    python benchmarks/cnn_rerank.py SHARDS --protocols views,instances [--bins 256] --out rerank.json
 """
 
 from __future__ import annotations
@@ -42,11 +42,11 @@ def inner_split(table, protocol: str) -> tuple[np.ndarray, np.ndarray]:
     return train[inner], train[held]
 
 
-def sweep(table, protocol: str, keys: list, symmetries: list) -> dict:
+def sweep(table, protocol: str, keys: list, symmetries: list, bins: int = 256) -> dict:
     """{"rerank/weight": (±5° %, ±5° sym. %)} on one protocol's validation frames, with the fit's cost."""
     inner, held = inner_split(table, protocol)
     start = time.perf_counter()
-    model = CNNPose(seed=0, rerank=max(k for k, _ in GRID)).fit(Frames(table, inner), table.pose[inner])
+    model = CNNPose(seed=0, bins=bins, rerank=max(k for k, _ in GRID)).fit(Frames(table, inner), table.pose[inner])
     print(f"{protocol}: {len(inner)} inner training frames, {len(held)} validation frames, fit "
           f"{time.perf_counter() - start:.0f} s", flush=True)
     crops, geometry = frame_crops(read_camera_frames(table, held))
@@ -66,6 +66,7 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("shards")
     parser.add_argument("--protocols", default="views,instances")
+    parser.add_argument("--bins", type=int, default=256, help="the cnn's view bins (default 256, its default)")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     table = load_features(args.shards)
@@ -73,7 +74,8 @@ def main(argv=None) -> None:
     symmetries = instance_symmetries(keys)
     out = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "machine": platform.node(),
            "cpus": os.cpu_count(), "load": os.getloadavg(), "shards": str(args.shards),
-           "protocols": {p: sweep(table, p, keys, symmetries) for p in args.protocols.split(",")}}
+           "bins": args.bins,
+           "protocols": {p: sweep(table, p, keys, symmetries, args.bins) for p in args.protocols.split(",")}}
     args.out.write_text(json.dumps(out, indent=1))
 
 
