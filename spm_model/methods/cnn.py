@@ -237,15 +237,18 @@ class CNNPose(PoseEstimator):
         """(m, embed) unit embeddings of the queries, their (m, 2, CROP, CROP) crops -> (m,) index of the
         training frame each retrieves: the nearest embedding, or the best re-ranked of the ``rerank``
         nearest (cos(embeddings) + hog_weight x cos(HOG))."""
-        similarity = z @ self.embeddings_.T
-        k = min(int(self.rerank), similarity.shape[1])
+        k = min(int(self.rerank), len(self.embeddings_))
         if k < 2:
-            return np.argmax(similarity, axis=1)
-        short = np.argpartition(-similarity, k - 1, axis=1)[:, :k]
-        codes = project_hog(crop_hogs(crops), self.hog_mean_, self.hog_axes_)
-        hog_cos = 1 - 0.5 * ((self.hog_codes_[short] - codes[:, None, :].astype(np.float32)) ** 2).sum(axis=2)
-        score = np.take_along_axis(similarity, short, axis=1) + self.hog_weight * hog_cos
-        return np.take_along_axis(short, np.argmax(score, axis=1)[:, None], axis=1)[:, 0]
+            return np.argmax(z @ self.embeddings_.T, axis=1)
+        codes = project_hog(crop_hogs(crops), self.hog_mean_, self.hog_axes_).astype(np.float32)
+        out = np.zeros(len(z), np.int64)
+        for s in range(0, len(z), 512):   # 512 queries' similarities at a time: not 4,000 x 20,000 at once
+            similarity = z[s: s + 512] @ self.embeddings_.T
+            short = np.argpartition(-similarity, k - 1, axis=1)[:, :k]
+            hog_cos = 1 - 0.5 * ((self.hog_codes_[short] - codes[s: s + 512, None, :]) ** 2).sum(axis=2)
+            score = np.take_along_axis(similarity, short, axis=1) + self.hog_weight * hog_cos
+            out[s: s + 512] = np.take_along_axis(short, np.argmax(score, axis=1)[:, None], axis=1)[:, 0]
+        return out
 
     def budget(self, frames: int) -> int:
         """Gradient steps for ``frames`` training frames: ``steps``, or fewer where ``epochs`` passes
