@@ -229,3 +229,19 @@ def test_check_loaded_rejects_hog_arrays_that_do_not_fit(fitted):
     with pytest.raises(ValueError):
         CNNPose.from_state(**_state(fitted, hog_codes_=broken)).check_loaded()
     CNNPose.from_state(**_state(fitted)).check_loaded()                      # as fitted: fine
+
+
+def test_re_ranking_in_blocks_of_queries_picks_as_one_query_at_a_time(split, fitted):
+    """1,200 queries (past two 512-query blocks) pick exactly what each picks alone."""
+    from spm_model.methods.cnn import frame_crops
+
+    train, poses, test, truth = split
+    crops, _ = frame_crops(test + train)
+    crops = np.concatenate([crops] * 13)[:1200]
+    rng = np.random.default_rng(0)
+    z = rng.normal(size=(1200, fitted.embed)).astype(np.float32)
+    z /= np.linalg.norm(z, axis=1, keepdims=True)
+    together = fitted.nearest(z, crops)
+    alone = np.array([fitted.nearest(z[i: i + 1], crops[i: i + 1])[0] for i in range(0, 1200, 7)])
+    assert np.array_equal(together[::7], alone)
+    assert (together != np.argmax(z @ fitted.embeddings_.T, axis=1)).any()    # the re-ranking did act
