@@ -19,9 +19,16 @@ visible (as a test frame's visible mask gives it), and a brightness and contrast
 Plain rotation regression from few views fails (issue 48's probe: 0% within 5 degrees); bins
 plus retrieval do not need to interpolate between poses.
 
-Prediction: the query's unit embedding, its nearest training embedding (cosine), and that
-frame's rotation; translation from the crop geometry and K exactly as the reference does
-(template.py ``place``, ``distance_by_size``).
+Prediction: the query's unit embedding, its ``rerank`` nearest training embeddings (cosine),
+re-ranked by a local appearance score, and the best one's rotation; translation from the crop
+geometry and K exactly as the reference does (template.py ``place``, ``distance_by_size``). The
+score is cos(embeddings) + ``hog_weight`` x cos(HOG): the HOG of the stored 64 x 64 masked grey
+crop (exactly the reference's template crop and descriptor), compared in its top
+``hog_components`` principal axes (template.py ``hog_projection``, fitted on at most AXES_ROWS
+training frames spread evenly; the codes of every training frame are kept, float32). The network
+finds the neighbourhood of the pose (robust across instances and classes); HOG tells its
+neighbouring views apart, which the bins, by design alike for nearby poses, do not. ``rerank`` 0
+or 1: the nearest embedding alone (no HOG is computed).
 
 Symmetries: not modelled in the loss (frames know none). Views a symmetry makes identical get
 different bins the network cannot tell apart; retrieval then returns one of the equivalent
@@ -42,10 +49,11 @@ from spm_model.errors import ModelError
 from spm_model.base.estimator import PoseEstimator, check_fitted
 from spm_model.base.model_files import load_model_file, need, need_finite, save_model_file
 from spm_model.methods import cnn_net
-from spm_model.methods.descriptors import GEOMETRY, box_of, crop_box, masked_grey
-from spm_model.methods.template import distance_by_size, place
+from spm_model.methods.descriptors import GEOMETRY, HOG_SIZE, SIDE, box_of, crop_box, hog_descriptor, masked_grey
+from spm_model.methods.template import distance_by_size, hog_projection, place, project_hog
 
-CROP = 64   # the stored crop's side: augmentation re-cuts the network's input from it
+CROP = SIDE   # the stored crop's side (the reference's 64): augmentation re-cuts the network's input from it
+AXES_ROWS = 2048   # at most this many training frames fit the HOG axes (seconds, not a minute, at 20k frames)
 
 
 def frame_crop(rgb: np.ndarray, mask: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -67,6 +75,15 @@ def frame_crops(frames) -> tuple[np.ndarray, np.ndarray]:
     for i, f in enumerate(frames):
         crops[i], geometry[i] = frame_crop(f["rgb"], f["mask"], f["K"])
     return crops, geometry
+
+
+def crop_hogs(crops: np.ndarray) -> np.ndarray:
+    """(n, 2, CROP, CROP) crops -> (n, HOG_SIZE) float32: the reference's HOG of each masked grey crop."""
+    hog = hog_descriptor()
+    out = np.zeros((len(crops), HOG_SIZE), np.float32)
+    for i, c in enumerate(crops):
+        out[i] = hog.compute(np.ascontiguousarray(c[0])).ravel()
+    return out
 
 
 def net_input(crop: np.ndarray, side: int) -> np.ndarray:
@@ -147,10 +164,13 @@ def device_note(device: str) -> str | None:
 class CNNPose(PoseEstimator):
     """fit(frames, poses (n, 6)) -> self; predict(frames) -> (n, 6), NaN for an empty mask.
     Learned (FITTED): the network's arrays by torch's names (``net_``), the bin rotations, the
-    training frames' embeddings, poses, box geometry and distances, and the training focal length
-    per image height; ``training_`` says what training cost (seconds, steps, epochs, device)."""
+    training frames' embeddings, poses, box geometry and distances, the training focal length per
+    image height, and the HOG re-ranking's mean, axes and training codes (empty when ``rerank`` < 2);
+    ``training_`` says what training cost. ``rerank`` nearest embeddings are re-ranked by cos(embeddings)
+    + ``hog_weight`` x cos(HOG in ``hog_components`` axes); 0 or 1: the nearest embedding (module docstring)."""
 
-    FITTED = ("net_", "bins_", "embeddings_", "poses_", "geometry_", "distance_", "focal_per_height_")
+    FITTED = ("net_", "bins_", "embeddings_", "poses_", "geometry_", "distance_", "focal_per_height_",
+              "hog_mean_", "hog_axes_", "hog_codes_")
 
     @staticmethod
     def check_available() -> None:
@@ -159,11 +179,12 @@ class CNNPose(PoseEstimator):
 
     def __init__(self, *, side: int = 32, width: int = 16, embed: int = 64, bins: int = 256, steps: int = 800,
                  epochs: float = 40.0, batch: int = 64, lr: float = 0.005, occlusion: float = 0.6, seed: int = 0,
-                 threads: int = 1, device: str = "auto", size_neighbours: int = 15, spread: float = 0.5):
+                 threads: int = 1, device: str = "auto", size_neighbours: int = 15, spread: float = 0.5,
+                 rerank: int = 16, hog_weight: float = 2.0, hog_components: int = 128):
         self.side, self.width, self.embed, self.bins = side, width, embed, bins
         self.steps, self.epochs, self.batch, self.lr, self.occlusion = steps, epochs, batch, lr, occlusion
         self.seed, self.threads, self.device, self.size_neighbours = seed, threads, device, size_neighbours
-        self.spread = spread
+        self.spread, self.rerank, self.hog_weight, self.hog_components = spread, rerank, hog_weight, hog_components
 
     def fit(self, frames, poses) -> "CNNPose":
         torch = cnn_net.torch_module()
@@ -196,9 +217,38 @@ class CNNPose(PoseEstimator):
         self.bins_, self.poses_, self.geometry_ = centres, poses, geometry
         self.distance_ = np.linalg.norm(poses[:, 3:], axis=1)
         self.focal_per_height_ = np.array(np.median(geometry[:, 4] / (2 * geometry[:, 6] + 1)))
+        self._fit_hog(crops)
         self.training_ = {**cost, "frames": int(len(crops)),
                           "epochs": round(cost["steps"] * self.batch / len(crops), 3)}
         return self
+
+    def _fit_hog(self, crops: np.ndarray) -> None:
+        """The HOG re-ranking's state from the training crops (empty arrays when it is off)."""
+        if self.rerank < 2:
+            self.hog_mean_, self.hog_axes_ = np.zeros(0, np.float32), np.zeros((0, 0), np.float32)
+            self.hog_codes_ = np.zeros((len(crops), 0), np.float32)
+            return
+        hogs = crop_hogs(crops)
+        mean, axes = hog_projection(hogs[:: -(-len(hogs) // AXES_ROWS)], self.hog_components)
+        self.hog_mean_, self.hog_axes_ = mean.astype(np.float32), axes.astype(np.float32)
+        self.hog_codes_ = project_hog(hogs, mean, axes).astype(np.float32)
+
+    def nearest(self, z: np.ndarray, crops: np.ndarray) -> np.ndarray:
+        """(m, embed) unit embeddings of the queries, their (m, 2, CROP, CROP) crops -> (m,) index of the
+        training frame each retrieves: the nearest embedding, or the best re-ranked of the ``rerank``
+        nearest (cos(embeddings) + hog_weight x cos(HOG))."""
+        k = min(int(self.rerank), len(self.embeddings_))
+        if k < 2:
+            return np.argmax(z @ self.embeddings_.T, axis=1)
+        codes = project_hog(crop_hogs(crops), self.hog_mean_, self.hog_axes_).astype(np.float32)
+        out = np.zeros(len(z), np.int64)
+        for s in range(0, len(z), 512):   # 512 queries' similarities at a time: not 4,000 x 20,000 at once
+            similarity = z[s: s + 512] @ self.embeddings_.T
+            short = np.argpartition(-similarity, k - 1, axis=1)[:, :k]
+            hog_cos = 1 - 0.5 * ((self.hog_codes_[short] - codes[s: s + 512, None, :]) ** 2).sum(axis=2)
+            score = np.take_along_axis(similarity, short, axis=1) + self.hog_weight * hog_cos
+            out[s: s + 512] = np.take_along_axis(short, np.argmax(score, axis=1)[:, None], axis=1)[:, 0]
+        return out
 
     def budget(self, frames: int) -> int:
         """Gradient steps for ``frames`` training frames: ``steps``, or fewer where ``epochs`` passes
@@ -223,7 +273,7 @@ class CNNPose(PoseEstimator):
         with cnn_net.torch_settings(torch, self.seed, self.threads):
             z = cnn_net.embed_all(torch, self._net(torch), np.stack([net_input(c, self.side) for c in crops[ok]]),
                                   device)
-        j = np.argmax(z @ self.embeddings_.T, axis=1)
+        j = self.nearest(z, crops[ok])
         g_q = geometry[ok]
         out[ok] = place(self.poses_[j], self.geometry_[j], g_q, np.asarray(K, np.float64)[ok],
                         distance_by_size(self.geometry_, self.distance_, g_q, self.size_neighbours))
@@ -286,5 +336,11 @@ class CNNPose(PoseEstimator):
         need(self.bins_.ndim == 2 and self.bins_.shape[1] == 4, f"bins of shape {self.bins_.shape}, expected (b, 4)")
         need(np.shape(self.focal_per_height_) == () and float(self.focal_per_height_) > 0,
              f"focal_per_height is {self.focal_per_height_!r}")
-        need_finite(self.embeddings_, self.poses_, self.geometry_, self.distance_, *self.net_.values())
+        c = self.hog_axes_.shape[-1] if self.hog_axes_.ndim == 2 else -1
+        need(self.rerank < 2 or (c > 0 and self.hog_mean_.shape == (HOG_SIZE,)
+                                 and self.hog_axes_.shape == (HOG_SIZE, c) and self.hog_codes_.shape == (n, c)),
+             f"HOG re-ranking arrays of shapes mean {self.hog_mean_.shape}, axes {self.hog_axes_.shape}, codes "
+             f"{self.hog_codes_.shape}; expected ({HOG_SIZE},), ({HOG_SIZE}, c), ({n}, c) with rerank {self.rerank}")
+        need_finite(self.embeddings_, self.poses_, self.geometry_, self.distance_, self.hog_mean_, self.hog_axes_,
+                    self.hog_codes_, *self.net_.values())
         self._net(cnn_net.torch_module())

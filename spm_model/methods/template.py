@@ -107,11 +107,8 @@ class TemplatePose(PoseEstimator):
         poses = np.asarray(poses, dtype=np.float64)
         ok = np.isfinite(desc).all(axis=1)
         check_xy(desc[ok, :HOG_SIZE], poses[ok] if len(poses) == len(desc) else poses)
-        hog = _unit(desc[ok, :HOG_SIZE])
-        self.mean_ = hog.mean(axis=0)
-        centred = hog - self.mean_
-        self.basis_ = _principal_axes(centred, self.components)
-        self.codes_ = centred @ self.basis_
+        self.mean_, self.basis_ = hog_projection(desc[ok, :HOG_SIZE], self.components)
+        self.codes_ = project_hog(desc[ok, :HOG_SIZE], self.mean_, self.basis_)
         self.poses_ = poses[ok]
         self.geometry_ = desc[ok, HOG_SIZE:].astype(np.float64)
         self.distance_ = np.linalg.norm(self.poses_[:, 3:], axis=1)
@@ -126,7 +123,7 @@ class TemplatePose(PoseEstimator):
     def nearest(self, hog: np.ndarray) -> np.ndarray:
         """(m, HOG_SIZE) descriptors -> (m,) index of the nearest template."""
         check_fitted(self, self.FITTED)
-        z = (_unit(hog) - self.mean_) @ self.basis_
+        z = project_hog(hog, self.mean_, self.basis_)
         sq = (self.codes_ ** 2).sum(axis=1)
         return np.concatenate([np.argmin(sq[None] - 2 * z[s: s + 1024] @ self.codes_.T, axis=1)
                                for s in range(0, len(z), 1024)]) if len(z) else np.zeros(0, np.int64)
@@ -193,6 +190,20 @@ class TemplatePose(PoseEstimator):
         desc = frame_descriptors(frames)
         K = column(frames, "K", lambda f: np.asarray(f["K"], np.float64))
         return self.predict_descriptors(desc, K)
+
+
+def hog_projection(hog: np.ndarray, components: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n, HOG_SIZE) descriptors -> the mean (HOG_SIZE,) of their unit rows and the top ``components``
+    principal axes (HOG_SIZE, k) around it (_principal_axes): what project_hog maps with."""
+    hog = _unit(hog)
+    mean = hog.mean(axis=0)
+    return mean, _principal_axes(hog - mean, components)
+
+
+def project_hog(hog: np.ndarray, mean: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """(m, HOG_SIZE) descriptors -> (m, k) codes: unit rows, centred on ``mean``, on ``axes``. Two
+    codes' squared distance is that of the unit descriptors within the axes' span (2 - 2 cosine)."""
+    return (_unit(hog) - mean) @ axes
 
 
 def _unit(x: np.ndarray) -> np.ndarray:

@@ -61,6 +61,10 @@ def test_the_model_file_round_trips_and_its_safetensors_hold_the_same_weights(sp
     for name, value in fitted.net_.items():
         assert np.array_equal(arrays[f"net.{name}"], value) and arrays[f"net.{name}"].dtype == value.dtype
     assert np.array_equal(arrays["embeddings"], fitted.embeddings_)
+    for name in ("hog_mean", "hog_axes", "hog_codes"):                # the HOG re-ranking's state, both files
+        assert np.array_equal(arrays[name], getattr(fitted, name + "_"))
+        assert np.array_equal(getattr(loaded, name + "_"), getattr(fitted, name + "_"))
+    assert fitted.hog_codes_.shape == (72, fitted.hog_axes_.shape[1]) and fitted.hog_codes_.dtype == np.float32
     one = loaded.predict_image(test[0]["rgb"], test[0]["mask"], test[0]["K"])["pose"]
     assert np.allclose(one, fitted.predict(test[:1])[0])
 
@@ -167,3 +171,77 @@ def test_augmentation_hides_part_of_the_object_and_recuts_the_crop_to_what_is_se
     assert (seen < whole - 0.02).sum() >= 5 and np.isclose(seen, whole, atol=0.02).sum() >= 5
     clean = [augmented(crop, 32, 0.0, rng) for _ in range(5)]         # no occlusion: only the jitter
     assert all(np.array_equal(d[1], plain[1]) for d in clean)
+
+
+def _state(model, **changed) -> dict:
+    return {**model.get_params(), **{k: getattr(model, k) for k in CNNPose.FITTED}, **changed}
+
+
+def test_hog_re_ranking_picks_the_neighbour_whose_appearance_matches(split, fitted):
+    """A training view queried as itself, its embedding moved a hair away and its 10-degree neighbour's
+    put exactly on the query's: the embedding alone retrieves the neighbour, the HOG re-ranking the view."""
+    from spm_model.methods.cnn import angles_to
+
+    train, poses, test, truth = split
+    q = rotation_quaternions(poses)
+    same = np.array([f["sequence"] == train[0]["sequence"] for f in train])          # frame 0's object
+    gap = np.where(same, angles_to(q, q[:1])[:, 0], np.inf)
+    gap[0] = np.inf
+    j = int(np.argmin(gap))                                               # the nearest other view of frame 0
+    assert 5 < np.degrees(gap[j]) < 15
+    z = fitted.embeddings_[0].copy()
+    moved = fitted.embeddings_.copy()
+    moved[j] = z
+    moved[0] = (z + 0.02 * np.roll(z, 1)) / np.linalg.norm(z + 0.02 * np.roll(z, 1))   # cosine 0.9998 to z
+    plain = CNNPose.from_state(**_state(fitted, embeddings_=moved, rerank=0))
+    reranked = CNNPose.from_state(**_state(fitted, embeddings_=moved))
+    assert reranked.rerank == 16 and reranked.hog_weight == 2.0                       # the defaults
+    assert np.allclose(plain.predict(train[:1])[0, :3], poses[j, :3])                   # the neighbour
+    assert np.allclose(reranked.predict(train[:1])[0, :3], poses[0, :3])                # the view itself
+
+
+def test_rerank_0_keeps_the_nearest_embedding_and_the_same_network(split, fitted):
+    """rerank 0: no HOG state, the same training (re-ranking is after the network), and each query's
+    pose that of its nearest training embedding."""
+    from spm_model.methods.cnn import cnn_net, frame_crops, net_input
+
+    train, poses, test, truth = split
+    plain = CNNPose(**SMALL, rerank=0).fit(train, poses)
+    assert all(np.array_equal(plain.net_[k], fitted.net_[k]) for k in fitted.net_)
+    assert plain.hog_codes_.shape == (72, 0) and plain.hog_mean_.size == plain.hog_axes_.size == 0
+    crops, _ = frame_crops(test)
+    import torch
+
+    z = cnn_net.embed_all(torch, plain._net(torch), np.stack([net_input(c, plain.side) for c in crops]), "cpu")
+    nearest = np.argmax(z @ plain.embeddings_.T, axis=1)
+    assert np.allclose(plain.predict(test)[:, :3], poses[nearest, :3])
+    plain.check_loaded()                                                   # empty HOG arrays are fine then
+
+
+def test_check_loaded_rejects_hog_arrays_that_do_not_fit(fitted):
+    codes, axes = fitted.hog_codes_, fitted.hog_axes_
+    for bad in ({"hog_codes_": codes[:-1]}, {"hog_codes_": codes[:, :-1]}, {"hog_axes_": axes[:-1]},
+                {"hog_mean_": fitted.hog_mean_[:5]}, {"hog_codes_": np.zeros((72, 0), np.float32)}):
+        with pytest.raises(ValueError, match="^HOG re-ranking arrays of shapes"):
+            CNNPose.from_state(**_state(fitted, **bad)).check_loaded()
+    broken = codes.copy()
+    broken[3, 1] = np.nan
+    with pytest.raises(ValueError):
+        CNNPose.from_state(**_state(fitted, hog_codes_=broken)).check_loaded()
+    CNNPose.from_state(**_state(fitted)).check_loaded()                      # as fitted: fine
+
+
+def test_re_ranking_in_blocks_of_queries_picks_as_one_query_at_a_time(split, fitted):
+    """1,200 queries (past two 512-query blocks) pick exactly what each picks alone."""
+    from spm_model.methods.cnn import frame_crops
+
+    train, poses, test, truth = split
+    crops, _ = frame_crops(test + train)
+    crops = np.concatenate([crops] * 13)[:1200]
+    rng = np.random.default_rng(0)
+    z = rng.normal(size=(1200, fitted.embed)).astype(np.float32)
+    z /= np.linalg.norm(z, axis=1, keepdims=True)
+    together = fitted.nearest(z, crops)
+    alone = np.array([fitted.nearest(z[i: i + 1], crops[i: i + 1])[0] for i in range(0, 1200, 7)])
+    assert np.array_equal(together[::7], alone)
+    assert (together != np.argmax(z @ fitted.embeddings_.T, axis=1)).any()    # the re-ranking did act
