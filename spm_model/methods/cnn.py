@@ -316,12 +316,16 @@ class CNNPose(PoseEstimator):
 
     @classmethod
     def from_model_file(cls, header: dict, arrays: dict) -> "CNNPose":
-        """The model a file's (header, arrays) describe; KeyError naming the first missing array."""
+        """The model a file's (header, arrays) describe; KeyError naming the first missing array. A file
+        saved before the HOG re-ranking (no ``rerank`` in its parameters) loads as ``rerank`` 0: the nearest
+        embedding, as it predicted then."""
         net = {k[4:]: v for k, v in arrays.items() if k.startswith("net/")}
         if not net:
             raise KeyError("net/...")
-        model = cls.from_state(**header["params"], net_=net,
-                               **{k: arrays[k[:-1]] for k in cls.FITTED if k != "net_"})
+        params = header["params"] if "rerank" in header["params"] else {**header["params"], "rerank": 0}
+        hog = {} if params["rerank"] >= 2 else {"hog_mean": np.zeros(0), "hog_axes": np.zeros((0, 0)),   # saved before
+                                               "hog_codes": np.zeros((len(arrays["poses"]), 0))}   # re-ranking
+        model = cls.from_state(**params, net_=net, **{k: {**arrays, **hog}[k[:-1]] for k in cls.FITTED if k != "net_"})
         model.training_ = header.get("training")
         return model
 

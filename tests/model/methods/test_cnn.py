@@ -245,3 +245,21 @@ def test_re_ranking_in_blocks_of_queries_picks_as_one_query_at_a_time(split, fit
     alone = np.array([fitted.nearest(z[i: i + 1], crops[i: i + 1])[0] for i in range(0, 1200, 7)])
     assert np.array_equal(together[::7], alone)
     assert (together != np.argmax(z @ fitted.embeddings_.T, axis=1)).any()    # the re-ranking did act
+
+
+def test_a_model_file_saved_before_the_re_ranking_loads_as_the_nearest_embedding(split, fitted, tmp_path):
+    import copy
+
+    from spm_model.base.model_files import save_model_file
+    from spm_model.pipelines.evaluate import load_model
+
+    train, poses, test, truth = split
+    before = {k: v for k, v in fitted.get_params().items() if k not in ("rerank", "hog_weight", "hog_components")}
+    arrays = {**{f"net/{k}": v for k, v in fitted.net_.items()},
+              **{k[:-1]: getattr(fitted, k) for k in CNNPose.FITTED if k != "net_" and not k.startswith("hog_")}}
+    path = save_model_file(tmp_path / "cnn-model.npz", "cnn", before, arrays, {"training": None})
+    loaded = load_model(path)
+    nearest = copy.copy(fitted)
+    nearest.rerank = 0
+    assert loaded.rerank == 0 and loaded.hog_codes_.shape == (len(fitted.poses_), 0)
+    assert np.array_equal(loaded.predict(test), nearest.predict(test))
