@@ -230,7 +230,10 @@ def write_snapshot(name: str, results_json: Path, command: str, wall_s: float, d
             bop = json.loads(Path(bop_eval).read_text())
             snap["bop"] = {"date": bop["date"][:10], "targets": bop["targets"], "protocol": bop["protocol"],
                            "commands": [c["command"] for c in bop["commands"]], "figures": bop["figures"]}
-    path.write_text(dumps(snap) + "\n")
+    folder.mkdir(parents=True, exist_ok=True)   # a new --snapshots folder (train_size.py) is made, not a traceback
+    partial = path.with_name(f".{path.name}.partial")
+    partial.write_text(dumps(snap) + "\n")
+    os.replace(partial, path)   # whole or not at all: a killed write leaves the old snapshot
     return path
 
 

@@ -158,8 +158,10 @@ def test_a_snapshot_keeps_the_summary_and_says_how_it_was_made(tmp_path):
                    "spm": {"success_tol5": 0.1}}, "classes": {}}]}}
     source = tmp_path / "results.json"
     source.write_text(json.dumps(results))
-    path = results_doc.write_snapshot("views", source, "spm train x", 12.34, "2026-11-26", folder=tmp_path,
+    folder = tmp_path / "new" / "snapshots"   # not there yet: made (train_size.py --snapshots)
+    path = results_doc.write_snapshot("views", source, "spm train x", 12.34, "2026-11-26", folder=folder,
                                       parameters={"size": 128}, before=[{"command": "render", "wall_s": 1.0}])
+    assert sorted(p.name for p in folder.iterdir()) == ["views.json"]   # no partial file left beside it
     snap = json.loads(path.read_text())
     assert snap["summary"]["methods"]["spm"] == {"frames": 10, "success_tol5": 0.1235}
     assert "accuracy_curve" not in snap["summary"]
