@@ -57,7 +57,7 @@ def grow(seed: int, positions, quality, detected, *, size: int, radius: float, m
 
 def _neighbours(seed: int, positions, quality, detected, radius: float, tree) -> np.ndarray:
     """The points a marker may grow with around ``seed``, best first (:func:`grow`): stable ones within
-    ``radius``, co-detected (COVISIBLE), in quality order (ties in index order), at most MAX_NEIGHBOURS."""
+    ``radius``, co-detected (COVISIBLE), in quality order (ties in the tree query's order), at most MAX_NEIGHBOURS."""
     near = np.asarray(tree.query_ball_point(positions[seed], r=radius), dtype=np.int64)
     near = near[(near != seed) & (quality[near] > 0)]
     seen = detected[seed]
@@ -71,13 +71,10 @@ def _fits(positions, chosen: list, near, min_gap: float, min_relief: float) -> n
     least ``min_gap`` from each, and the set stays non-collinear (3 points: second over
     first singular value) or non-coplanar (4 and more: :func:`flatness`) by ``min_relief``."""
     base = positions[chosen]
-    trial = np.concatenate([np.broadcast_to(base, (len(near), *base.shape)), positions[near][:, None]], axis=1)
     ok = np.linalg.norm(base[None] - positions[near][:, None], axis=2).min(axis=1) >= min_gap
-    if trial.shape[1] < 3:
+    if len(chosen) < 2:
         return ok
-    s = np.linalg.svd(trial - trial.mean(axis=1, keepdims=True), compute_uv=False)
-    which = 1 if trial.shape[1] == 3 else 2
-    return ok & (s[:, which] >= min_relief * np.maximum(s[:, 0], 1e-300)) & (s[:, 0] > 0)
+    return ok & _not_flat(np.broadcast_to(base, (len(near), *base.shape)), positions[near], min_relief)
 
 
 def candidates(positions, quality, detected, *, size: int, radius: float, min_gap: float,
@@ -156,7 +153,8 @@ def _first_fits(positions, chosen, near, spaced, min_relief: float, batch: int =
 
 def _not_flat(base, added, min_relief: float) -> np.ndarray:
     """(n,) bool: whether each set ``base`` (n, k, 3) plus its point ``added`` (n, 3) is
-    non-collinear (3 points) or non-coplanar (4 and more) by ``min_relief``, as :func:`_fits`."""
+    non-collinear (3 points: second over first singular value) or non-coplanar (4 and more:
+    :func:`flatness`) by ``min_relief``."""
     trial = np.concatenate([base, added[:, None]], axis=1)
     s = np.linalg.svd(trial - trial.mean(axis=1, keepdims=True), compute_uv=False)
     which = 1 if trial.shape[1] == 3 else 2
