@@ -19,16 +19,17 @@ visible (as a test frame's visible mask gives it), and a brightness and contrast
 Plain rotation regression from few views fails (issue 48's probe: 0% within 5 degrees); bins
 plus retrieval do not need to interpolate between poses.
 
-Prediction: the query's unit embedding, its ``rerank`` nearest training embeddings (cosine),
-re-ranked by a local appearance score, and the best one's rotation; translation from the crop
-geometry and K exactly as the reference does (template.py ``place``, ``distance_by_size``). The
-score is cos(embeddings) + ``hog_weight`` x cos(HOG): the HOG of the stored 64 x 64 masked grey
-crop (exactly the reference's template crop and descriptor), compared in its top
-``hog_components`` principal axes (template.py ``hog_projection``, fitted on at most AXES_ROWS
-training frames spread evenly; the codes of every training frame are kept, float32). The network
-finds the neighbourhood of the pose (robust across instances and classes); HOG tells its
-neighbouring views apart, which the bins, by design alike for nearby poses, do not. ``rerank`` 0
-or 1: the nearest embedding alone (no HOG is computed).
+Prediction: the training frame with the best score cos(embeddings) + ``hog_weight`` x cos(HOG),
+every training frame scored (``rerank`` -1, the default; spm_model/methods/cnn_retrieval.py), and
+its rotation; translation from the crop geometry and K exactly as the reference does (template.py
+``place``, ``distance_by_size``). The HOG is that of the stored 64 x 64 masked grey crop (exactly
+the reference's template crop and descriptor), compared in its top ``hog_components`` principal
+axes (template.py ``hog_projection``, fitted on at most AXES_ROWS training frames spread evenly;
+the codes of every training frame are kept, float32). The weight 16 was chosen on held-out
+training frames (benchmarks/cnn_rerank.py; docs/method.md): HOG carries most of the score, and
+the network's term moves the choice where HOG's neighbours are close. ``rerank`` k >= 2 scores
+only the k nearest embeddings (the re-ranking this replaced); 0 or 1: the nearest embedding
+alone (no HOG is computed).
 
 Symmetries: not modelled in the loss (frames know none). Views a symmetry makes identical get
 different bins the network cannot tell apart; retrieval then returns one of the equivalent
@@ -49,7 +50,8 @@ from spm_model.errors import ModelError
 from spm_model.base.estimator import PoseEstimator, check_fitted
 from spm_model.base.model_files import load_model_file, need, need_finite, save_model_file
 from spm_model.methods import cnn_net
-from spm_model.methods.descriptors import GEOMETRY, HOG_SIZE, SIDE, box_of, crop_box, hog_descriptor, masked_grey
+from spm_model.methods.cnn_retrieval import crop_hogs, nearest_frames, uses_hog
+from spm_model.methods.descriptors import GEOMETRY, HOG_SIZE, SIDE, box_of, crop_box, masked_grey
 from spm_model.methods.template import distance_by_size, hog_projection, place, project_hog
 
 CROP = SIDE   # the stored crop's side (the reference's 64): augmentation re-cuts the network's input from it
@@ -75,15 +77,6 @@ def frame_crops(frames) -> tuple[np.ndarray, np.ndarray]:
     for i, f in enumerate(frames):
         crops[i], geometry[i] = frame_crop(f["rgb"], f["mask"], f["K"])
     return crops, geometry
-
-
-def crop_hogs(crops: np.ndarray) -> np.ndarray:
-    """(n, 2, CROP, CROP) crops -> (n, HOG_SIZE) float32: the reference's HOG of each masked grey crop."""
-    hog = hog_descriptor()
-    out = np.zeros((len(crops), HOG_SIZE), np.float32)
-    for i, c in enumerate(crops):
-        out[i] = hog.compute(np.ascontiguousarray(c[0])).ravel()
-    return out
 
 
 def net_input(crop: np.ndarray, side: int) -> np.ndarray:
@@ -165,9 +158,10 @@ class CNNPose(PoseEstimator):
     """fit(frames, poses (n, 6)) -> self; predict(frames) -> (n, 6), NaN for an empty mask.
     Learned (FITTED): the network's arrays by torch's names (``net_``), the bin rotations, the
     training frames' embeddings, poses, box geometry and distances, the training focal length per
-    image height, and the HOG re-ranking's mean, axes and training codes (empty when ``rerank`` < 2);
-    ``training_`` says what training cost. ``rerank`` nearest embeddings are re-ranked by cos(embeddings)
-    + ``hog_weight`` x cos(HOG in ``hog_components`` axes); 0 or 1: the nearest embedding (module docstring)."""
+    image height, and the HOG codes' mean, axes and training codes (empty when ``rerank`` is 0 or 1);
+    ``training_`` says what training cost. A query takes the pose of the training frame scoring best by
+    cos(embeddings) + ``hog_weight`` x cos(HOG in ``hog_components`` axes), among every training frame
+    (``rerank`` -1) or the ``rerank`` nearest embeddings; 0 or 1: the nearest embedding (module docstring)."""
 
     FITTED = ("net_", "bins_", "embeddings_", "poses_", "geometry_", "distance_", "focal_per_height_",
               "hog_mean_", "hog_axes_", "hog_codes_")
@@ -180,7 +174,7 @@ class CNNPose(PoseEstimator):
     def __init__(self, *, side: int = 32, width: int = 16, embed: int = 64, bins: int = 256, steps: int = 800,
                  epochs: float = 40.0, batch: int = 64, lr: float = 0.005, occlusion: float = 0.6, seed: int = 0,
                  threads: int = 1, device: str = "auto", size_neighbours: int = 15, spread: float = 0.5,
-                 rerank: int = 16, hog_weight: float = 2.0, hog_components: int = 128):
+                 rerank: int = -1, hog_weight: float = 16.0, hog_components: int = 128):
         self.side, self.width, self.embed, self.bins = side, width, embed, bins
         self.steps, self.epochs, self.batch, self.lr, self.occlusion = steps, epochs, batch, lr, occlusion
         self.seed, self.threads, self.device, self.size_neighbours = seed, threads, device, size_neighbours
@@ -190,6 +184,9 @@ class CNNPose(PoseEstimator):
         torch = cnn_net.torch_module()
         if self.side % 16 or self.side < 16:
             raise ModelError(f"CNNPose side must be a multiple of 16 (four 2x2 poolings), got {self.side}")
+        if int(self.rerank) != self.rerank or self.rerank < -1:
+            raise ModelError(f"CNNPose rerank must be -1 (every training frame), 0 or 1 (the nearest embedding) "
+                             f"or a shortlist of k >= 2, got {self.rerank!r}")
         crops, geometry = frame_crops(frames)
         poses = np.asarray(poses, np.float64)
         ok = np.isfinite(geometry).all(axis=1) & np.isfinite(poses).all(axis=1)
@@ -224,7 +221,7 @@ class CNNPose(PoseEstimator):
 
     def _fit_hog(self, crops: np.ndarray) -> None:
         """The HOG re-ranking's state from the training crops (empty arrays when it is off)."""
-        if self.rerank < 2:
+        if not uses_hog(self.rerank):
             self.hog_mean_, self.hog_axes_ = np.zeros(0, np.float32), np.zeros((0, 0), np.float32)
             self.hog_codes_ = np.zeros((len(crops), 0), np.float32)
             return
@@ -235,20 +232,11 @@ class CNNPose(PoseEstimator):
 
     def nearest(self, z: np.ndarray, crops: np.ndarray) -> np.ndarray:
         """(m, embed) unit embeddings of the queries, their (m, 2, CROP, CROP) crops -> (m,) index of the
-        training frame each retrieves: the nearest embedding, or the best re-ranked of the ``rerank``
-        nearest (cos(embeddings) + hog_weight x cos(HOG))."""
-        k = min(int(self.rerank), len(self.embeddings_))
-        if k < 2:
-            return np.argmax(z @ self.embeddings_.T, axis=1)
-        codes = project_hog(crop_hogs(crops), self.hog_mean_, self.hog_axes_).astype(np.float32)
-        out = np.zeros(len(z), np.int64)
-        for s in range(0, len(z), 512):   # 512 queries' similarities at a time: not 4,000 x 20,000 at once
-            similarity = z[s: s + 512] @ self.embeddings_.T
-            short = np.argpartition(-similarity, k - 1, axis=1)[:, :k]
-            hog_cos = 1 - 0.5 * ((self.hog_codes_[short] - codes[s: s + 512, None, :]) ** 2).sum(axis=2)
-            score = np.take_along_axis(similarity, short, axis=1) + self.hog_weight * hog_cos
-            out[s: s + 512] = np.take_along_axis(short, np.argmax(score, axis=1)[:, None], axis=1)[:, 0]
-        return out
+        training frame each retrieves (spm_model/methods/cnn_retrieval.py; ``rerank`` is its shortlist)."""
+        codes = None
+        if uses_hog(self.rerank):
+            codes = project_hog(crop_hogs(crops), self.hog_mean_, self.hog_axes_).astype(np.float32)
+        return nearest_frames(z, self.embeddings_, codes, self.hog_codes_, self.hog_weight, self.rerank)
 
     def budget(self, frames: int) -> int:
         """Gradient steps for ``frames`` training frames: ``steps``, or fewer where ``epochs`` passes
@@ -323,8 +311,8 @@ class CNNPose(PoseEstimator):
         if not net:
             raise KeyError("net/...")
         params = header["params"] if "rerank" in header["params"] else {**header["params"], "rerank": 0}
-        hog = {} if params["rerank"] >= 2 else {"hog_mean": np.zeros(0), "hog_axes": np.zeros((0, 0)),   # saved before
-                                               "hog_codes": np.zeros((len(arrays["poses"]), 0))}   # re-ranking
+        hog = {} if uses_hog(params["rerank"]) else {"hog_mean": np.zeros(0), "hog_axes": np.zeros((0, 0)),  # saved
+                                                     "hog_codes": np.zeros((len(arrays["poses"]), 0))}  # before HOG
         model = cls.from_state(**params, net_=net, **{k: {**arrays, **hog}[k[:-1]] for k in cls.FITTED if k != "net_"})
         model.training_ = header.get("training")
         return model
@@ -341,7 +329,7 @@ class CNNPose(PoseEstimator):
         need(np.shape(self.focal_per_height_) == () and float(self.focal_per_height_) > 0,
              f"focal_per_height is {self.focal_per_height_!r}")
         c = self.hog_axes_.shape[-1] if self.hog_axes_.ndim == 2 else -1
-        need(self.rerank < 2 or (c > 0 and self.hog_mean_.shape == (HOG_SIZE,)
+        need(not uses_hog(self.rerank) or (c > 0 and self.hog_mean_.shape == (HOG_SIZE,)
                                  and self.hog_axes_.shape == (HOG_SIZE, c) and self.hog_codes_.shape == (n, c)),
              f"HOG re-ranking arrays of shapes mean {self.hog_mean_.shape}, axes {self.hog_axes_.shape}, codes "
              f"{self.hog_codes_.shape}; expected ({HOG_SIZE},), ({HOG_SIZE}, c), ({n}, c) with rerank {self.rerank}")

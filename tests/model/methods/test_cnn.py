@@ -195,7 +195,7 @@ def test_hog_re_ranking_picks_the_neighbour_whose_appearance_matches(split, fitt
     moved[0] = (z + 0.02 * np.roll(z, 1)) / np.linalg.norm(z + 0.02 * np.roll(z, 1))   # cosine 0.9998 to z
     plain = CNNPose.from_state(**_state(fitted, embeddings_=moved, rerank=0))
     reranked = CNNPose.from_state(**_state(fitted, embeddings_=moved))
-    assert reranked.rerank == 16 and reranked.hog_weight == 2.0                       # the defaults
+    assert reranked.rerank == -1 and reranked.hog_weight == 16.0                      # the defaults
     assert np.allclose(plain.predict(train[:1])[0, :3], poses[j, :3])                   # the neighbour
     assert np.allclose(reranked.predict(train[:1])[0, :3], poses[0, :3])                # the view itself
 
@@ -216,6 +216,13 @@ def test_rerank_0_keeps_the_nearest_embedding_and_the_same_network(split, fitted
     nearest = np.argmax(z @ plain.embeddings_.T, axis=1)
     assert np.allclose(plain.predict(test)[:, :3], poses[nearest, :3])
     plain.check_loaded()                                                   # empty HOG arrays are fine then
+
+
+@pytest.mark.parametrize("rerank", [-2, 2.5, -1.5])
+def test_a_rerank_that_names_no_retrieval_is_one_line(split, rerank):
+    train, poses, test, truth = split
+    with pytest.raises(ModelError, match=r"^CNNPose rerank must be -1 \(every training frame\), 0 or 1"):
+        CNNPose(**SMALL, rerank=rerank).fit(train, poses)
 
 
 def test_check_loaded_rejects_hog_arrays_that_do_not_fit(fitted):
