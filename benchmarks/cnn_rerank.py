@@ -5,7 +5,8 @@ gives the training rows (unoccluded, as the benchmark trains); those are split a
 inner training frames and the validation frames are predicted for a grid of (rerank, hog_weight): the
 network is trained once, only the retrieval changes. Prints and writes ±5° % (and up to symmetry) per cell.
 
-    python benchmarks/cnn_rerank.py SHARDS --protocols views,instances [--bins 256] --out rerank.json
+    python benchmarks/cnn_rerank.py SHARDS --protocols views,instances [--bins 256] [--param width=32 ...]
+        [--grid all|short] --out rerank.json
 """
 
 from __future__ import annotations
@@ -34,34 +35,54 @@ from spm_model.methods.cnn import CNNPose, frame_crops  # noqa: E402
 # rerank -1: every training frame scored (the default); k >= 2: the k nearest embeddings re-ranked; 0: none.
 GRID = ([(0, 1.0)] + [(k, w) for k in (16, 64) for w in (2.0, 8.0, 1000.0)]
         + [(-1, w) for w in (1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 1000.0)])
+SHORT = [(0, 1.0), (16, 2.0), (64, 8.0), (-1, 4.0), (-1, 8.0), (-1, 16.0), (-1, 1000.0)]
 
 
-def inner_split(table, protocol: str) -> tuple[np.ndarray, np.ndarray]:
-    """(inner training rows, validation rows): the first split's training rows, split again."""
+def inner_splits(table, protocol: str, folds: int = 1) -> list[tuple[np.ndarray, np.ndarray]]:
+    """[(inner training rows, validation rows)]: the first split's training rows, split again by the
+    same protocol; its first ``folds`` splits (``instances`` and ``loco`` have one per instance or class)."""
     _, train, _ = splits(table, protocol, seed=0)[0]
     train = training_rows(table, train, False)
-    _, inner, held = splits(table.subset(train), protocol, seed=100)[0]
-    return train[inner], train[held]
+    return [(train[inner], train[held]) for _, inner, held in splits(table.subset(train), protocol, seed=100)[:folds]]
 
 
-def sweep(table, protocol: str, keys: list, symmetries: list, bins: int = 256) -> dict:
-    """{"rerank/weight": (±5° %, ±5° sym. %)} on one protocol's validation frames, with the fit's cost."""
-    inner, held = inner_split(table, protocol)
-    start = time.perf_counter()
-    model = CNNPose(seed=0, bins=bins, rerank=-1).fit(Frames(table, inner), table.pose[inner])
-    print(f"{protocol}: {len(inner)} inner training frames, {len(held)} validation frames, fit "
-          f"{time.perf_counter() - start:.0f} s", flush=True)
-    crops, geometry = frame_crops(read_camera_frames(table, held))
-    K = np.asarray(table.K[held], np.float64)
+def sweep(table, protocol: str, keys: list, symmetries: list, params: dict, grid: list = GRID,
+          folds: int = 1) -> dict:
+    """{"rerank/weight": (±5° %, ±5° sym. %)} on one protocol's validation frames, pooled over ``folds``
+    inner splits (a network fitted on each), with the fits' cost; ``params``: CNNPose parameters besides
+    the seed (0)."""
+    errors, sizes, fit_s = {cell: [] for cell in grid}, [], 0.0
+    for inner, held in inner_splits(table, protocol, folds):
+        start = time.perf_counter()
+        model = CNNPose(**{**params, "seed": 0, "rerank": -1}).fit(Frames(table, inner), table.pose[inner])
+        fit_s += time.perf_counter() - start
+        sizes.append((len(inner), len(held)))
+        print(f"{protocol}: {len(inner)} inner training frames, {len(held)} validation frames, fit "
+              f"{time.perf_counter() - start:.0f} s", flush=True)
+        crops, geometry = frame_crops(read_camera_frames(table, held))
+        K = np.asarray(table.K[held], np.float64)
+        for rerank, weight in grid:
+            model.rerank, model.hog_weight = rerank, weight
+            errors[rerank, weight].append(frame_errors(table, held, model.predict_crops(crops, geometry, K), keys,
+                                                       symmetries))
     rows = {}
-    for rerank, weight in GRID:
-        model.rerank, model.hog_weight = rerank, weight
-        errors = frame_errors(table, held, model.predict_crops(crops, geometry, K), keys, symmetries)
-        rows[f"{rerank}/{weight}"] = tuple(None if r is None else round(r, 1) for r in (   # sym.: None without meshes
-            tolerance_rate(errors["rotation_max"]), tolerance_rate(errors["rotation_max_sym"])))
+    for (rerank, weight), parts in errors.items():
+        rates = [tolerance_rate(np.concatenate([np.asarray(p[key], float) for p in parts]))
+                 if all(p[key] is not None for p in parts) else None for key in ("rotation_max", "rotation_max_sym")]
+        rows[f"{rerank}/{weight}"] = tuple(None if r is None else round(r, 1) for r in rates)  # sym.: None, no mesh
         print(f"{protocol} rerank {rerank} weight {weight}: ±5° {rows[f'{rerank}/{weight}'][0]}%, "
               f"sym. {rows[f'{rerank}/{weight}'][1]}%", flush=True)
-    return {"inner": len(inner), "validation": len(held), "cells": rows}
+    return {"folds": sizes, "inner": sum(a for a, _ in sizes), "validation": sum(b for _, b in sizes),
+            "fit_s": round(fit_s, 1), "cells": rows}
+
+
+def parameters(pairs: list[str], bins: int) -> dict:
+    """--param KEY=VALUE pairs (numbers as numbers) and --bins -> CNNPose parameters."""
+    out = {"bins": bins}
+    for pair in pairs:
+        key, _, value = pair.partition("=")
+        out[key] = json.loads(value)
+    return out
 
 
 def main(argv=None) -> None:
@@ -69,15 +90,24 @@ def main(argv=None) -> None:
     parser.add_argument("shards")
     parser.add_argument("--protocols", default="views,instances")
     parser.add_argument("--bins", type=int, default=256, help="the cnn's view bins (default 256, its default)")
+    parser.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
+                        help="another CNNPose parameter for the fit, e.g. width=32 (repeatable)")
+    parser.add_argument("--grid", choices=("all", "short"), default="all",
+                        help="short: embedding alone; shortlists 16 (weight 2), 64 (8); every frame, 4, 8, 16, 1000")
+    parser.add_argument("--folds", type=int, default=1,
+                        help="inner splits pooled per protocol (instances, loco: one per instance or class; default 1)")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
+    params = parameters(args.param, args.bins)
+    grid = GRID if args.grid == "all" else SHORT
     table = load_features(args.shards)
     keys = mesh_keys(table.shard, table.instance_id)
     symmetries = instance_symmetries(keys)
     out = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "machine": platform.node(),
            "cpus": os.cpu_count(), "load": os.getloadavg(), "shards": str(args.shards),
-           "bins": args.bins,
-           "protocols": {p: sweep(table, p, keys, symmetries, args.bins) for p in args.protocols.split(",")}}
+           "params": params,
+           "protocols": {p: sweep(table, p, keys, symmetries, params, grid, args.folds)
+                         for p in args.protocols.split(",")}}
     args.out.write_text(json.dumps(out, indent=1))
 
 

@@ -76,7 +76,7 @@ METHODS = (
     Method("smm", "SMM (Mei et al. 2011)", lambda seed, features, params, spm: SMMPose(seed=seed)),
     Method("template", "HOG templates (reference)", lambda seed, features, params, spm: TemplatePose(),
            "reference-model.npz", "HOG templates", lambda: TemplatePose),
-    Method("cnn", "CNN embedding + retrieval, HOG re-ranked (ours)",
+    Method("cnn", "CNN embedding + HOG retrieval (ours)",
            lambda seed, features, params, spm: CNNPose(seed=seed, **params["cnn"]),
            "cnn-model.npz", "CNN", lambda: CNNPose, final_after_splits=True),
     Method("chance", "chance (random training pose)", lambda seed, features, params, spm: ChancePose(seed=seed)),

@@ -227,12 +227,12 @@ def test_a_separate_runs_method_is_grafted_beside_a_snapshot_and_said():
     text = results_doc.table_beside(snaps, "a,a-cnn", "methods")
     rows = text.splitlines()[2:]
     assert [r.split(" | ")[0] for r in rows] == ["| HOG templates (reference)",
-                                                 "| CNN embedding + retrieval, HOG re-ranked (ours) †",
+                                                 "| CNN embedding + HOG retrieval (ours) †",
                                                  "| chance (random training pose)"]
     assert rows[1].endswith("| 80.0 (79.0–81.0) | 0.5 | 80.0 |")   # the runs' range: its per-run rates grafted
     assert "cnn" not in snaps["a"]["summary"]["methods"]                      # the snapshot itself untouched
     assert results_doc.table_beside_note(snaps, "a,a-cnn") == (
-        "†CNN embedding + retrieval, HOG re-ranked (ours): a separate run (snapshot [a-cnn](results/a-cnn.json)), "
+        "†CNN embedding + HOG retrieval (ours): a separate run (snapshot [a-cnn](results/a-cnn.json)), "
         "2026-11-28, `python benchmarks/real_coil.py X --methods cnn,chance`, 100 s, load 6-12; the same data, "
         "protocol, runs and seeds as the rows beside it: chance scores the same in every run of both, so the splits "
         "are the same.")
@@ -250,7 +250,7 @@ def test_beside_each_grafts_every_snapshots_own_separate_run_and_marks_its_rows(
     snaps = {"a": _beside_snap({"template": 90.0}, [1.5]), "a-cnn": _beside_snap({"cnn": 80.0}, [1.5]),
              "b": _beside_snap({"template": 40.0}, [2.5]), "b-cnn": _beside_snap({"cnn": 30.0}, [2.5])}
     text = results_doc.table_beside_each(snaps, "a,b", "-cnn", "rows-of")
-    ref, cnn = "| HOG templates (reference) |", "| CNN embedding + retrieval, HOG re-ranked (ours) † |"
+    ref, cnn = "| HOG templates (reference) |", "| CNN embedding + HOG retrieval (ours) † |"
     assert text.splitlines() == [f"{ref} a 90.0 |", f"{cnn} a 80.0 |", f"{ref} b 40.0 |", f"{cnn} b 30.0 |"]
     assert "cnn" not in snaps["a"]["summary"]["methods"] and "cnn" not in snaps["b"]["summary"]["methods"]
 
@@ -264,7 +264,7 @@ def test_the_size_curve_has_a_row_per_render_size_with_every_methods_rate_and_th
 
     text = results_doc.table_size_curve({"s1": snap(1002, 20.0, 300.4), "s4": snap(4002, 30.0, 900.0)}, "s1,s4")
     lines = text.splitlines()
-    assert lines[0] == ("| Frames rendered (test frames) | CNN embedding + retrieval, HOG re-ranked (ours): ±5° % "
+    assert lines[0] == ("| Frames rendered (test frames) | CNN embedding + HOG retrieval (ours): ±5° % "
                         "(95% CI) | HOG templates (reference): ±5° % (95% CI) | chance (random training pose): "
                         "±5° % (95% CI) | CNN final fit: s (steps, epochs) | render s | train and test s |")
     assert lines[2] == ("| 1,002 (100) | 20.0 (19.0–21.0) | 40.0 (39.0–41.0) | 2.0 (1.0–3.0) | 52 (800, 12.3) "
