@@ -1,12 +1,14 @@
 """Choosing the cnn method's ``rerank`` and ``hog_weight`` on held-out TRAINING frames (never a benchmark's
 test frames): for each protocol, the benchmark's first split (seed 0, as `spm train --runs 1` draws it)
 gives the training rows (unoccluded, as the benchmark trains); those are split again by the same protocol
-(seed 100) into inner training and validation frames; one CNNPose (default budget, seed 0) is fitted on the
-inner training frames and the validation frames are predicted for a grid of (rerank, hog_weight): the
-network is trained once, only the retrieval changes. Prints and writes ±5° % (and up to symmetry) per cell.
+(seed 100) into inner training and validation frames (its first --folds splits: instances and loco have
+one per instance or class); one CNNPose (default budget, seed 0, --param settings) is fitted on each
+split's inner training frames and its validation frames are predicted for a grid of (rerank, hog_weight):
+one network per split, only the retrieval changes. Prints and writes ±5° % (and up to symmetry) per cell,
+pooled over the splits.
 
     python benchmarks/cnn_rerank.py SHARDS --protocols views,instances [--bins 256] [--param width=32 ...]
-        [--grid all|short] --out rerank.json
+        [--grid all|short] [--folds N] --out rerank.json
 """
 
 from __future__ import annotations
@@ -77,11 +79,15 @@ def sweep(table, protocol: str, keys: list, symmetries: list, params: dict, grid
 
 
 def parameters(pairs: list[str], bins: int) -> dict:
-    """--param KEY=VALUE pairs (numbers as numbers) and --bins -> CNNPose parameters."""
+    """--param KEY=VALUE pairs (JSON values as such: 32, 0.5, true; anything else as text: cpu) and --bins
+    -> CNNPose parameters."""
     out = {"bins": bins}
     for pair in pairs:
         key, _, value = pair.partition("=")
-        out[key] = json.loads(value)
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
     return out
 
 

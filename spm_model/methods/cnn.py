@@ -50,7 +50,7 @@ from spm_model.errors import ModelError
 from spm_model.base.estimator import PoseEstimator, check_fitted
 from spm_model.base.model_files import load_model_file, need, need_finite, save_model_file
 from spm_model.methods import cnn_net
-from spm_model.methods.cnn_retrieval import crop_hogs, nearest_frames, uses_hog
+from spm_model.methods.cnn_retrieval import SHORTLISTS, crop_hogs, nearest_frames, uses_hog, valid_shortlist
 from spm_model.methods.descriptors import GEOMETRY, HOG_SIZE, SIDE, box_of, crop_box, masked_grey
 from spm_model.methods.template import distance_by_size, hog_projection, place, project_hog
 
@@ -184,9 +184,8 @@ class CNNPose(PoseEstimator):
         torch = cnn_net.torch_module()
         if self.side % 16 or self.side < 16:
             raise ModelError(f"CNNPose side must be a multiple of 16 (four 2x2 poolings), got {self.side}")
-        if int(self.rerank) != self.rerank or self.rerank < -1:
-            raise ModelError(f"CNNPose rerank must be -1 (every training frame), 0 or 1 (the nearest embedding) "
-                             f"or a shortlist of k >= 2, got {self.rerank!r}")
+        if not valid_shortlist(self.rerank):
+            raise ModelError(f"CNNPose rerank must be {SHORTLISTS}, got {self.rerank!r}")
         crops, geometry = frame_crops(frames)
         poses = np.asarray(poses, np.float64)
         ok = np.isfinite(geometry).all(axis=1) & np.isfinite(poses).all(axis=1)
@@ -220,7 +219,7 @@ class CNNPose(PoseEstimator):
         return self
 
     def _fit_hog(self, crops: np.ndarray) -> None:
-        """The HOG re-ranking's state from the training crops (empty arrays when it is off)."""
+        """The HOG codes' state from the training crops (empty arrays when retrieval uses no HOG)."""
         if not uses_hog(self.rerank):
             self.hog_mean_, self.hog_axes_ = np.zeros(0, np.float32), np.zeros((0, 0), np.float32)
             self.hog_codes_ = np.zeros((len(crops), 0), np.float32)
@@ -320,6 +319,7 @@ class CNNPose(PoseEstimator):
     def check_loaded(self) -> None:
         """ValueError when a loaded model's arrays do not fit together (a damaged or hand-made file)."""
         check_fitted(self, self.FITTED)
+        need(valid_shortlist(self.rerank), f"rerank is {self.rerank!r}: {SHORTLISTS}")
         n = len(self.poses_)
         need(n > 0 and self.embeddings_.shape == (n, self.embed) and self.poses_.shape == (n, 6)
              and self.geometry_.shape == (n, len(GEOMETRY)) and self.distance_.shape == (n,),
@@ -331,7 +331,7 @@ class CNNPose(PoseEstimator):
         c = self.hog_axes_.shape[-1] if self.hog_axes_.ndim == 2 else -1
         need(not uses_hog(self.rerank) or (c > 0 and self.hog_mean_.shape == (HOG_SIZE,)
                                  and self.hog_axes_.shape == (HOG_SIZE, c) and self.hog_codes_.shape == (n, c)),
-             f"HOG re-ranking arrays of shapes mean {self.hog_mean_.shape}, axes {self.hog_axes_.shape}, codes "
+             f"HOG code arrays of shapes mean {self.hog_mean_.shape}, axes {self.hog_axes_.shape}, codes "
              f"{self.hog_codes_.shape}; expected ({HOG_SIZE},), ({HOG_SIZE}, c), ({n}, c) with rerank {self.rerank}")
         need_finite(self.embeddings_, self.poses_, self.geometry_, self.distance_, self.hog_mean_, self.hog_axes_,
                     self.hog_codes_, *self.net_.values())

@@ -22,6 +22,17 @@ from spm_model.methods.descriptors import HOG_SIZE, hog_descriptor
 BLOCK = 512   # queries scored at a time: 512 x 20,000 floats, not 4,000 x 20,000
 
 
+SHORTLISTS = "-1 (every training frame), 0 or 1 (the nearest embedding) or a shortlist of k >= 2"
+
+
+def valid_shortlist(shortlist) -> bool:
+    """Whether ``shortlist`` (CNNPose ``rerank``) is one of SHORTLISTS: an integer >= -1."""
+    try:
+        return float(shortlist) == int(shortlist) and int(shortlist) >= -1
+    except (TypeError, ValueError, OverflowError):
+        return False
+
+
 def uses_hog(shortlist: int) -> bool:
     """Whether retrieval with this ``shortlist`` (CNNPose ``rerank``) compares HOG codes."""
     return int(shortlist) < 0 or int(shortlist) >= 2
@@ -40,7 +51,8 @@ def nearest_frames(z: np.ndarray, embeddings: np.ndarray, codes: np.ndarray | No
                    weight: float, shortlist: int) -> np.ndarray:
     """(m, e) query embeddings, (n, e) training embeddings, (m, c) query codes (None when not
     ``uses_hog``), (n, c) training codes -> (m,) int64 index of the best-scoring training frame
-    (module docstring); ties go to the lowest index among those scored."""
+    (module docstring); with every frame scored, ties go to the lowest index (within a shortlist, to
+    whichever argpartition lists first)."""
     if not uses_hog(shortlist):
         return np.argmax(z @ embeddings.T, axis=1)
     k = len(embeddings) if shortlist < 0 else min(int(shortlist), len(embeddings))

@@ -61,7 +61,7 @@ def test_the_model_file_round_trips_and_its_safetensors_hold_the_same_weights(sp
     for name, value in fitted.net_.items():
         assert np.array_equal(arrays[f"net.{name}"], value) and arrays[f"net.{name}"].dtype == value.dtype
     assert np.array_equal(arrays["embeddings"], fitted.embeddings_)
-    for name in ("hog_mean", "hog_axes", "hog_codes"):                # the HOG re-ranking's state, both files
+    for name in ("hog_mean", "hog_axes", "hog_codes"):                # the HOG codes' state, both files
         assert np.array_equal(arrays[name], getattr(fitted, name + "_"))
         assert np.array_equal(getattr(loaded, name + "_"), getattr(fitted, name + "_"))
     assert fitted.hog_codes_.shape == (72, fitted.hog_axes_.shape[1]) and fitted.hog_codes_.dtype == np.float32
@@ -225,11 +225,39 @@ def test_a_rerank_that_names_no_retrieval_is_one_line(split, rerank):
         CNNPose(**SMALL, rerank=rerank).fit(train, poses)
 
 
+def test_a_model_file_saved_with_the_16_nearest_re_ranking_keeps_it(split, fitted, tmp_path):
+    """A file written when the default was the 16 nearest embeddings re-ranked with weight 2 loads with
+    them, and retrieves exactly as nearest_frames does with that shortlist."""
+    from spm_model.methods.cnn import cnn_net, frame_crops, net_input
+    from spm_model.methods.cnn_retrieval import crop_hogs, nearest_frames
+    from spm_model.methods.template import project_hog
+    from spm_model.pipelines.evaluate import load_model
+
+    train, poses, test, truth = split
+    old = CNNPose.from_state(**_state(fitted, rerank=16, hog_weight=2.0))
+    loaded = load_model(old.save(tmp_path / "cnn-model.npz"))
+    assert (loaded.rerank, loaded.hog_weight) == (16, 2.0)
+    crops, _ = frame_crops(test)
+    import torch
+
+    z = cnn_net.embed_all(torch, loaded._net(torch), np.stack([net_input(c, loaded.side) for c in crops]), "cpu")
+    codes = project_hog(crop_hogs(crops), loaded.hog_mean_, loaded.hog_axes_).astype(np.float32)
+    picked = nearest_frames(z, loaded.embeddings_, codes, loaded.hog_codes_, 2.0, 16)
+    assert np.allclose(loaded.predict(test)[:, :3], poses[picked, :3])
+    assert np.array_equal(loaded.predict(test), old.predict(test))
+
+
+@pytest.mark.parametrize("rerank", [-5, 2.5, "all"])
+def test_check_loaded_rejects_a_rerank_that_names_no_retrieval(fitted, rerank):
+    with pytest.raises(ValueError, match=r"^rerank is .*: -1 \(every training frame\)"):
+        CNNPose.from_state(**_state(fitted, rerank=rerank)).check_loaded()
+
+
 def test_check_loaded_rejects_hog_arrays_that_do_not_fit(fitted):
     codes, axes = fitted.hog_codes_, fitted.hog_axes_
     for bad in ({"hog_codes_": codes[:-1]}, {"hog_codes_": codes[:, :-1]}, {"hog_axes_": axes[:-1]},
                 {"hog_mean_": fitted.hog_mean_[:5]}, {"hog_codes_": np.zeros((72, 0), np.float32)}):
-        with pytest.raises(ValueError, match="^HOG re-ranking arrays of shapes"):
+        with pytest.raises(ValueError, match="^HOG code arrays of shapes"):
             CNNPose.from_state(**_state(fitted, **bad)).check_loaded()
     broken = codes.copy()
     broken[3, 1] = np.nan
