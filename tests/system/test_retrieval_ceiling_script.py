@@ -1,20 +1,15 @@
 """benchmarks/retrieval_ceiling.py: the best ±5° a method returning one of the test object's own
 training views can reach, frame by frame."""
 
-import importlib.util
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.helpers import load_script
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("retrieval_ceiling", ROOT / "benchmarks" / "retrieval_ceiling.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("benchmarks/retrieval_ceiling.py", "retrieval_ceiling")
 
 
 def _turntables(objects: int = 2):
