@@ -53,6 +53,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from spm_data.io.files import atomic_file  # noqa: E402
 from spm_model.bench.report_tables import PAPER_TABLE1, PAPER_TABLE2  # noqa: E402
 from spm_model.methods.registry import METHOD_NAMES  # noqa: E402
 
@@ -231,9 +232,8 @@ def write_snapshot(name: str, results_json: Path, command: str, wall_s: float, d
             snap["bop"] = {"date": bop["date"][:10], "targets": bop["targets"], "protocol": bop["protocol"],
                            "commands": [c["command"] for c in bop["commands"]], "figures": bop["figures"]}
     folder.mkdir(parents=True, exist_ok=True)   # a new --snapshots folder (train_size.py) is made, not a traceback
-    partial = path.with_name(f".{path.name}.partial")
-    partial.write_text(dumps(snap) + "\n")
-    os.replace(partial, path)   # whole or not at all: a killed write leaves the old snapshot
+    with atomic_file(path) as partial:   # whole or not at all: a killed write leaves the old snapshot
+        partial.write_text(dumps(snap) + "\n")
     return path
 
 
