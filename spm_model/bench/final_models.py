@@ -15,11 +15,9 @@ from spm_model.bench.fitting import failure, make_methods, unmet_needs
 from spm_model.methods.registry import SAVED_MODELS
 
 
-def saved_names(builtins, after_splits: bool) -> tuple:
-    """The saved-model methods among ``builtins`` (None: all), in report order, whose final model is
-    fitted after the splits (``after_splits``) or as the job beside them (registry ``final_after_splits``)."""
-    return tuple(name for name, row in SAVED_MODELS.items()
-                 if row.final_after_splits == after_splits and (builtins is None or name in builtins))
+def saved_names(builtins) -> tuple:
+    """The saved-model methods among ``builtins`` (None: all), in report order."""
+    return tuple(name for name in SAVED_MODELS if builtins is None or name in builtins)
 
 
 def fit_final_models(table: FeatureTable, model_params: dict, rows: np.ndarray, names) -> tuple[dict, dict]:

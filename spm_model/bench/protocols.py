@@ -196,10 +196,9 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
     executor, source: the splits of every run as jobs on ``executor`` (spm_data.jobs), each worker
     reading the table from the feature cache of ``source`` = (shards, test folder or None,
     FeatureConfig, allow_partial); the results are those of one worker. Without them, in this process.
-    final: also fit the final models (final_models.fit_final_models, but those fitted after the
-    splits), as the last job: a worker that has no split left fits them while the others finish
-    theirs (handed out first, the worker that fitted them ended its last split after the others
-    had none left: docs/scaling.md).
+    final: also fit the final models (final_models.fit_final_models), as the last job: a worker
+    that has no split left fits them while the others finish theirs (handed out first, the worker
+    that fitted them ended its last split after the others had none left: docs/scaling.md).
     timeout: seconds a plug-in's call may take before it is declined (None: no limit). progress: a
     callable taking count deltas (feature_cache.progress_phase): "fitting" counts the splits (not
     the final models), "scoring" runs.
@@ -218,7 +217,7 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
     jobs = [SplitJob(key, protocol, run, i, dict(model_params or {}), *(later if run else (builtins, estimators)),
                      train_occluded, timeout)
             for run in range(runs) for i in range(len(splits(table, protocol, seed=run)))]
-    wanted = saved_names(builtins, after_splits=False)   # only what was asked for
+    wanted = saved_names(builtins)   # only what was asked for
     finals = [FinalJob(key, dict(model_params or {}), train_occluded, wanted)] if final else []
     progress = progress or (lambda n: None)
     progress_phase(progress, "fitting", len(jobs), "split")

@@ -23,7 +23,8 @@ Prediction: the training frame with the best score cos(embeddings) + ``hog_weigh
 every training frame scored (``rerank`` -1, the default; spm_model/methods/cnn_retrieval.py), and
 its rotation; translation from the crop geometry and K exactly as the reference does (template.py
 ``place``, ``distance_by_size``). The HOG is that of the stored 64 x 64 masked grey crop (exactly
-the reference's template crop and descriptor), compared in its top ``hog_components`` principal
+the reference's template crop and descriptor, so a benchmark split reads the training frames' from the
+feature cache: cnn_retrieval.cached_hogs), compared in its top ``hog_components`` principal
 axes (template.py ``hog_projection``, fitted on at most AXES_ROWS training frames spread evenly;
 the codes of every training frame are kept, float32). The weight 16 was chosen on held-out
 training frames (benchmarks/cnn_rerank.py; docs/method.md): HOG carries most of the score, and
@@ -50,9 +51,10 @@ from spm_model.errors import ModelError
 from spm_model.base.estimator import PoseEstimator, check_fitted
 from spm_model.base.model_files import load_model_file, need, need_finite, save_model_file
 from spm_model.methods import cnn_net
-from spm_model.methods.cnn_retrieval import SHORTLISTS, crop_hogs, nearest_frames, uses_hog, valid_shortlist
+from spm_model.methods.cnn_retrieval import (SHORTLISTS, cached_hogs, crop_hogs, hog_codes, nearest_frames, uses_hog,
+                                             valid_shortlist)
 from spm_model.methods.descriptors import GEOMETRY, HOG_SIZE, SIDE, box_of, crop_box, masked_grey
-from spm_model.methods.template import distance_by_size, hog_projection, place, project_hog
+from spm_model.methods.template import distance_by_size, hog_projection, place
 
 CROP = SIDE   # the stored crop's side (the reference's 64): augmentation re-cuts the network's input from it
 AXES_ROWS = 2048   # at most this many training frames fit the HOG axes (seconds, not a minute, at 20k frames)
@@ -213,34 +215,41 @@ class CNNPose(PoseEstimator):
         self.bins_, self.poses_, self.geometry_ = centres, poses, geometry
         self.distance_ = np.linalg.norm(poses[:, 3:], axis=1)
         self.focal_per_height_ = np.array(np.median(geometry[:, 4] / (2 * geometry[:, 6] + 1)))
-        self._fit_hog(crops)
+        self._fit_hog(frames, ok, crops)
         self.training_ = {**cost, "frames": int(len(crops)),
                           "epochs": round(cost["steps"] * self.batch / len(crops), 3)}
         return self
 
-    def _fit_hog(self, crops: np.ndarray) -> None:
-        """The HOG codes' state from the training crops (empty arrays when retrieval uses no HOG)."""
+    def _fit_hog(self, frames, ok: np.ndarray, crops: np.ndarray) -> None:
+        """The HOG codes' state from the training frames ``frames[ok]`` whose crops are ``crops``
+        (cnn_retrieval.cached_hogs where the frames carry them); empty arrays when retrieval uses no HOG."""
         if not uses_hog(self.rerank):
             self.hog_mean_, self.hog_axes_ = np.zeros(0, np.float32), np.zeros((0, 0), np.float32)
             self.hog_codes_ = np.zeros((len(crops), 0), np.float32)
             return
-        hogs = crop_hogs(crops)
+        hogs = cached_hogs(frames)
+        hogs = crop_hogs(crops) if hogs is None else hogs[ok]
         mean, axes = hog_projection(hogs[:: -(-len(hogs) // AXES_ROWS)], self.hog_components)
         self.hog_mean_, self.hog_axes_ = mean.astype(np.float32), axes.astype(np.float32)
-        self.hog_codes_ = project_hog(hogs, mean, axes).astype(np.float32)
+        self.hog_codes_ = hog_codes(hogs, self.hog_mean_, self.hog_axes_)
 
     def nearest(self, z: np.ndarray, crops: np.ndarray) -> np.ndarray:
         """(m, embed) unit embeddings of the queries, their (m, 2, CROP, CROP) crops -> (m,) index of the
         training frame each retrieves (spm_model/methods/cnn_retrieval.py; ``rerank`` is its shortlist)."""
         codes = None
         if uses_hog(self.rerank):
-            codes = project_hog(crop_hogs(crops), self.hog_mean_, self.hog_axes_).astype(np.float32)
+            codes = hog_codes(crop_hogs(crops), self.hog_mean_, self.hog_axes_)
         return nearest_frames(z, self.embeddings_, codes, self.hog_codes_, self.hog_weight, self.rerank)
 
     def budget(self, frames: int) -> int:
         """Gradient steps for ``frames`` training frames: ``steps``, or fewer where ``epochs`` passes
         over the frames take fewer (at least one step)."""
         return max(1, min(int(self.steps), int(np.ceil(self.epochs * frames / self.batch))))
+
+    def __getstate__(self):
+        """Pickled (a final model sent back from a benchmark worker) without the torch module, which
+        ``_net`` rebuilds from ``net_`` when first needed (a GPU's tensors never travel)."""
+        return {k: v for k, v in self.__dict__.items() if k != "_module"}
 
     def _net(self, torch):
         if getattr(self, "_module", None) is None:

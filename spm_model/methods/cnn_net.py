@@ -75,13 +75,17 @@ def make_net(torch, side: int, width: int, embed: int, bins: int):
         layers += [nn.Conv2d(channels, out, 3, padding=1, bias=False), nn.BatchNorm2d(out), nn.ReLU(),
                    nn.MaxPool2d(2)]
         channels = out
-    return nn.ModuleDict({"features": nn.Sequential(*layers, nn.Flatten()),
-                          "embed": nn.Linear(channels * (side // 16) ** 2, embed), "head": nn.Linear(embed, bins)})
+    net = nn.ModuleDict({"features": nn.Sequential(*layers, nn.Flatten()),
+                         "embed": nn.Linear(channels * (side // 16) ** 2, embed), "head": nn.Linear(embed, bins)})
+    return net.to(memory_format=torch.channels_last)   # see embeddings()
 
 
 def embeddings(torch, net, x):
-    """Unit-length embeddings of a batch (n, 2, s, s) float tensor."""
-    z = net["embed"](net["features"](x))
+    """Unit-length embeddings of a batch (n, 2, s, s) float tensor. The network and its input are in
+    torch's channels-last layout: on a CPU its convolutions and max pooling then run about 1.6 times
+    faster than in the default layout (benchmarks/cnn_layout.py); the parameters' names, shapes and
+    values (state_arrays, the model files) are the same in either."""
+    z = net["embed"](net["features"](x.contiguous(memory_format=torch.channels_last)))
     return torch.nn.functional.normalize(z, dim=1)
 
 

@@ -43,9 +43,8 @@ class Method:
     and, for a method whose model ``spm train`` saves, the model file, its title in the report and
     the class that reads it back (``from_model_file``; the file's header ``kind`` is ``name``).
     spm train fits that model on every training frame as a split makes the method (``make``, seed 0;
-    spm_model/bench/final_models.py) and writes it with the instance's ``save(path)``: as the first
-    job, beside the splits, or with ``final_after_splits`` after them in spm train's own process
-    (cnn: torch on the --device asked for, not beside the split workers)."""
+    spm_model/bench/final_models.py) as the last job, beside the splits, and writes it with the
+    instance's ``save(path)``."""
 
     name: str
     title: str
@@ -53,7 +52,6 @@ class Method:
     model_file: str | None = None
     model_title: str | None = None
     model_class: Callable | None = None
-    final_after_splits: bool = False
 
 
 def _spm_model_class():
@@ -78,7 +76,7 @@ METHODS = (
            "reference-model.npz", "HOG templates", lambda: TemplatePose),
     Method("cnn", "CNN embedding + HOG retrieval (ours)",
            lambda seed, features, params, spm: CNNPose(seed=seed, **params["cnn"]),
-           "cnn-model.npz", "CNN", lambda: CNNPose, final_after_splits=True),
+           "cnn-model.npz", "CNN", lambda: CNNPose),
     Method("chance", "chance (random training pose)", lambda seed, features, params, spm: ChancePose(seed=seed)),
 )
 BY_NAME = {m.name: m for m in METHODS}

@@ -14,7 +14,7 @@ from spm_data.io.locking import OutputLock
 from spm_data.io.outputs import removing_created
 from spm_data.io.shards import MANIFEST, list_shards, read_attrs, read_manifest
 from spm_model.bench.feature_cache import FeatureTable, load_features, offgrid_table, progress_phase
-from spm_model.bench.final_models import fit_final_models, save_final_models, saved_names, training_costs
+from spm_model.bench.final_models import save_final_models, training_costs
 from spm_model.bench.isolation import DEFAULT_TIMEOUT
 from spm_model.bench.plugin_refs import describe
 from spm_model.bench.protocols import evaluate, final_rows
@@ -168,8 +168,6 @@ def _train(shards, out, protocol, runs, features, model_params, progress, log, c
     fitted, final_declined = evaluation.pop("final_models")
     check_some_method_ran(evaluation)
     rows = final_rows(table, evaluation["train_occluded"])
-    later = fit_final_models(table, model_params, rows, saved_names(builtins, after_splits=True))
-    fitted, final_declined = {**fitted, **later[0]}, {**final_declined, **later[1]}
     train_features = np.isfinite(table.train_vector[rows]).all(axis=1).sum()   # the final SPM model's frames
     asked = [m for m in SAVED_MODELS if _asked(m, builtins)]   # a model only of a method asked for
     models = {m: "written" if fitted.get(m) is not None else {"declined": final_declined.get(m, "")}

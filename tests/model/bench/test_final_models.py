@@ -25,11 +25,10 @@ from spm_model.spm.features import FeatureConfig
 FAST = FeatureConfig(ellipse="direct")
 
 
-def test_the_saved_methods_are_read_from_the_rows_and_split_by_where_they_are_fitted():
-    assert saved_names(None, after_splits=False) == ("spm", "template")
-    assert saved_names(None, after_splits=True) == ("cnn",)
-    assert saved_names(["pca", "template", "cnn"], after_splits=False) == ("template",)
-    assert saved_names(["pca"], after_splits=True) == ()
+def test_the_saved_methods_are_read_from_the_rows_in_report_order():
+    assert saved_names(None) == ("spm", "template", "cnn")
+    assert saved_names(["pca", "cnn", "template"]) == ("template", "cnn")
+    assert saved_names(["pca"]) == ()
 
 
 def test_the_final_spm_model_is_the_one_fitted_on_every_training_vector(model_shards):

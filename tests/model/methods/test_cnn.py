@@ -45,6 +45,33 @@ def test_two_fits_with_one_seed_give_the_same_predictions(split, fitted):
     assert np.array_equal(again.predict(test), fitted.predict(test))
 
 
+def test_a_fit_reads_the_cached_template_hogs_and_codes_them_as_it_would_compute_them(split, fitted, monkeypatch):
+    from spm_model.methods import cnn
+    from spm_model.methods.descriptors import hog_descriptor, template_descriptor
+    from tests.model.methods.test_cnn_retrieval import _WithColumns
+
+    train, poses, test, truth = split
+    hog = hog_descriptor()
+    template = np.stack([template_descriptor(f["rgb"], f["mask"], f["K"], hog) for f in train])
+
+    def no_computing(crops):
+        raise AssertionError("the HOG was computed although the frames carry it")
+
+    monkeypatch.setattr(cnn, "crop_hogs", no_computing)
+    cached = CNNPose(**SMALL).fit(_WithColumns(list(train), {"template": template}), poses)
+    assert np.array_equal(cached.hog_codes_, fitted.hog_codes_) and np.array_equal(cached.hog_axes_, fitted.hog_axes_)
+
+
+def test_a_pickled_model_travels_without_its_torch_module_and_predicts_the_same(split, fitted):
+    import pickle
+
+    train, poses, test, truth = split
+    fitted.predict(test[:2])   # the module is built
+    again = pickle.loads(pickle.dumps(fitted))
+    assert "_module" not in again.__dict__
+    assert np.array_equal(again.predict(test), fitted.predict(test))
+
+
 def test_the_model_file_round_trips_and_its_safetensors_hold_the_same_weights(split, fitted, tmp_path):
     from spm_model.pipelines.evaluate import load_model
 

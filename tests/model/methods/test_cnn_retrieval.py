@@ -1,7 +1,9 @@
 import numpy as np
 import pytest
 
-from spm_model.methods.cnn_retrieval import BLOCK, nearest_frames, uses_hog
+from spm_model.methods.cnn_retrieval import BLOCK, cached_hogs, hog_codes, nearest_frames, uses_hog
+from spm_model.methods.descriptors import HOG_SIZE
+from spm_model.methods.template import hog_projection, project_hog
 
 
 def _unit(x):
@@ -56,3 +58,30 @@ def test_blocks_of_queries_pick_as_one_query_at_a_time(arrays):
         together = nearest_frames(z, e, c, h, 4.0, shortlist)
         alone = [nearest_frames(z[i: i + 1], e, c[i: i + 1], h, 4.0, shortlist)[0] for i in range(0, len(z), 11)]
         assert np.array_equal(together[::11], alone)
+
+
+def test_hog_codes_are_project_hogs_map_in_float32():
+    rng = np.random.default_rng(3)
+    hogs = rng.random((300, HOG_SIZE)).astype(np.float32)
+    mean, axes = hog_projection(hogs[::3], 16)
+    codes = hog_codes(hogs, mean, axes)
+    assert codes.dtype == np.float32 and codes.shape == (300, 16)
+    assert np.allclose(codes, project_hog(hogs, mean, axes), atol=1e-5)
+    assert np.isfinite(hog_codes(np.zeros((2, HOG_SIZE)), mean, axes)).all()   # an all-zero descriptor
+
+
+class _WithColumns(list):
+    def __init__(self, frames, columns):
+        super().__init__(frames)
+        self.columns = columns
+
+    def column(self, name):
+        return self.columns.get(name)
+
+
+def test_cached_hogs_read_the_template_column_and_nothing_without_it():
+    template = np.arange(4 * (HOG_SIZE + 7), dtype=np.float64).reshape(4, HOG_SIZE + 7)
+    hogs = cached_hogs(_WithColumns([{}] * 4, {"template": template}))
+    assert hogs.dtype == np.float32 and np.array_equal(hogs, template[:, :HOG_SIZE].astype(np.float32))
+    assert cached_hogs(_WithColumns([{}] * 4, {})) is None
+    assert cached_hogs([{}] * 4) is None

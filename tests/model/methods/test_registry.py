@@ -87,7 +87,6 @@ def test_every_list_of_methods_is_read_from_the_rows():
     assert {n: m.model_file for n, m in SAVED_MODELS.items()} == {
         "spm": "model.npz", "template": "reference-model.npz", "cnn": "cnn-model.npz"}
     assert [m.model_class().__name__ for m in SAVED_MODELS.values()] == ["SPMEstimator", "TemplatePose", "CNNPose"]
-    assert [m.name for m in METHODS if m.final_after_splits] == ["cnn"]
 
 
 def test_unknown_method_names_are_one_line_errors_with_the_choices():
