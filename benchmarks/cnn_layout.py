@@ -2,9 +2,10 @@
 
     python benchmarks/cnn_layout.py [--steps 40] [--rounds 3] [--threads 1] [--side 32] [--width 16]
 
-Times, on random crops, one training step (batch 64: forward, soft cross-entropy, backward, Adam)
-and the embedding of 512 crops, for the network exactly as spm_model/methods/cnn_net.py builds it
-(channels last) and for the same network in torch's default layout (NCHW), alternating the two
+Times, on random crops, one training step (batch 64: forward, soft cross-entropy, backward, plain
+Adam; cnn_net.train_net adds weight decay and a learning-rate schedule, a few vector operations)
+and the embedding of 512 crops, for the network as spm_model/methods/cnn_net.py builds it (channels
+last) and for the same network in torch's default layout (NCHW), alternating the two
 ``--rounds`` times so that a busy machine slows both alike. Prints the median milliseconds of each
 and their ratio. The layout changes no parameter name, shape or value, only the order in memory
 and the rounding of the sums (results are deterministic in either).

@@ -223,10 +223,11 @@ N = 24
 
 
 class CachedFrames(list):
-    """Frames whose features are all cached (as spm_model.base.frames.Frames serves them)."""
+    """Frames whose features are cached (as spm_model.base.frames.Frames serves them): ``frames``
+    (frame dicts with images) and ``columns``; without ``frames``, dicts of K alone."""
 
-    def __init__(self, columns: dict):
-        super().__init__({"K": k} for k in columns["K"])
+    def __init__(self, columns: dict, frames=None):
+        super().__init__(frames if frames is not None else ({"K": k} for k in columns["K"]))
         self.columns = columns
 
     def column(self, name):

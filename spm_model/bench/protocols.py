@@ -196,9 +196,10 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
     executor, source: the splits of every run as jobs on ``executor`` (spm_data.jobs), each worker
     reading the table from the feature cache of ``source`` = (shards, test folder or None,
     FeatureConfig, allow_partial); the results are those of one worker. Without them, in this process.
-    final: also fit the final models (final_models.fit_final_models), as the last job: a worker
-    that has no split left fits them while the others finish theirs (handed out first, the worker
-    that fitted them ended its last split after the others had none left: docs/scaling.md).
+    final: also fit the final models (final_models.fit_final_models), one job per model after the
+    splits: a worker that has no split left fits one while the others finish theirs (handed out
+    first, the worker that fitted them ended its last split after the others had none left:
+    docs/scaling.md).
     timeout: seconds a plug-in's call may take before it is declined (None: no limit). progress: a
     callable taking count deltas (feature_cache.progress_phase): "fitting" counts the splits (not
     the final models), "scoring" runs.
@@ -218,11 +219,14 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
                      train_occluded, timeout)
             for run in range(runs) for i in range(len(splits(table, protocol, seed=run)))]
     wanted = saved_names(builtins)   # only what was asked for
-    finals = [FinalJob(key, dict(model_params or {}), train_occluded, wanted)] if final else []
+    # One job per saved model, so that two workers fit two at once; longest first (of the saved
+    # models the learned one, last in report order, takes longest), as the executor hands them out.
+    finals = [FinalJob(key, dict(model_params or {}), train_occluded, (name,)) for name in wanted[::-1]
+              if final]
     progress = progress or (lambda n: None)
     progress_phase(progress, "fitting", len(jobs), "split")
     outputs = _run_jobs(jobs + finals, executor if source is not None else None, report, progress)
-    models, outputs = (outputs[-1], outputs[:-1]) if final else (None, outputs)
+    models, outputs = (_merged(outputs[len(jobs):]), outputs[:len(jobs)]) if final else (None, outputs)
     if reused:
         first = {job.index: outputs[i] for i, job in enumerate(jobs) if job.run == 0}
         outputs = [_with_first_run(out, first[job.index]) if job.run else out for job, out in zip(jobs, outputs)]
@@ -238,6 +242,15 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
     return {"protocol": protocol, "runs": results, "eccentricity": eccentricity(table),
             "classes": sorted(set(table.class_name.tolist())), "methods": list(results[0]["overall"]),
             "train_occluded": train_occluded, **({"final_models": models} if final else {})}
+
+
+def _merged(final_outputs: list) -> tuple[dict, dict]:
+    """The (fitted, declined) pairs of the final-model jobs (fit_final_models) as one pair."""
+    fitted, declined = {}, {}
+    for models, why in final_outputs:
+        fitted.update(models)
+        declined.update(why)
+    return fitted, declined
 
 
 # Protocols whose splits are the same in every run (they ignore the run's seed).

@@ -23,8 +23,8 @@ Prediction: the training frame with the best score cos(embeddings) + ``hog_weigh
 every training frame scored (``rerank`` -1, the default; spm_model/methods/cnn_retrieval.py), and
 its rotation; translation from the crop geometry and K exactly as the reference does (template.py
 ``place``, ``distance_by_size``). The HOG is that of the stored 64 x 64 masked grey crop (exactly
-the reference's template crop and descriptor, so a benchmark split reads the training frames' from the
-feature cache: cnn_retrieval.cached_hogs), compared in its top ``hog_components`` principal
+the reference's template crop and descriptor, so a benchmark split reads the training frames' HOG from
+the feature cache: cnn_retrieval.cached_hogs), compared in its top ``hog_components`` principal
 axes (template.py ``hog_projection``, fitted on at most AXES_ROWS training frames spread evenly;
 the codes of every training frame are kept, float32). The weight 16 was chosen on held-out
 training frames (benchmarks/cnn_rerank.py; docs/method.md): HOG carries most of the score, and
@@ -173,7 +173,7 @@ class CNNPose(PoseEstimator):
         """ModelError, one line naming the extra ``learn``, when torch is not installed."""
         cnn_net.torch_module()
 
-    def __init__(self, *, side: int = 32, width: int = 16, embed: int = 64, bins: int = 256, steps: int = 800,
+    def __init__(self, *, side: int = 32, width: int = 16, embed: int = 64, bins: int = 256, steps: int = 500,
                  epochs: float = 40.0, batch: int = 64, lr: float = 0.005, occlusion: float = 0.6, seed: int = 0,
                  threads: int = 1, device: str = "auto", size_neighbours: int = 15, spread: float = 0.5,
                  rerank: int = -1, hog_weight: float = 16.0, hog_components: int = 128):
@@ -221,14 +221,16 @@ class CNNPose(PoseEstimator):
         return self
 
     def _fit_hog(self, frames, ok: np.ndarray, crops: np.ndarray) -> None:
-        """The HOG codes' state from the training frames ``frames[ok]`` whose crops are ``crops``
-        (cnn_retrieval.cached_hogs where the frames carry them); empty arrays when retrieval uses no HOG."""
+        """The HOG codes' state from the training frames kept, ``ok`` ((len(frames),) bool), whose
+        (k, 2, CROP, CROP) uint8 crops are ``crops``: their HOG read from the frames where they carry it
+        (cnn_retrieval.cached_hogs; computed when a kept row is not finite), else computed. Empty
+        arrays when retrieval uses no HOG."""
         if not uses_hog(self.rerank):
             self.hog_mean_, self.hog_axes_ = np.zeros(0, np.float32), np.zeros((0, 0), np.float32)
             self.hog_codes_ = np.zeros((len(crops), 0), np.float32)
             return
         hogs = cached_hogs(frames)
-        hogs = crop_hogs(crops) if hogs is None else hogs[ok]
+        hogs = crop_hogs(crops) if hogs is None or not np.isfinite(hogs[ok]).all() else hogs[ok]
         mean, axes = hog_projection(hogs[:: -(-len(hogs) // AXES_ROWS)], self.hog_components)
         self.hog_mean_, self.hog_axes_ = mean.astype(np.float32), axes.astype(np.float32)
         self.hog_codes_ = hog_codes(hogs, self.hog_mean_, self.hog_axes_)

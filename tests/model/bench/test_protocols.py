@@ -236,3 +236,26 @@ def test_interleaved_trains_on_every_other_view_and_tests_the_views_between():
     assert what == "every other view" and len(train) + len(test) == 60
     assert set(t.path_index[train]) == {0, 2, 4, 6, 8} and set(t.path_index[test]) == {1, 3, 5, 7, 9}
     assert [s.tolist() for s in splits(t, "interleaved", seed=5)[0][1:]] == [train.tolist(), test.tolist()]
+
+
+def test_final_models_fitted_on_two_workers_are_those_fitted_here(model_shards, tmp_path):
+    """One job per saved model, handed out after the splits; a cnn model comes back from its worker
+    (pickled, without its torch module) with the arrays it has when fitted in this process."""
+    from spm_data.jobs import make_executor
+    from spm_model.bench.feature_cache import load_features as load
+
+    shards = tmp_path / "s"
+    shutil.copytree(model_shards, shards)
+    table = load(shards, FAST)
+    small = {"steps": 40, "epochs": 100, "batch": 16, "width": 4, "embed": 8, "threads": 1, "device": "cpu"}
+    kwargs = dict(runs=1, model_params={"features": FAST, "cnn": small}, builtins=["template", "cnn", "chance"],
+                  final=True)
+    here = evaluate(table, "views", **kwargs)["final_models"]
+    there = evaluate(table, "views", **kwargs, executor=make_executor(workers=2),
+                     source=(str(shards), None, FAST, False))["final_models"]
+    assert list(here[0]) == ["cnn", "template"] and sorted(there[0]) == ["cnn", "template"]
+    assert here[1] == there[1] == {}
+    assert np.array_equal(here[0]["template"].codes_, there[0]["template"].codes_)
+    a, b = here[0]["cnn"], there[0]["cnn"]
+    assert all(np.array_equal(a.net_[k], b.net_[k]) for k in a.net_) and np.array_equal(a.embeddings_, b.embeddings_)
+    assert np.array_equal(a.hog_codes_, b.hog_codes_)

@@ -9,9 +9,9 @@ from spm_model.base.safetensors_file import read_safetensors
 from spm_model.bench.metrics import wilson_interval
 from spm_model.methods.baselines import ChancePose
 from spm_model.methods.cnn import CNNPose, device_note, soft_targets, view_bins, rotation_quaternions
-from tests.helpers import grid_split, within_5_degrees
+from tests.helpers import CachedFrames, grid_split, within_5_degrees
 
-# A budget for tests: seconds on one thread (the default trains 800 steps of 64 frames).
+# A budget for tests: seconds on one thread (the default trains 500 steps of 64 frames).
 SMALL = {"steps": 150, "epochs": 100, "batch": 32, "width": 8, "embed": 32, "threads": 1, "device": "cpu"}
 
 
@@ -48,27 +48,35 @@ def test_two_fits_with_one_seed_give_the_same_predictions(split, fitted):
 def test_a_fit_reads_the_cached_template_hogs_and_codes_them_as_it_would_compute_them(split, fitted, monkeypatch):
     from spm_model.methods import cnn
     from spm_model.methods.descriptors import hog_descriptor, template_descriptor
-    from tests.model.methods.test_cnn_retrieval import _WithColumns
 
     train, poses, test, truth = split
+    # Two frames the fit leaves out, among the others: an empty mask (its cached row is NaN) and no pose.
+    frames = list(train[:10]) + [{**train[0], "mask": np.zeros_like(train[0]["mask"])}, train[1]] + list(train[10:])
+    labels = np.concatenate([poses[:10], poses[:1], np.full((1, 6), np.nan), poses[10:]])
     hog = hog_descriptor()
-    template = np.stack([template_descriptor(f["rgb"], f["mask"], f["K"], hog) for f in train])
+    template = np.stack([template_descriptor(f["rgb"], f["mask"], f["K"], hog) for f in frames])
+    assert np.isnan(template[10]).all() and np.isfinite(template[11]).all()
 
     def no_computing(crops):
         raise AssertionError("the HOG was computed although the frames carry it")
 
-    monkeypatch.setattr(cnn, "crop_hogs", no_computing)
-    cached = CNNPose(**SMALL).fit(_WithColumns(list(train), {"template": template}), poses)
+    with monkeypatch.context() as patched:
+        patched.setattr(cnn, "crop_hogs", no_computing)
+        cached = CNNPose(**SMALL).fit(CachedFrames({"template": template}, frames), labels)
     assert np.array_equal(cached.hog_codes_, fitted.hog_codes_) and np.array_equal(cached.hog_axes_, fitted.hog_axes_)
+    assert all(np.array_equal(cached.net_[k], fitted.net_[k]) for k in fitted.net_)
+    template[3, 5] = np.nan   # a damaged cached row: the HOG is computed instead, and comes out the same
+    again = CNNPose(**SMALL).fit(CachedFrames({"template": template}, frames), labels)
+    assert np.array_equal(again.hog_codes_, fitted.hog_codes_)
 
 
 def test_a_pickled_model_travels_without_its_torch_module_and_predicts_the_same(split, fitted):
     import pickle
 
     train, poses, test, truth = split
-    fitted.predict(test[:2])   # the module is built
-    again = pickle.loads(pickle.dumps(fitted))
-    assert "_module" not in again.__dict__
+    payload = pickle.dumps(fitted)
+    again = pickle.loads(payload)
+    assert "_module" not in again.__dict__ and b"torch" not in payload
     assert np.array_equal(again.predict(test), fitted.predict(test))
 
 
@@ -256,8 +264,7 @@ def test_a_model_file_saved_with_the_16_nearest_re_ranking_keeps_it(split, fitte
     """A file written when the default was the 16 nearest embeddings re-ranked with weight 2 loads with
     them, and retrieves exactly as nearest_frames does with that shortlist."""
     from spm_model.methods.cnn import cnn_net, frame_crops, net_input
-    from spm_model.methods.cnn_retrieval import crop_hogs, nearest_frames
-    from spm_model.methods.template import project_hog
+    from spm_model.methods.cnn_retrieval import crop_hogs, hog_codes, nearest_frames
     from spm_model.pipelines.evaluate import load_model
 
     train, poses, test, truth = split
@@ -268,7 +275,7 @@ def test_a_model_file_saved_with_the_16_nearest_re_ranking_keeps_it(split, fitte
     import torch
 
     z = cnn_net.embed_all(torch, loaded._net(torch), np.stack([net_input(c, loaded.side) for c in crops]), "cpu")
-    codes = project_hog(crop_hogs(crops), loaded.hog_mean_, loaded.hog_axes_).astype(np.float32)
+    codes = hog_codes(crop_hogs(crops), loaded.hog_mean_, loaded.hog_axes_)
     picked = nearest_frames(z, loaded.embeddings_, codes, loaded.hog_codes_, 2.0, 16)
     assert np.allclose(loaded.predict(test)[:, :3], poses[picked, :3])
     assert np.array_equal(loaded.predict(test), old.predict(test))

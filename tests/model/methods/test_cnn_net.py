@@ -23,6 +23,24 @@ def test_the_network_embeds_to_unit_length_and_its_arrays_rebuild_it():
             cnn_net.net_from_arrays(torch, arrays, 32, 4, 8, 6)
 
 
+def test_a_network_saved_in_torchs_default_layout_loads_and_embeds_alike():
+    """Model files written before the network moved to channels-last (its arrays then came from an
+    NCHW network) load into today's and embed to float rounding alike; the layout is in memory only."""
+    with cnn_net.torch_settings(torch, seed=0, threads=1):
+        net = cnn_net.make_net(torch, 32, 4, 8, 5).eval()
+        assert net["features"][0].weight.is_contiguous(memory_format=torch.channels_last)
+        old = net.to(memory_format=torch.contiguous_format)
+        x = torch.from_numpy(np.random.default_rng(1).random((6, 2, 32, 32)).astype(np.float32))
+        with torch.no_grad():
+            before = torch.nn.functional.normalize(old["embed"](old["features"](x)), dim=1).numpy()
+        arrays = cnn_net.state_arrays(old)
+        assert all(v.flags["C_CONTIGUOUS"] for v in arrays.values())
+        again = cnn_net.net_from_arrays(torch, arrays, 32, 4, 8, 5)
+        assert again["features"][0].weight.is_contiguous(memory_format=torch.channels_last)
+        assert np.allclose(cnn_net.embed_all(torch, again, x.numpy(), "cpu"), before, atol=1e-5)
+        assert all(np.array_equal(v, arrays[k]) for k, v in cnn_net.state_arrays(again).items())
+
+
 def test_training_lowers_the_loss_on_separable_targets_and_settings_are_restored():
     threads, deterministic = torch.get_num_threads(), torch.are_deterministic_algorithms_enabled()
     x = np.zeros((8, 2, 16, 16), np.float32)

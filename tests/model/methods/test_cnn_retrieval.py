@@ -4,6 +4,7 @@ import pytest
 from spm_model.methods.cnn_retrieval import BLOCK, cached_hogs, hog_codes, nearest_frames, uses_hog
 from spm_model.methods.descriptors import HOG_SIZE
 from spm_model.methods.template import hog_projection, project_hog
+from tests.helpers import CachedFrames
 
 
 def _unit(x):
@@ -70,18 +71,9 @@ def test_hog_codes_are_project_hogs_map_in_float32():
     assert np.isfinite(hog_codes(np.zeros((2, HOG_SIZE)), mean, axes)).all()   # an all-zero descriptor
 
 
-class _WithColumns(list):
-    def __init__(self, frames, columns):
-        super().__init__(frames)
-        self.columns = columns
-
-    def column(self, name):
-        return self.columns.get(name)
-
-
 def test_cached_hogs_read_the_template_column_and_nothing_without_it():
     template = np.arange(4 * (HOG_SIZE + 7), dtype=np.float64).reshape(4, HOG_SIZE + 7)
-    hogs = cached_hogs(_WithColumns([{}] * 4, {"template": template}))
+    hogs = cached_hogs(CachedFrames({"template": template}, [{}] * 4))
     assert hogs.dtype == np.float32 and np.array_equal(hogs, template[:, :HOG_SIZE].astype(np.float32))
-    assert cached_hogs(_WithColumns([{}] * 4, {})) is None
+    assert cached_hogs(CachedFrames({}, [{}] * 4)) is None
     assert cached_hogs([{}] * 4) is None
