@@ -74,11 +74,15 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return 1
     torch = cnn_net.torch_module()
+    threads = torch.get_num_threads()
     torch.set_num_threads(args.threads)
     times = {"nchw": [], "channels_last": []}
-    for _ in range(args.rounds):
-        for layout in times:
-            times[layout].append(timed_network(torch, layout, args.side, args.width, args.steps))
+    try:
+        for _ in range(args.rounds):
+            for layout in times:
+                times[layout].append(timed_network(torch, layout, args.side, args.width, args.steps))
+    finally:
+        torch.set_num_threads(threads)   # main() is called by tests in their own process
     median = {k: [statistics.median(t[i] for t in v) for i in range(2)] for k, v in times.items()}
     print(f"torch {torch.__version__}, {args.threads} thread(s), {args.side} px crops, width {args.width}, "
           f"{args.rounds} rounds of {args.steps} steps (medians)")

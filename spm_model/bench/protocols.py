@@ -204,7 +204,7 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
     callable taking count deltas (feature_cache.progress_phase): "fitting" counts the splits (not
     the final models), "scoring" runs.
     Returns {"protocol", "runs": [...], "eccentricity", "classes", "methods", "train_occluded"} (and
-    with ``final`` "final_models": fit_final_models' result)."""
+    with ``final`` "final_models": fit_final_models' (fitted, declined) of every model, in report order)."""
     if protocol not in PROTOCOLS:
         raise ModelError(f"protocol must be one of {PROTOCOLS}, got {protocol!r}")
     train_occluded = (protocol != "offgrid") if train_occluded is None else bool(train_occluded)
@@ -219,14 +219,14 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
                      train_occluded, timeout)
             for run in range(runs) for i in range(len(splits(table, protocol, seed=run)))]
     wanted = saved_names(builtins)   # only what was asked for
-    # One job per saved model, so that two workers fit two at once; longest first (of the saved
-    # models the learned one, last in report order, takes longest), as the executor hands them out.
+    # One job per saved model, so that two workers fit two at once; handed out longest first (reverse
+    # report order: the registry keeps cnn, the slowest, the last row with a model file).
     finals = [FinalJob(key, dict(model_params or {}), train_occluded, (name,)) for name in wanted[::-1]
               if final]
     progress = progress or (lambda n: None)
     progress_phase(progress, "fitting", len(jobs), "split")
     outputs = _run_jobs(jobs + finals, executor if source is not None else None, report, progress)
-    models, outputs = (_merged(outputs[len(jobs):]), outputs[:len(jobs)]) if final else (None, outputs)
+    models, outputs = (_merged(outputs[len(jobs):], wanted), outputs[:len(jobs)]) if final else (None, outputs)
     if reused:
         first = {job.index: outputs[i] for i, job in enumerate(jobs) if job.run == 0}
         outputs = [_with_first_run(out, first[job.index]) if job.run else out for job, out in zip(jobs, outputs)]
@@ -244,13 +244,14 @@ def evaluate(table: FeatureTable, protocol: str = "loco", runs: int = 3, model_p
             "train_occluded": train_occluded, **({"final_models": models} if final else {})}
 
 
-def _merged(final_outputs: list) -> tuple[dict, dict]:
-    """The (fitted, declined) pairs of the final-model jobs (fit_final_models) as one pair."""
+def _merged(final_outputs: list, order) -> tuple[dict, dict]:
+    """The (fitted, declined) pairs of the final-model jobs (fit_final_models) as one pair, the
+    models in ``order`` (report order)."""
     fitted, declined = {}, {}
     for models, why in final_outputs:
         fitted.update(models)
         declined.update(why)
-    return fitted, declined
+    return {name: fitted[name] for name in order if name in fitted}, declined
 
 
 # Protocols whose splits are the same in every run (they ignore the run's seed).
@@ -309,7 +310,7 @@ def bench_job(job, report=lambda n: None):
                 table = _table(job.source)
                 return fit_final_models(table, job.model_params, final_rows(table, job.train_occluded), job.wanted)
             except ModelError as exc:
-                raise ModelError(f"final models (on every training frame): {exc}") from None
+                raise ModelError(f"final {', '.join(job.wanted)} model (on every training frame): {exc}") from None
         return split_job(job, report)
 
 

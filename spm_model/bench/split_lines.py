@@ -15,7 +15,7 @@ from spm_model.bench.jobs import SplitJob
 class SplitLines:
     """Fed (job, output) as jobs finish, in any order (output None: the job failed, no line);
     says each split job's line through ``report`` once every job before it has finished.
-    jobs: bench/protocols.py's jobs, ("final", ...) for the final models (no line), else
+    jobs: bench/protocols.py's jobs, FinalJobs for the final models (no line), else SplitJobs
     (source, protocol, run, split index, ...)."""
 
     def __init__(self, jobs: list, report):

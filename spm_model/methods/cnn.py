@@ -223,14 +223,15 @@ class CNNPose(PoseEstimator):
     def _fit_hog(self, frames, ok: np.ndarray, crops: np.ndarray) -> None:
         """The HOG codes' state from the training frames kept, ``ok`` ((len(frames),) bool), whose
         (k, 2, CROP, CROP) uint8 crops are ``crops``: their HOG read from the frames where they carry it
-        (cnn_retrieval.cached_hogs; computed when a kept row is not finite), else computed. Empty
+        (cnn_retrieval.cached_hogs), else (or when any kept row is not finite) all computed. Empty
         arrays when retrieval uses no HOG."""
         if not uses_hog(self.rerank):
             self.hog_mean_, self.hog_axes_ = np.zeros(0, np.float32), np.zeros((0, 0), np.float32)
             self.hog_codes_ = np.zeros((len(crops), 0), np.float32)
             return
-        hogs = cached_hogs(frames)
-        hogs = crop_hogs(crops) if hogs is None or not np.isfinite(hogs[ok]).all() else hogs[ok]
+        cached = cached_hogs(frames)
+        kept = None if cached is None else cached[ok]
+        hogs = kept if kept is not None and np.isfinite(kept).all() else crop_hogs(crops)
         mean, axes = hog_projection(hogs[:: -(-len(hogs) // AXES_ROWS)], self.hog_components)
         self.hog_mean_, self.hog_axes_ = mean.astype(np.float32), axes.astype(np.float32)
         self.hog_codes_ = hog_codes(hogs, self.hog_mean_, self.hog_axes_)

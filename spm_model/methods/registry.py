@@ -43,7 +43,7 @@ class Method:
     and, for a method whose model ``spm train`` saves, the model file, its title in the report and
     the class that reads it back (``from_model_file``; the file's header ``kind`` is ``name``).
     spm train fits that model on every training frame as a split makes the method (``make``, seed 0;
-    spm_model/bench/final_models.py) as the last job, beside the splits, and writes it with the
+    spm_model/bench/final_models.py), one job per model after the splits, and writes it with the
     instance's ``save(path)``."""
 
     name: str
@@ -61,7 +61,8 @@ def _spm_model_class():
 
 
 # The built-in methods in report order: every list of methods (names, titles, model files,
-# what evaluate reads) is read from these rows.
+# what evaluate reads) is read from these rows. spm train hands the final-model jobs out in reverse
+# order, meant as longest first: cnn, the slowest to fit, stays the last row with a model file.
 METHODS = (
     Method("spm", "SPM", lambda seed, features, params, spm: spm, "model.npz", "SPM", _spm_model_class),
     Method("knn1", "KNN K=1", lambda seed, features, params, spm: SPMNeighbours(k=1, spm=spm)),

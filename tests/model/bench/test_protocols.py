@@ -253,9 +253,19 @@ def test_final_models_fitted_on_two_workers_are_those_fitted_here(model_shards, 
     here = evaluate(table, "views", **kwargs)["final_models"]
     there = evaluate(table, "views", **kwargs, executor=make_executor(workers=2),
                      source=(str(shards), None, FAST, False))["final_models"]
-    assert list(here[0]) == ["cnn", "template"] and sorted(there[0]) == ["cnn", "template"]
+    assert list(here[0]) == list(there[0]) == ["template", "cnn"]   # report order, whichever ended first
     assert here[1] == there[1] == {}
     assert np.array_equal(here[0]["template"].codes_, there[0]["template"].codes_)
     a, b = here[0]["cnn"], there[0]["cnn"]
     assert all(np.array_equal(a.net_[k], b.net_[k]) for k in a.net_) and np.array_equal(a.embeddings_, b.embeddings_)
     assert np.array_equal(a.hog_codes_, b.hog_codes_)
+
+
+def test_final_model_jobs_merge_in_report_order_with_every_declined_reason():
+    from spm_model.bench.protocols import _merged
+
+    outputs = [({"cnn": "net"}, {}), ({"template": None}, {"template": "RuntimeError: boom"}), ({"spm": "rbf"}, {})]
+    fitted, declined = _merged(outputs, ("spm", "template", "cnn"))
+    assert list(fitted.items()) == [("spm", "rbf"), ("template", None), ("cnn", "net")]
+    assert declined == {"template": "RuntimeError: boom"}
+    assert _merged([], ()) == ({}, {})

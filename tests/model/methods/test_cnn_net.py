@@ -30,15 +30,17 @@ def test_a_network_saved_in_torchs_default_layout_loads_and_embeds_alike():
         net = cnn_net.make_net(torch, 32, 4, 8, 5).eval()
         assert net["features"][0].weight.is_contiguous(memory_format=torch.channels_last)
         old = net.to(memory_format=torch.contiguous_format)
+        assert old["features"][0].weight.is_contiguous()
+        assert not old["features"][0].weight.is_contiguous(memory_format=torch.channels_last)
         x = torch.from_numpy(np.random.default_rng(1).random((6, 2, 32, 32)).astype(np.float32))
         with torch.no_grad():
             before = torch.nn.functional.normalize(old["embed"](old["features"](x)), dim=1).numpy()
         arrays = cnn_net.state_arrays(old)
-        assert all(v.flags["C_CONTIGUOUS"] for v in arrays.values())
         again = cnn_net.net_from_arrays(torch, arrays, 32, 4, 8, 5)
         assert again["features"][0].weight.is_contiguous(memory_format=torch.channels_last)
         assert np.allclose(cnn_net.embed_all(torch, again, x.numpy(), "cpu"), before, atol=1e-5)
-        assert all(np.array_equal(v, arrays[k]) for k, v in cnn_net.state_arrays(again).items())
+        saved = cnn_net.state_arrays(again)   # from a channels-last net: C-ordered, the same values
+        assert all(v.flags["C_CONTIGUOUS"] and np.array_equal(v, arrays[k]) for k, v in saved.items())
 
 
 def test_training_lowers_the_loss_on_separable_targets_and_settings_are_restored():
