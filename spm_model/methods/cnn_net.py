@@ -83,7 +83,7 @@ def make_net(torch, side: int, width: int, embed: int, bins: int):
 def embeddings(torch, net, x):
     """Unit-length embeddings of a batch (n, 2, s, s) float tensor. The network and its input are in
     torch's channels-last layout: on a CPU a training step then runs about 1.6 times as fast as in
-    the default layout, an embedding about 2 times (benchmarks/cnn_layout.py; docs/method.md
+    the default layout, an embedding 1.5 to 2 times (benchmarks/cnn_layout.py; docs/method.md
     "Network"). The parameters' names and shapes (state_arrays, the model files) are those of either
     layout, and a network saved in one loads in the other; the sums round differently, so the two
     layouts' embeddings agree to float rounding, not bit for bit."""
