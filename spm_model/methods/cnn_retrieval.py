@@ -61,7 +61,7 @@ def cached_hogs(frames) -> np.ndarray | None:
 def hog_codes(hogs: np.ndarray, mean: np.ndarray, axes: np.ndarray) -> np.ndarray:
     """(n, HOG_SIZE) descriptors, the (HOG_SIZE,) mean and (HOG_SIZE, c) axes of template.hog_projection
     -> (n, c) float32 codes: template.project_hog's map (unit rows, centred, projected), in float32,
-    as the codes are kept (a tenth of its float64 time at 20,000 frames)."""
+    as the codes are kept (4 to 8 times faster than float64 on one thread at 20,000 frames)."""
     hogs = np.asarray(hogs, np.float32)
     unit = hogs / np.maximum(np.linalg.norm(hogs, axis=1, keepdims=True), np.float32(1e-12))
     return (unit - np.asarray(mean, np.float32)) @ np.asarray(axes, np.float32)
