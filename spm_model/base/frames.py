@@ -199,11 +199,17 @@ def camera_chunks(table, rows: np.ndarray):
     return [rows[i: i + step] for i in range(0, len(rows), step)]
 
 
+def cached_column(frames, name: str):
+    """``frames.column(name)`` when the sequence has it (Frames, CameraFrames), else None (a plain
+    list of frame dicts)."""
+    get = getattr(frames, "column", None)
+    return get(name) if get is not None else None
+
+
 def column(frames, name: str, compute) -> np.ndarray:
     """``frames.column(name)`` when the sequence has it, else ``compute(frame)``
     stacked over the frames (for plain lists of frame dicts)."""
-    get = getattr(frames, "column", None)
-    values = get(name) if get is not None else None
+    values = cached_column(frames, name)
     if values is not None:
         return values
     return np.stack([compute(f) for f in frames]) if len(frames) else np.zeros((0,))

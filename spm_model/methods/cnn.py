@@ -51,10 +51,10 @@ from spm_model.errors import ModelError
 from spm_model.base.estimator import PoseEstimator, check_fitted
 from spm_model.base.model_files import load_model_file, need, need_finite, save_model_file
 from spm_model.methods import cnn_net
-from spm_model.methods.cnn_retrieval import (SHORTLISTS, cached_hogs, crop_hogs, hog_codes, nearest_frames, uses_hog,
+from spm_model.methods.cnn_retrieval import (SHORTLISTS, cached_hogs, crop_hogs, nearest_frames, uses_hog,
                                              valid_shortlist)
 from spm_model.methods.descriptors import GEOMETRY, HOG_SIZE, SIDE, box_of, crop_box, masked_grey
-from spm_model.methods.template import distance_by_size, hog_projection, place
+from spm_model.methods.template import distance_by_size, hog_projection, place, project_hog
 
 CROP = SIDE   # the stored crop's side (the reference's 64): augmentation re-cuts the network's input from it
 AXES_ROWS = 2048   # at most this many training frames fit the HOG axes (seconds, not a minute, at 20k frames)
@@ -234,14 +234,14 @@ class CNNPose(PoseEstimator):
         hogs = kept if kept is not None and np.isfinite(kept).all() else crop_hogs(crops)
         mean, axes = hog_projection(hogs[:: -(-len(hogs) // AXES_ROWS)], self.hog_components)
         self.hog_mean_, self.hog_axes_ = mean.astype(np.float32), axes.astype(np.float32)
-        self.hog_codes_ = hog_codes(hogs, self.hog_mean_, self.hog_axes_)
+        self.hog_codes_ = project_hog(hogs, self.hog_mean_, self.hog_axes_, np.float32)
 
     def nearest(self, z: np.ndarray, crops: np.ndarray) -> np.ndarray:
         """(m, embed) unit embeddings of the queries, their (m, 2, CROP, CROP) crops -> (m,) index of the
         training frame each retrieves (spm_model/methods/cnn_retrieval.py; ``rerank`` is its shortlist)."""
         codes = None
         if uses_hog(self.rerank):
-            codes = hog_codes(crop_hogs(crops), self.hog_mean_, self.hog_axes_)
+            codes = project_hog(crop_hogs(crops), self.hog_mean_, self.hog_axes_, np.float32)
         return nearest_frames(z, self.embeddings_, codes, self.hog_codes_, self.hog_weight, self.rerank)
 
     def budget(self, frames: int) -> int:

@@ -2,7 +2,7 @@
 
 Each query has a unit embedding (the network's, (m, embed) float32) and, unless HOG is off, a HOG
 code (the reference's HOG of its 64 x 64 masked grey crop projected on the training frames' top
-principal axes, (m, c) float32; ``hog_codes`` below). A training frame j scores
+principal axes, (m, c) float32; template.py ``project_hog``). A training frame j scores
 
     cos(z, embeddings[j]) + weight x cos(HOG, codes[j])
 
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from spm_model.base.frames import cached_column
 from spm_model.methods.descriptors import HOG_SIZE, hog_descriptor
 
 BLOCK = 512   # queries scored at a time: 512 x 20,000 floats, not 4,000 x 20,000
@@ -53,18 +54,8 @@ def cached_hogs(frames) -> np.ndarray | None:
     dicts). The column holds exactly crop_hogs' descriptor (descriptors.template_descriptor: the same
     crop of the same masked grey image, the same HOG), so a benchmark split reads it instead of computing
     it again (about 1.4 s a split at 20,000 training frames); NaN rows where a frame's mask is empty."""
-    get = getattr(frames, "column", None)
-    cached = get("template") if get is not None else None
+    cached = cached_column(frames, "template")
     return None if cached is None else np.asarray(cached[:, :HOG_SIZE], np.float32)
-
-
-def hog_codes(hogs: np.ndarray, mean: np.ndarray, axes: np.ndarray) -> np.ndarray:
-    """(n, HOG_SIZE) descriptors, the (HOG_SIZE,) mean and (HOG_SIZE, c) axes of template.hog_projection
-    -> (n, c) float32 codes: template.project_hog's map (unit rows, centred, projected), in float32,
-    as the codes are kept (4 to 8 times faster than float64 on one thread at 20,000 frames)."""
-    hogs = np.asarray(hogs, np.float32)
-    unit = hogs / np.maximum(np.linalg.norm(hogs, axis=1, keepdims=True), np.float32(1e-12))
-    return (unit - np.asarray(mean, np.float32)) @ np.asarray(axes, np.float32)
 
 
 def nearest_frames(z: np.ndarray, embeddings: np.ndarray, codes: np.ndarray | None, hog_codes: np.ndarray,

@@ -200,14 +200,15 @@ def hog_projection(hog: np.ndarray, components: int) -> tuple[np.ndarray, np.nda
     return mean, _principal_axes(hog - mean, components)
 
 
-def project_hog(hog: np.ndarray, mean: np.ndarray, axes: np.ndarray) -> np.ndarray:
-    """(m, HOG_SIZE) descriptors -> (m, k) codes: unit rows, centred on ``mean``, on ``axes``. Two
-    codes' squared distance is that of the unit descriptors within the axes' span (2 - 2 cosine)."""
-    return (_unit(hog) - mean) @ axes
+def project_hog(hog: np.ndarray, mean: np.ndarray, axes: np.ndarray, dtype=np.float64) -> np.ndarray:
+    """(m, HOG_SIZE) descriptors -> (m, k) codes of ``dtype``: unit rows, centred on ``mean``, on ``axes``.
+    Two codes' squared distance is that of the unit descriptors within the axes' span (2 - 2 cosine).
+    The cnn keeps its codes in float32 (computed so, 4 to 8 times faster on one thread at 20,000 frames)."""
+    return (_unit(hog, dtype) - np.asarray(mean, dtype)) @ np.asarray(axes, dtype)
 
 
-def _unit(x: np.ndarray) -> np.ndarray:
-    x = np.asarray(x, dtype=np.float64)
+def _unit(x: np.ndarray, dtype=np.float64) -> np.ndarray:
+    x = np.asarray(x, dtype=dtype)
     return x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-12)
 
 

@@ -264,7 +264,8 @@ def test_a_model_file_saved_with_the_16_nearest_re_ranking_keeps_it(split, fitte
     """A file written when the default was the 16 nearest embeddings re-ranked with weight 2 loads with
     them, and retrieves exactly as nearest_frames does with that shortlist."""
     from spm_model.methods.cnn import cnn_net, frame_crops, net_input
-    from spm_model.methods.cnn_retrieval import crop_hogs, hog_codes, nearest_frames
+    from spm_model.methods.cnn_retrieval import crop_hogs, nearest_frames
+    from spm_model.methods.template import project_hog
     from spm_model.pipelines.evaluate import load_model
 
     train, poses, test, truth = split
@@ -275,7 +276,7 @@ def test_a_model_file_saved_with_the_16_nearest_re_ranking_keeps_it(split, fitte
     import torch
 
     z = cnn_net.embed_all(torch, loaded._net(torch), np.stack([net_input(c, loaded.side) for c in crops]), "cpu")
-    codes = hog_codes(crop_hogs(crops), loaded.hog_mean_, loaded.hog_axes_)
+    codes = project_hog(crop_hogs(crops), loaded.hog_mean_, loaded.hog_axes_, np.float32)
     picked = nearest_frames(z, loaded.embeddings_, codes, loaded.hog_codes_, 2.0, 16)
     assert np.allclose(loaded.predict(test)[:, :3], poses[picked, :3])
     assert np.array_equal(loaded.predict(test), old.predict(test))

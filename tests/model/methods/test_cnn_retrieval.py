@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from spm_model.methods.cnn_retrieval import BLOCK, cached_hogs, hog_codes, nearest_frames, uses_hog
+from spm_model.methods.cnn_retrieval import BLOCK, cached_hogs, nearest_frames, uses_hog
 from spm_model.methods.descriptors import HOG_SIZE
 from spm_model.methods.template import hog_projection, project_hog
 from tests.helpers import CachedFrames
@@ -61,14 +61,14 @@ def test_blocks_of_queries_pick_as_one_query_at_a_time(arrays):
         assert np.array_equal(together[::11], alone)
 
 
-def test_hog_codes_are_project_hogs_map_in_float32():
+def test_project_hog_in_float32_is_its_float64_map_rounded():
     rng = np.random.default_rng(3)
     hogs = rng.random((300, HOG_SIZE)).astype(np.float32)
     mean, axes = hog_projection(hogs[::3], 16)
-    codes = hog_codes(hogs, mean, axes)
+    codes = project_hog(hogs, mean, axes, np.float32)
     assert codes.dtype == np.float32 and codes.shape == (300, 16)
     assert np.allclose(codes, project_hog(hogs, mean, axes), atol=1e-5)
-    assert np.isfinite(hog_codes(np.zeros((2, HOG_SIZE)), mean, axes)).all()   # an all-zero descriptor
+    assert np.isfinite(project_hog(np.zeros((2, HOG_SIZE)), mean, axes, np.float32)).all()   # an all-zero descriptor
 
 
 def test_cached_hogs_read_the_template_column_and_nothing_without_it():
